@@ -1,0 +1,69 @@
+"""Shared click options and output helpers for every ``mst`` subcommand (light imports only)."""
+
+from __future__ import annotations
+
+import json
+import sys
+from collections.abc import Iterable, Iterator
+from contextlib import contextmanager
+from typing import Any
+
+import click
+
+json_option = click.option("--json", "as_json", is_flag=True, help="Print a machine-readable JSON summary on stdout.")
+quiet_option = click.option("-q", "--quiet", is_flag=True, help="No progress bar or summary on stderr.")
+
+
+def emit_json(obj: Any) -> None:
+    """Write ``obj`` as one JSON document on stdout (numpy scalars/arrays converted)."""
+
+    def default(o: Any) -> Any:
+        if hasattr(o, "tolist"):
+            return o.tolist()
+        if hasattr(o, "__fspath__"):
+            return str(o)
+        raise TypeError(f"not JSON serialisable: {type(o).__name__}")
+
+    sys.stdout.write(json.dumps(obj, indent=2, default=default, allow_nan=False) + "\n")
+    sys.stdout.flush()
+
+
+def info(msg: str, quiet: bool = False) -> None:
+    """A human message on stderr."""
+    if not quiet:
+        click.echo(msg, err=True)
+
+
+def stderr_console():
+    """A rich console on stderr (rich is imported lazily: it is not needed for --help)."""
+    from rich.console import Console
+
+    return Console(stderr=True)
+
+
+@contextmanager
+def progress_bar(total: int | None, description: str, quiet: bool = False) -> Iterator[Any]:
+    """A rich progress bar on stderr; yields ``advance(n=1)``. Silent with ``quiet``."""
+    if quiet:
+        yield lambda n=1: None
+        return
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+
+    cols = [TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), TimeRemainingColumn()]
+    with Progress(*cols, console=stderr_console(), transient=False) as prog:
+        task = prog.add_task(description, total=total)
+        yield lambda n=1: prog.advance(task, n)
+
+
+def print_table(title: str, columns: Iterable[str], rows: Iterable[Iterable[Any]], quiet: bool = False) -> None:
+    """A rich table on stderr."""
+    if quiet:
+        return
+    from rich.table import Table
+
+    t = Table(title=title)
+    for c in columns:
+        t.add_column(str(c), justify="right")
+    for r in rows:
+        t.add_row(*[str(x) for x in r])
+    stderr_console().print(t)

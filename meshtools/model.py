@@ -1,0 +1,111 @@
+"""The polygon model shared by every stage.
+
+Frames and units: vertices are in the *model frame*, metres (or the model file's unit).
+Each face is an outer loop of vertex indices ordered counter-clockwise when seen from outside the
+object, so the right-hand (Newell) normal points out; holes are loops ordered the other way.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass
+class PolygonModel:
+    """A polygon model: shared vertices, faces as index loops, optional holes and names.
+
+    Attributes
+    ----------
+    vertices : (N, 3) float64, model frame, metres.
+    faces : list of (k,) int64 arrays, the outer loop of each face (k >= 3).
+    holes : list (one entry per face) of lists of (m,) int64 loops; empty list = no hole.
+    names : list (one per face) of str or None.
+    lines : (L, 2) int64 extra 3D segments that belong to no face (ViSP ``.cao`` lines).
+    cylinders, circles : ViSP primitives kept verbatim as dicts (read, written, not tracked).
+    """
+
+    vertices: np.ndarray
+    faces: list[np.ndarray]
+    holes: list[list[np.ndarray]] = field(default_factory=list)
+    names: list[str | None] = field(default_factory=list)
+    lines: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.int64))
+    cylinders: list[dict] = field(default_factory=list)
+    circles: list[dict] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        self.vertices = np.asarray(self.vertices, dtype=np.float64).reshape(-1, 3)
+        self.faces = [np.asarray(f, dtype=np.int64).ravel() for f in self.faces]
+        if not self.holes:
+            self.holes = [[] for _ in self.faces]
+        self.holes = [[np.asarray(h, dtype=np.int64).ravel() for h in hs] for hs in self.holes]
+        if not self.names:
+            self.names = [None] * len(self.faces)
+        self.lines = np.asarray(self.lines, dtype=np.int64).reshape(-1, 2)
+        if len(self.holes) != len(self.faces) or len(self.names) != len(self.faces):
+            raise ValueError("holes and names need one entry per face")
+
+    # ------------------------------------------------------------------ basic queries
+    @property
+    def n_faces(self) -> int:
+        return len(self.faces)
+
+    @property
+    def n_holes(self) -> int:
+        return sum(len(h) for h in self.holes)
+
+    def loops(self) -> list[np.ndarray]:
+        """Every loop (outer loops and holes), in face order."""
+        out: list[np.ndarray] = []
+        for f, hs in zip(self.faces, self.holes):
+            out.append(f)
+            out.extend(hs)
+        return out
+
+    def edges(self) -> np.ndarray:
+        """(E, 2) unique undirected edges of all loops plus the extra lines, sorted per row."""
+        segs = [np.stack([lp, np.roll(lp, -1)], axis=1) for lp in self.loops() if len(lp) >= 2]
+        if len(self.lines):
+            segs.append(self.lines)
+        if not segs:
+            return np.zeros((0, 2), np.int64)
+        e = np.sort(np.concatenate(segs), axis=1)
+        e = e[e[:, 0] != e[:, 1]]
+        return np.unique(e, axis=0)
+
+    def face_normals(self) -> np.ndarray:
+        """(F, 3) unit Newell normals of the outer loops (zero rows for degenerate faces)."""
+        n = np.zeros((self.n_faces, 3))
+        for i, f in enumerate(self.faces):
+            p = self.vertices[f]
+            q = np.roll(p, -1, axis=0)
+            n[i] = np.cross(p, q).sum(axis=0) * 0.5  # vector area of the outer loop
+            for h in self.holes[i]:
+                ph = self.vertices[h]
+                n[i] += np.cross(ph, np.roll(ph, -1, axis=0)).sum(axis=0) * 0.5
+        norm = np.linalg.norm(n, axis=1, keepdims=True)
+        return np.divide(n, norm, out=np.zeros_like(n), where=norm > 0)
+
+    def face_areas(self) -> np.ndarray:
+        """(F,) area of each face (outer loop minus holes), square model units."""
+        a = np.zeros(self.n_faces)
+        for i, f in enumerate(self.faces):
+            vec = np.zeros(3)
+            for lp in [f, *self.holes[i]]:
+                p = self.vertices[lp] - self.vertices[f[0]]
+                vec += np.cross(p, np.roll(p, -1, axis=0)).sum(axis=0) * 0.5
+            a[i] = np.linalg.norm(vec)
+        return a
+
+    def bounds(self) -> np.ndarray:
+        """(2, 3) min and max corner of the vertices used by faces or lines."""
+        return np.stack([self.vertices.min(axis=0), self.vertices.max(axis=0)])
+
+    def check_finite(self, path: str | None = None) -> None:
+        """Raise :class:`mst.InputError` if any vertex coordinate is NaN or infinite."""
+        from mst import InputError
+
+        bad = ~np.isfinite(self.vertices).all(axis=1)
+        if bad.any():
+            raise InputError(path, f"{int(bad.sum())} vertices have NaN or infinite coordinates (first: #{int(np.argmax(bad))})")

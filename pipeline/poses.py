@@ -1,0 +1,280 @@
+"""Rigid poses, quaternions, SE(3) exp/log and pose/trajectory files.
+
+Conventions (used everywhere in mst):
+
+* Poses are 4x4 float64 homogeneous matrices. ``T_a_b`` maps points from frame *b* to frame *a*:
+  ``X_a = T_a_b @ X_b``. ``T_cam_model`` is ViSP's ``cMo``; ``T_model_cam`` is the camera pose in
+  model coordinates (what TUM files hold).
+* Camera frame: x right, y down, z forward (OpenCV/ViSP). Units: metres, radians internally.
+* Twists ``xi = (v, w)``: translation part first, rotation part second (ViSP's velocity order).
+* Quaternions in files are TUM order ``qx qy qz qw``.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from mst import InputError
+
+
+# ---------------------------------------------------------------------------- rotations
+def skew(w: np.ndarray) -> np.ndarray:
+    """(..., 3) -> (..., 3, 3) cross-product matrices."""
+    w = np.asarray(w, dtype=np.float64)
+    o = np.zeros(w.shape[:-1] + (3, 3))
+    o[..., 0, 1], o[..., 0, 2] = -w[..., 2], w[..., 1]
+    o[..., 1, 0], o[..., 1, 2] = w[..., 2], -w[..., 0]
+    o[..., 2, 0], o[..., 2, 1] = -w[..., 1], w[..., 0]
+    return o
+
+
+def so3_exp(w: np.ndarray) -> np.ndarray:
+    """Rotation vector(s) (..., 3) in radians -> rotation matrices (..., 3, 3) (Rodrigues)."""
+    w = np.asarray(w, dtype=np.float64)
+    th = np.linalg.norm(w, axis=-1)[..., None, None]
+    K = skew(w)
+    small = th < 1e-8
+    ths = np.where(small, 1.0, th)
+    a = np.where(small, 1.0 - th**2 / 6.0, np.sin(ths) / ths)
+    b = np.where(small, 0.5 - th**2 / 24.0, (1.0 - np.cos(ths)) / ths**2)
+    return np.eye(3) + a * K + b * (K @ K)
+
+
+def so3_log(R: np.ndarray) -> np.ndarray:
+    """Rotation matrices (..., 3, 3) -> rotation vectors (..., 3) in radians (robust near pi)."""
+    return quat_to_rotvec(quat_from_R(R))
+
+
+def quat_from_R(R: np.ndarray) -> np.ndarray:
+    """Rotation matrices (..., 3, 3) -> unit quaternions (..., 4) as (qx, qy, qz, qw), qw >= 0."""
+    R = np.asarray(R, dtype=np.float64)
+    m = R.reshape(-1, 3, 3)
+    tr = np.trace(m, axis1=1, axis2=2)
+    # Shepperd's method, vectorised: pick the largest of (w, x, y, z) for stability
+    cand = np.stack([tr, m[:, 0, 0], m[:, 1, 1], m[:, 2, 2]], axis=1)
+    k = np.argmax(cand, axis=1)
+    q = np.empty((len(m), 4))
+    for idx in range(4):
+        s = k == idx
+        if not s.any():
+            continue
+        r = m[s]
+        if idx == 0:
+            t = np.sqrt(1.0 + tr[s]) * 2
+            q[s] = np.stack([(r[:, 2, 1] - r[:, 1, 2]) / t, (r[:, 0, 2] - r[:, 2, 0]) / t, (r[:, 1, 0] - r[:, 0, 1]) / t, 0.25 * t], 1)
+        elif idx == 1:
+            t = np.sqrt(1.0 + r[:, 0, 0] - r[:, 1, 1] - r[:, 2, 2]) * 2
+            q[s] = np.stack([0.25 * t, (r[:, 0, 1] + r[:, 1, 0]) / t, (r[:, 0, 2] + r[:, 2, 0]) / t, (r[:, 2, 1] - r[:, 1, 2]) / t], 1)
+        elif idx == 2:
+            t = np.sqrt(1.0 + r[:, 1, 1] - r[:, 0, 0] - r[:, 2, 2]) * 2
+            q[s] = np.stack([(r[:, 0, 1] + r[:, 1, 0]) / t, 0.25 * t, (r[:, 1, 2] + r[:, 2, 1]) / t, (r[:, 0, 2] - r[:, 2, 0]) / t], 1)
+        else:
+            t = np.sqrt(1.0 + r[:, 2, 2] - r[:, 0, 0] - r[:, 1, 1]) * 2
+            q[s] = np.stack([(r[:, 0, 2] + r[:, 2, 0]) / t, (r[:, 1, 2] + r[:, 2, 1]) / t, 0.25 * t, (r[:, 1, 0] - r[:, 0, 1]) / t], 1)
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    q[q[:, 3] < 0] *= -1
+    return q.reshape(R.shape[:-2] + (4,))
+
+
+def R_from_quat(q: np.ndarray) -> np.ndarray:
+    """Quaternions (..., 4) as (qx, qy, qz, qw) (normalised here) -> rotation matrices (..., 3, 3)."""
+    q = np.asarray(q, dtype=np.float64)
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    x, y, z, w = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    R = np.empty(q.shape[:-1] + (3, 3))
+    R[..., 0, 0] = 1 - 2 * (y * y + z * z)
+    R[..., 0, 1] = 2 * (x * y - z * w)
+    R[..., 0, 2] = 2 * (x * z + y * w)
+    R[..., 1, 0] = 2 * (x * y + z * w)
+    R[..., 1, 1] = 1 - 2 * (x * x + z * z)
+    R[..., 1, 2] = 2 * (y * z - x * w)
+    R[..., 2, 0] = 2 * (x * z - y * w)
+    R[..., 2, 1] = 2 * (y * z + x * w)
+    R[..., 2, 2] = 1 - 2 * (x * x + y * y)
+    return R
+
+
+def quat_to_rotvec(q: np.ndarray) -> np.ndarray:
+    """(..., 4) (qx, qy, qz, qw) -> rotation vectors (..., 3), radians, angle in [0, pi]."""
+    q = np.asarray(q, dtype=np.float64)
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    q = np.where(q[..., 3:4] < 0, -q, q)
+    s = np.linalg.norm(q[..., :3], axis=-1)
+    ang = 2.0 * np.arctan2(s, q[..., 3])
+    scale = np.where(s < 1e-12, 2.0, ang / np.where(s < 1e-12, 1.0, s))
+    return q[..., :3] * scale[..., None]
+
+
+def rotation_angle_deg(R: np.ndarray) -> np.ndarray:
+    """Angle (degrees) of rotation matrices (..., 3, 3)."""
+    return np.degrees(np.linalg.norm(so3_log(R), axis=-1))
+
+
+# ---------------------------------------------------------------------------- SE(3)
+def make_T(R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Stack rotation(s) (..., 3, 3) and translation(s) (..., 3) into (..., 4, 4)."""
+    R = np.asarray(R, dtype=np.float64)
+    t = np.asarray(t, dtype=np.float64)
+    T = np.zeros(R.shape[:-2] + (4, 4))
+    T[..., :3, :3] = R
+    T[..., :3, 3] = t
+    T[..., 3, 3] = 1.0
+    return T
+
+
+def inv_T(T: np.ndarray) -> np.ndarray:
+    """Inverse of rigid transform(s) (..., 4, 4)."""
+    T = np.asarray(T, dtype=np.float64)
+    R = T[..., :3, :3]
+    Rt = np.swapaxes(R, -1, -2)
+    return make_T(Rt, -(Rt @ T[..., :3, 3:4])[..., 0])
+
+
+def transform_points(T: np.ndarray, X: np.ndarray) -> np.ndarray:
+    """Apply a 4x4 transform to (N, 3) points."""
+    X = np.asarray(X, dtype=np.float64)
+    return X @ T[:3, :3].T + T[:3, 3]
+
+
+def se3_exp(xi: np.ndarray) -> np.ndarray:
+    """Twist(s) (..., 6) = (v, w) -> (..., 4, 4) via the exact SE(3) exponential."""
+    xi = np.asarray(xi, dtype=np.float64)
+    v, w = xi[..., :3], xi[..., 3:]
+    R = so3_exp(w)
+    th = np.linalg.norm(w, axis=-1)[..., None, None]
+    K = skew(w)
+    small = th < 1e-8
+    ths = np.where(small, 1.0, th)
+    b = np.where(small, 0.5 - th**2 / 24.0, (1.0 - np.cos(ths)) / ths**2)
+    c = np.where(small, 1.0 / 6.0 - th**2 / 120.0, (ths - np.sin(ths)) / ths**3)
+    V = np.eye(3) + b * K + c * (K @ K)
+    return make_T(R, (V @ v[..., None])[..., 0])
+
+
+def se3_log(T: np.ndarray) -> np.ndarray:
+    """(..., 4, 4) -> twists (..., 6) = (v, w), inverse of :func:`se3_exp`."""
+    T = np.asarray(T, dtype=np.float64)
+    w = so3_log(T[..., :3, :3])
+    th = np.linalg.norm(w, axis=-1)[..., None, None]
+    K = skew(w)
+    small = th < 1e-8
+    ths = np.where(small, 1.0, th)
+    half = ths / 2.0
+    coef = np.where(small, 1.0 / 12.0, (1.0 - half * np.cos(half) / np.sin(np.where(small, 1.0, half))) / ths**2)
+    Vinv = np.eye(3) - 0.5 * K + coef * (K @ K)
+    v = (Vinv @ T[..., :3, 3:4])[..., 0]
+    return np.concatenate([v, w], axis=-1)
+
+
+def pose_error(T_est: np.ndarray, T_ref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Translation error (model units) and rotation error (degrees) between camera poses.
+
+    Both arguments are ``T_model_cam`` (camera poses in model coordinates), shape (..., 4, 4).
+    """
+    dt = np.linalg.norm(T_est[..., :3, 3] - T_ref[..., :3, 3], axis=-1)
+    dR = np.swapaxes(T_ref[..., :3, :3], -1, -2) @ T_est[..., :3, :3]
+    return dt, rotation_angle_deg(dR)
+
+
+# ---------------------------------------------------------------------------- files
+def tum_to_T(rows: np.ndarray) -> np.ndarray:
+    """(N, 7) rows ``tx ty tz qx qy qz qw`` -> (N, 4, 4) ``T_model_cam``."""
+    rows = np.asarray(rows, dtype=np.float64).reshape(-1, 7)
+    return make_T(R_from_quat(rows[:, 3:]), rows[:, :3])
+
+
+def T_to_tum(T_model_cam: np.ndarray) -> np.ndarray:
+    """(N, 4, 4) -> (N, 7) rows ``tx ty tz qx qy qz qw``."""
+    T = np.asarray(T_model_cam, dtype=np.float64).reshape(-1, 4, 4)
+    return np.concatenate([T[:, :3, 3], quat_from_R(T[:, :3, :3])], axis=1)
+
+
+def read_tum(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
+    """Read a TUM trajectory: returns ``(t (N,) seconds, T_model_cam (N, 4, 4))``.
+
+    Lines starting with ``#`` and blank lines are ignored; every other line needs 8 numbers.
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise InputError(p, "trajectory file does not exist")
+    rows = []
+    for ln, line in enumerate(p.read_text().splitlines(), 1):
+        s = line.strip()
+        if not s or s.startswith("#"):
+            continue
+        parts = s.replace(",", " ").split()
+        if len(parts) != 8:
+            raise InputError(p, f"line {ln}: expected 8 values 't tx ty tz qx qy qz qw', got {len(parts)}")
+        try:
+            rows.append([float(x) for x in parts])
+        except ValueError:
+            raise InputError(p, f"line {ln}: not a number") from None
+    if not rows:
+        raise InputError(p, "trajectory has no poses")
+    a = np.asarray(rows)
+    if not np.isfinite(a).all():
+        raise InputError(p, "trajectory holds NaN or infinite values")
+    return a[:, 0], tum_to_T(a[:, 1:])
+
+
+def format_tum(t: np.ndarray, T_model_cam: np.ndarray) -> str:
+    """TUM text for times ``t`` (seconds) and poses (N, 4, 4)."""
+    rows = T_to_tum(T_model_cam)
+    return "".join(f"{ti:.6f} " + " ".join(f"{v:.9f}" for v in r) + "\n" for ti, r in zip(np.atleast_1d(t), rows))
+
+
+def write_tum(path: str | os.PathLike, t: np.ndarray, T_model_cam: np.ndarray, header: str | None = None) -> None:
+    """Write a TUM trajectory (call inside :func:`mst.atomic_output` for atomicity)."""
+    text = format_tum(t, T_model_cam)
+    if header:
+        text = "".join(f"# {h}\n" for h in header.splitlines()) + text
+    Path(path).write_text(text)
+
+
+def read_pose_file(path: str | os.PathLike) -> np.ndarray:
+    """Read one pose and return ``T_cam_model`` (ViSP's cMo), 4x4.
+
+    Accepted, detected by the count of numbers (``#`` comments ignored):
+
+    * 16 (or 12): a 4x4 (or 3x4) model-to-camera matrix ``cMo``, row-major;
+    * 8: one TUM line ``t tx ty tz qx qy qz qw`` (camera pose in model coordinates);
+    * 7: ``tx ty tz qx qy qz qw`` (camera pose in model coordinates).
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise InputError(p, "pose file does not exist")
+    vals: list[float] = []
+    for line in p.read_text().splitlines():
+        s = line.split("#", 1)[0].replace(",", " ").strip()
+        try:
+            vals.extend(float(x) for x in s.split())
+        except ValueError:
+            raise InputError(p, f"not a number in line {line.strip()!r}") from None
+    a = np.asarray(vals)
+    if not np.isfinite(a).all():
+        raise InputError(p, "pose holds NaN or infinite values")
+    if len(a) in (16, 12):
+        T = np.eye(4)
+        T[: len(a) // 4] = a.reshape(-1, 4)
+        R = T[:3, :3]
+        if abs(np.linalg.det(R) - 1) > 1e-3 or np.abs(R.T @ R - np.eye(3)).max() > 1e-3:
+            raise InputError(p, "the 4x4 matrix is not a rigid transform (rotation part not orthonormal)")
+        U, _, Vt = np.linalg.svd(R)
+        T[:3, :3] = U @ Vt
+        return T
+    if len(a) in (7, 8):
+        return inv_T(tum_to_T(a[-7:])[0])
+    raise InputError(p, f"{len(a)} numbers: expected 16 (4x4 cMo matrix), 8 (TUM line) or 7")
+
+
+def write_pose_file(path: str | os.PathLike, T_cam_model: np.ndarray, t: float = 0.0) -> None:
+    """Write one pose as a TUM line (camera pose in model coordinates) with a cMo comment."""
+    T = np.asarray(T_cam_model, dtype=np.float64)
+    cmo = "\n".join("# " + " ".join(f"{v: .9f}" for v in row) for row in T)
+    Path(path).write_text(
+        "# mst pose: TUM line 't tx ty tz qx qy qz qw' (camera pose in model frame)\n"
+        "# cMo (model-to-camera, 4x4) for reference:\n" + cmo + "\n" + format_tum(np.array([t]), inv_T(T)[None])
+    )
