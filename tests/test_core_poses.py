@@ -1,0 +1,95 @@
+"""Poses, quaternions, SE(3) and pose/trajectory files (mst.pipeline.poses)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from mst import InputError
+from mst.pipeline import poses as P
+
+RNG = np.random.default_rng(0)
+
+
+def random_T(n: int) -> np.ndarray:
+    xi = np.concatenate([RNG.normal(0, 2, (n, 3)), RNG.uniform(-np.pi, np.pi, (n, 3)) * 0.57], axis=1)
+    return P.se3_exp(xi)
+
+
+def test_se3_exp_log_roundtrip_and_small_angles():
+    xi = np.concatenate([RNG.normal(0, 1, (200, 3)), RNG.normal(0, 1, (200, 3))], axis=1)
+    xi[:5, 3:] *= 1e-10  # near-identity rotations take the series branch
+    T = P.se3_exp(xi)
+    assert np.allclose(T[:, :3, :3] @ np.swapaxes(T[:, :3, :3], 1, 2), np.eye(3), atol=1e-12)
+    back = P.se3_exp(P.se3_log(T))
+    assert np.abs(back - T).max() < 1e-10
+
+
+def test_so3_exp_matches_opencv_rodrigues():
+    import cv2
+
+    w = RNG.normal(0, 1, 3)
+    R_cv, _ = cv2.Rodrigues(w)
+    assert np.abs(P.so3_exp(w) - R_cv).max() < 1e-12
+
+
+def test_quaternion_roundtrip_including_180_degrees():
+    R = P.so3_exp(np.array([[np.pi, 0, 0], [0, np.pi, 0], [0, 0, np.pi], [1, 2, 3]]) * [[1], [1], [1], [0.3]])
+    q = P.quat_from_R(R)
+    assert np.allclose(np.linalg.norm(q, axis=1), 1)
+    assert np.abs(P.R_from_quat(q) - R).max() < 1e-12
+    # angle of a 180-degree rotation
+    assert np.allclose(P.rotation_angle_deg(R[:3]), 180.0)
+
+
+def test_tum_write_read_roundtrip(tmp_path):
+    T = random_T(50)
+    t = np.arange(50) / 30.0
+    f = tmp_path / "traj.txt"
+    P.write_tum(f, t, T, header="generated")
+    t2, T2 = P.read_tum(f)
+    assert np.allclose(t2, t, atol=1e-6)
+    assert np.abs(T2 - T).max() < 1e-8
+    assert f.read_text().startswith("# generated\n")
+
+
+def test_pose_file_tum_and_cmo_forms_agree(tmp_path):
+    T_cam_model = random_T(1)[0]
+    a = tmp_path / "pose.txt"
+    P.write_pose_file(a, T_cam_model)
+    assert np.abs(P.read_pose_file(a) - T_cam_model).max() < 1e-8
+    b = tmp_path / "cMo.txt"
+    b.write_text("\n".join(" ".join(f"{v:.12f}" for v in row) for row in T_cam_model))
+    assert np.abs(P.read_pose_file(b) - T_cam_model).max() < 1e-10
+
+
+@pytest.mark.parametrize(
+    "content, msg",
+    [("1 2 3\n", "3 numbers"), ("a b c d e f g h\n", "not a number"), ("0 0 0 0 0 0 0 nan\n", "NaN"),
+     ("\n".join(["2 0 0 0", "0 1 0 0", "0 0 1 0", "0 0 0 1"]), "not a rigid transform")],
+)
+def test_bad_pose_files_raise_input_error(tmp_path, content, msg):
+    f = tmp_path / "bad.txt"
+    f.write_text(content)
+    with pytest.raises(InputError, match=msg):
+        P.read_pose_file(f)
+
+
+def test_read_tum_errors(tmp_path):
+    with pytest.raises(InputError, match="does not exist"):
+        P.read_tum(tmp_path / "missing.txt")
+    f = tmp_path / "t.txt"
+    f.write_text("# only a comment\n")
+    with pytest.raises(InputError, match="no poses"):
+        P.read_tum(f)
+    f.write_text("0 1 2 3 0 0 0\n")
+    with pytest.raises(InputError, match="line 1: expected 8 values"):
+        P.read_tum(f)
+
+
+def test_pose_error_units():
+    T = np.eye(4)
+    T2 = P.make_T(P.so3_exp(np.array([0, 0, np.radians(2.0)])), [0.3, 0.4, 0])
+    dt, dr = P.pose_error(T2, T)
+    assert dt == pytest.approx(0.5)
+    assert dr == pytest.approx(2.0)
