@@ -109,3 +109,15 @@ class PolygonModel:
         bad = ~np.isfinite(self.vertices).all(axis=1)
         if bad.any():
             raise InputError(path, f"{int(bad.sum())} vertices have NaN or infinite coordinates (first: #{int(np.argmax(bad))})")
+
+    # ------------------------------------------------------------------ conversions
+    def triangulate(self, return_index: bool = False):
+        """Triangulate every face (holes included) with earcut in the face's plane.
+
+        Returns ``(V, F)``: V (N, 3) float64 = ``self.vertices`` (model frame, metres), F (M, 3) int64
+        triangles wound like their polygon (right-hand normal out). With ``return_index=True`` also
+        the (M,) source face index of each triangle. See :func:`mst.meshtools.io.triangulate_model`.
+        """
+        from mst.meshtools.io import triangulate_model
+
+        return triangulate_model(self, return_index=return_index)

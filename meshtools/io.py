@@ -1,0 +1,1116 @@
+"""Read and write polygon models and triangle meshes.
+
+Formats (chosen by suffix, case-insensitive):
+
+========================  ======  ======  ===========================================================
+suffix                    read    write   notes
+========================  ======  ======  ===========================================================
+``.obj``                  yes     yes     polygon faces kept (``f`` with any vertex count), ``l`` lines,
+                                          ``o``/``g`` names; negative indices and ``v/vt/vn`` accepted
+``.wrl`` ``.vrml``        yes     yes     VRML 2.0 ``IndexedFaceSet`` polygons, several ``Shape``\\ s,
+                                          ``Transform``/``Group`` nesting (translation, rotation, scale,
+                                          center, scaleOrientation), ``DEF``/``USE``
+``.cao``                  yes     yes     ViSP model V1: points, lines, faces from lines, faces from
+                                          points, cylinders, circles, ``load("sub.cao", t=[..], tu=[..])``
+``.off``                  yes     no      polygon faces kept
+``.ply`` ``.stl``         yes     no      through trimesh (triangles)
+``.json`` ``.city.json``  yes     no      CityJSON 1.0-2.0: every surface of every city object (highest
+                                          LoD per object), vertex transform applied, holes kept
+========================  ======  ======  ===========================================================
+
+Holes on write: VRML ``IndexedFaceSet`` and ViSP ``.cao`` polygons cannot carry holes, and ViSP's
+reader accepts only one index loop per face. A face with holes is therefore written as ONE
+weakly-simple polygon: each hole is cut open by a *bridge* (a pair of coincident, opposite edges
+from a vertex of the outer loop, or of an already bridged hole, to the nearest visible vertex of the
+hole). The polygon encloses exactly the face's area, its outline draws every edge of the outer loop
+and holes, and it triangulates correctly with ear clipping. OBJ keeps the same convention so that
+all three writers agree. The bridge edges are not image edges: a tracker sees them as segments
+whose two sides are the same face and so can drop them (they are the only edges used twice by one
+polygon).
+
+Every loop is written starting at a strictly convex corner, so the first three points of a polygon
+give its outward normal (ViSP computes visibility from them).
+
+Units and frames: vertices are in the model frame, in the file's unit (metres for mst models).
+Bad files raise :class:`mst.InputError` naming the file and the problem.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import re
+from pathlib import Path
+
+import numpy as np
+
+from mst import InputError, require_file
+from mst.meshtools.model import PolygonModel
+
+MODEL_SUFFIXES = (".obj", ".wrl", ".vrml", ".cao", ".off", ".ply", ".stl", ".json")
+WRITE_SUFFIXES = (".obj", ".wrl", ".vrml", ".cao")
+
+
+def _suffix(path: Path) -> str:
+    name = path.name.lower()
+    if name.endswith(".city.json"):
+        return ".json"
+    return path.suffix.lower()
+
+
+# ====================================================================== public API
+def load_model(path: str | os.PathLike) -> PolygonModel:
+    """Read a polygon model (see the module docstring for formats).
+
+    Raises :class:`mst.InputError` for a missing, unreadable, corrupt or empty file, for indices out
+    of range, and for NaN or infinite coordinates.
+    """
+    p = require_file(path, "model file")
+    suf = _suffix(p)
+    try:
+        if suf == ".obj":
+            m = read_obj(p)
+        elif suf in (".wrl", ".vrml"):
+            m = read_vrml(p)
+        elif suf == ".cao":
+            m = read_cao(p)
+        elif suf == ".off":
+            m = read_off(p)
+        elif suf in (".ply", ".stl"):
+            V, F = _trimesh_load(p)
+            m = PolygonModel(V, list(F))
+        elif suf == ".json":
+            m = read_cityjson(p)
+        else:
+            raise InputError(p, f"unknown model format {p.suffix!r} (expected one of {', '.join(MODEL_SUFFIXES)})")
+    except InputError:
+        raise
+    except UnicodeDecodeError:
+        raise InputError(p, f"not a text {suf} file (binary or wrong encoding)") from None
+    except (ValueError, IndexError, KeyError, TypeError) as e:
+        raise InputError(p, f"corrupt {suf} file: {e}") from None
+    _validate(m, p)
+    return m
+
+
+def load_triangles(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
+    """Read any supported model as a triangle mesh.
+
+    Returns ``V`` (N, 3) float64 (model frame, file units, normally metres) and ``F`` (M, 3) int64.
+    Polygons (with holes) are triangulated with earcut; triangle files (OBJ/PLY/STL/OFF with only
+    triangles) keep their vertices and faces exactly as stored (no welding, no reordering).
+    """
+    p = require_file(path, "mesh file")
+    suf = _suffix(p)
+    if suf in (".ply", ".stl"):
+        try:
+            V, F = _trimesh_load(p)
+        except InputError:
+            raise
+        except Exception as e:  # noqa: BLE001 - trimesh raises many types on corrupt files
+            raise InputError(p, f"cannot read mesh: {e}") from None
+        _check_arrays(V, F, p)
+        return V, F
+    if suf == ".obj":
+        fast = _read_obj_triangles_fast(p)
+        if fast is not None:
+            V, F = fast
+            _check_arrays(V, F, p)
+            return V, F
+    m = load_model(p)
+    V, F = m.triangulate()
+    _check_arrays(V, F, p)
+    return V, F
+
+
+def save_model(path: str | os.PathLike, model: PolygonModel) -> None:
+    """Write ``model`` to ``path`` (.wrl, .cao or .obj by suffix). Holes are bridged (module doc).
+
+    The file is written as given: wrap the call in :func:`mst.atomic_output` for all-or-nothing
+    output in a stage.
+    """
+    p = Path(path)
+    suf = _suffix(p)
+    if suf in (".wrl", ".vrml"):
+        text = vrml_text(model)
+    elif suf == ".cao":
+        text = cao_text(model)
+    elif suf == ".obj":
+        text = obj_text(model)
+    else:
+        raise InputError(p, f"cannot write {p.suffix!r} (expected one of {', '.join(WRITE_SUFFIXES)})")
+    with open(p, "w", encoding="utf-8", newline="\n") as fh:
+        fh.write(text)
+
+
+def save_triangles(path: str | os.PathLike, V: np.ndarray, F: np.ndarray) -> None:
+    """Write a triangle mesh: ``.obj`` (fast text writer) or anything trimesh exports (.ply, .stl, .off)."""
+    p = Path(path)
+    V = np.asarray(V, np.float64)
+    F = np.asarray(F, np.int64)
+    if _suffix(p) == ".obj":
+        with open(p, "w", encoding="utf-8", newline="\n") as fh:
+            fh.write(f"# {len(V)} vertices, {len(F)} triangles\n")
+            fh.write(_fmt_rows("v", V))
+            fh.write(_fmt_rows("f", F + 1))
+        return
+    import trimesh
+
+    trimesh.Trimesh(V, F, process=False).export(p)
+
+
+# ====================================================================== checks
+def _check_arrays(V: np.ndarray, F: np.ndarray, path) -> None:
+    if len(F) == 0:
+        raise InputError(path, "no faces in the mesh")
+    bad = ~np.isfinite(V).all(axis=1)
+    if bad.any():
+        raise InputError(path, f"{int(bad.sum())} vertices have NaN or infinite coordinates (first: #{int(np.argmax(bad))})")
+    if F.min() < 0 or F.max() >= len(V):
+        raise InputError(path, f"face index out of range (vertices: {len(V)}, index {int(F.max() if F.max() >= len(V) else F.min())})")
+
+
+def _validate(m: PolygonModel, path) -> None:
+    if m.n_faces == 0 and len(m.lines) == 0 and not m.cylinders and not m.circles:
+        raise InputError(path, "no faces in the model")
+    m.check_finite(str(path))
+    n = len(m.vertices)
+    for i, lp in enumerate(m.loops()):
+        if len(lp) and (lp.min() < 0 or lp.max() >= n):
+            raise InputError(path, f"loop {i} has a vertex index out of range (vertices: {n})")
+    for i, f in enumerate(m.faces):
+        if len(f) < 3:
+            raise InputError(path, f"face {i} has {len(f)} vertices (need at least 3)")
+    if len(m.lines) and (m.lines.min() < 0 or m.lines.max() >= n):
+        raise InputError(path, f"line vertex index out of range (vertices: {n})")
+
+
+def _trimesh_load(p: Path) -> tuple[np.ndarray, np.ndarray]:
+    import trimesh
+
+    try:
+        mesh = trimesh.load(p, force="mesh", process=False)
+    except Exception as e:  # noqa: BLE001
+        raise InputError(p, f"cannot read mesh: {e}") from None
+    V = np.asarray(mesh.vertices, np.float64)
+    F = np.asarray(mesh.faces, np.int64).reshape(-1, 3)
+    if len(F) == 0:
+        raise InputError(p, "no faces in the mesh")
+    return V, F
+
+
+# ====================================================================== number formatting
+def _fmt_num(x: float) -> str:
+    """Shortest text that reads back to the same float64 (``repr``), integers without ``.0``."""
+    x = float(x)
+    if x == 0.0:
+        return "0"
+    if x.is_integer() and abs(x) < 1e15:
+        return str(int(x))
+    return repr(x)
+
+
+def _fmt_rows(tag: str, A: np.ndarray) -> str:
+    """Rows of numbers as ``tag a b c`` lines (vectorised enough for millions of rows)."""
+    if len(A) == 0:
+        return ""
+    if A.dtype.kind in "iu":
+        lines = [" ".join(map(str, r)) for r in A.tolist()]
+    else:
+        lines = [" ".join(map(_fmt_num, r)) for r in A.tolist()]
+    pre = f"{tag} " if tag else ""
+    return pre + ("\n" + pre).join(lines) + "\n"
+
+
+# ====================================================================== OBJ
+def _read_obj_triangles_fast(p: Path) -> tuple[np.ndarray, np.ndarray] | None:
+    """Vectorised OBJ reader for pure triangle files (``v`` and ``f a b c`` without slashes).
+
+    Returns None when the file has anything else (the general reader handles it).
+    """
+    data = p.read_bytes()
+    if b"/" in data or b"\\\n" in data:
+        return None
+    lines = data.split(b"\n")
+    vl = [ln[2:] for ln in lines if ln[:2] == b"v "]
+    fl = [ln[2:] for ln in lines if ln[:2] == b"f "]
+    other = [ln for ln in lines if ln[:2] not in (b"v ", b"f ") and ln.strip() and not ln.lstrip().startswith(b"#")]
+    if other or not fl:
+        return None
+    try:
+        V = np.array(b" ".join(vl).split(), dtype=np.float64)
+        F = np.array(b" ".join(fl).split(), dtype=np.int64)
+    except ValueError:
+        return None
+    if len(V) != 3 * len(vl) or len(F) != 3 * len(fl):
+        return None
+    V = V.reshape(-1, 3)
+    F = F.reshape(-1, 3)
+    F = np.where(F < 0, F + len(V), F - 1)
+    return V, F
+
+
+def read_obj(p: Path) -> PolygonModel:
+    """Wavefront OBJ with polygon faces kept; ``o``/``g`` names become face names; ``l`` lines kept."""
+    V: list[list[float]] = []
+    faces: list[list[int]] = []
+    names: list[str | None] = []
+    lines: list[tuple[int, int]] = []
+    name: str | None = None
+    with open(p, encoding="utf-8", errors="strict") as fh:
+        text = fh.read().replace("\\\n", " ")
+    for lineno, raw in enumerate(text.splitlines(), 1):
+        s = raw.split("#", 1)[0].split()
+        if not s:
+            continue
+        tag = s[0]
+        if tag == "v":
+            if len(s) < 4:
+                raise InputError(p, f"line {lineno}: vertex needs 3 coordinates")
+            V.append([float(s[1]), float(s[2]), float(s[3])])
+        elif tag in ("f", "l"):
+            idx = []
+            for tok in s[1:]:
+                i = int(tok.split("/", 1)[0])
+                idx.append(i - 1 if i > 0 else len(V) + i)
+            if tag == "f":
+                faces.append(idx)
+                names.append(name)
+            else:
+                lines.extend(zip(idx[:-1], idx[1:]))
+        elif tag in ("o", "g"):
+            name = " ".join(s[1:]) or None
+    return PolygonModel(np.array(V, np.float64).reshape(-1, 3), faces, names=names,
+                        lines=np.array(lines, np.int64).reshape(-1, 2))
+
+
+def obj_text(model: PolygonModel) -> str:
+    """OBJ text: ``v`` lines, then ``f`` lines (1-based, holes bridged), ``g name`` when the name changes."""
+    out = [f"# mst polygon model: {len(model.vertices)} vertices, {model.n_faces} faces\n", _fmt_rows("v", model.vertices)]
+    cur = None
+    for f, name in zip(_output_loops(model), model.names):
+        if name != cur:
+            out.append(f"g {_token(name) if name else 'default'}\n")
+            cur = name
+        out.append("f " + " ".join(str(int(i) + 1) for i in f) + "\n")
+    if len(model.lines):
+        out.append(_fmt_rows("l", model.lines + 1))
+    return "".join(out)
+
+
+def _token(name: str) -> str:
+    return re.sub(r"\s+", "_", str(name).strip()) or "_"
+
+
+# ====================================================================== OFF
+def read_off(p: Path) -> PolygonModel:
+    """OFF (``OFF`` header, counts, vertices, ``n i0 .. in-1`` faces; polygons kept, colours ignored)."""
+    toks_lines = []
+    with open(p, encoding="utf-8") as fh:
+        for raw in fh:
+            s = raw.split("#", 1)[0].split()
+            if s:
+                toks_lines.append(s)
+    if not toks_lines or not toks_lines[0][0].upper().endswith("OFF"):
+        raise InputError(p, "not an OFF file (no OFF header)")
+    head = toks_lines[0][1:] or toks_lines[1]
+    start = 1 if toks_lines[0][1:] else 2
+    nv, nf = int(head[0]), int(head[1])
+    rows = toks_lines[start:]
+    if len(rows) < nv + nf:
+        raise InputError(p, f"truncated: {nv} vertices and {nf} faces announced, {len(rows)} rows found")
+    V = np.array([[float(x) for x in r[:3]] for r in rows[:nv]], np.float64).reshape(-1, 3)
+    faces = []
+    for r in rows[nv:nv + nf]:
+        k = int(r[0])
+        faces.append([int(x) for x in r[1:1 + k]])
+    return PolygonModel(V, faces)
+
+
+# ====================================================================== VRML 2.0
+_VRML_TOKEN = re.compile(r'\s*(?:(#[^\n]*)|("(?:[^"\\]|\\.)*")|([{}\[\]])|([^\s,{}\[\]"#]+))|\s*,', re.S)
+
+
+class _VrmlParser:
+    """A small recursive-descent VRML 2.0 parser for geometry (nesting depth = scene depth only)."""
+
+    GROUPS = {"Transform", "Group", "Anchor", "Billboard", "Collision", "LOD", "Switch", "Inline"}
+
+    def __init__(self, text: str, path: Path):
+        self.t = text
+        self.i = 0
+        self.path = path
+        self.defs: dict[str, tuple] = {}
+        self.V: list[np.ndarray] = []
+        self.faces: list[np.ndarray] = []
+        self.names: list[str | None] = []
+        self.nv = 0
+
+    # -- scanning
+    def peek(self) -> str | None:
+        j = self.i
+        while True:
+            m = _VRML_TOKEN.match(self.t, j)
+            if not m or m.end() == j:
+                return None
+            if m.group(1) is not None or (m.group(2) is None and m.group(3) is None and m.group(4) is None):
+                j = m.end()
+                continue
+            return m.group(2) or m.group(3) or m.group(4)
+
+    def next(self) -> str:
+        while True:
+            m = _VRML_TOKEN.match(self.t, self.i)
+            if not m or m.end() == self.i:
+                if self.t[self.i:].strip():
+                    raise InputError(self.path, f"VRML syntax error near offset {self.i}")
+                raise InputError(self.path, "unexpected end of VRML file")
+            self.i = m.end()
+            if m.group(1) is not None or (m.group(2) is None and m.group(3) is None and m.group(4) is None):
+                continue
+            return m.group(2) or m.group(3) or m.group(4)
+
+    def expect(self, tok: str) -> None:
+        got = self.next()
+        if got != tok:
+            raise InputError(self.path, f"VRML syntax error near offset {self.i}: expected {tok!r}, got {got!r}")
+
+    def numbers(self, k: int) -> list[float]:
+        return [float(self.next()) for _ in range(k)]
+
+    def mf_numbers(self) -> np.ndarray:
+        """An MF numeric field: ``[ n, n, ... ]`` parsed in one numpy call, or a single value."""
+        if self.peek() != "[":
+            return np.array([float(self.next())])
+        self.expect("[")
+        j = self.t.find("]", self.i)
+        if j < 0:
+            raise InputError(self.path, "unterminated '[' in VRML file")
+        chunk = self.t[self.i:j]
+        if "#" in chunk:
+            chunk = re.sub(r"#[^\n]*", " ", chunk)
+        chunk = chunk.replace(",", " ")
+        vals = chunk.split()
+        try:
+            arr = np.array(vals, dtype=np.float64)
+        except ValueError:
+            raise InputError(self.path, f"non-numeric value in a VRML array near offset {self.i}") from None
+        self.i = j + 1
+        return arr
+
+    def skip_value(self) -> None:
+        tok = self.peek()
+        if tok is None:
+            raise InputError(self.path, "unexpected end of VRML file")
+        if tok == "[":
+            self.skip_balanced("[", "]")
+        elif tok in ("DEF", "USE") or (tok[0].isalpha() and self._next_is_brace()):
+            self.node()
+        else:
+            # SF values: numbers, TRUE/FALSE, a string, NULL
+            self.next()
+            while True:
+                nt = self.peek()
+                if nt is None or not _is_number(nt):
+                    break
+                self.next()
+
+    def _next_is_brace(self) -> bool:
+        save = self.i
+        self.next()
+        ok = self.peek() == "{"
+        self.i = save
+        return ok
+
+    def skip_balanced(self, op: str, cl: str) -> None:
+        self.expect(op)
+        depth = 1
+        while depth:
+            tok = self.next()
+            if tok == op:
+                depth += 1
+            elif tok == cl:
+                depth -= 1
+
+    # -- nodes: a node returns a "scene" = list of (V (n,3), faces, names) after its own transform
+    def scene(self) -> None:
+        while self.peek() is not None:
+            tok = self.peek()
+            if tok == "ROUTE":
+                for _ in range(4):
+                    self.next()
+                continue
+            if tok in ("PROTO", "EXTERNPROTO"):
+                self.next()
+                self.next()
+                self.skip_balanced("[", "]")
+                if tok == "PROTO":
+                    self.skip_balanced("{", "}")
+                else:
+                    self.skip_value()
+                continue
+            for V, faces, name in self.node():
+                self._emit(V, faces, name)
+
+    def _emit(self, V: np.ndarray, faces: list[np.ndarray], name: str | None) -> None:
+        self.V.append(V)
+        for f in faces:
+            self.faces.append(f + self.nv)
+            self.names.append(name)
+        self.nv += len(V)
+
+    def node(self) -> list[tuple]:
+        tok = self.next()
+        if tok == "USE":
+            name = self.next()
+            if name not in self.defs:
+                raise InputError(self.path, f"USE of undefined node {name!r}")
+            return self.defs[name]
+        defname = None
+        if tok == "DEF":
+            defname = self.next()
+            tok = self.next()
+        ntype = tok
+        self.expect("{")
+        out: list[tuple] = []
+        if ntype in self.GROUPS:
+            out = self._group(ntype, defname)
+        elif ntype == "Shape":
+            out = self._shape(defname)
+        elif ntype == "IndexedFaceSet":
+            out = [("ifs", *self._ifs())]
+        elif ntype == "Coordinate":
+            out = [("coord", self._coordinate())]
+        else:
+            self._skip_fields()
+        if defname is not None:
+            self.defs[defname] = out
+        return out
+
+    def _skip_fields(self) -> None:
+        while self.peek() != "}":
+            self.next()
+            self.skip_value()
+        self.expect("}")
+
+    def _group(self, ntype: str, defname: str | None) -> list[tuple]:
+        T = {"translation": np.zeros(3), "rotation": np.array([0, 0, 1, 0.0]), "scale": np.ones(3),
+             "center": np.zeros(3), "scaleOrientation": np.array([0, 0, 1, 0.0])}
+        kids: list[tuple] = []
+        while self.peek() != "}":
+            f = self.next()
+            if f in ("children", "level", "choice"):
+                if self.peek() == "[":
+                    self.expect("[")
+                    while self.peek() != "]":
+                        kids.extend(self.node())
+                    self.expect("]")
+                else:
+                    kids.extend(self.node())
+            elif f in ("translation", "scale", "center") and ntype == "Transform":
+                T[f] = np.array(self.numbers(3))
+            elif f in ("rotation", "scaleOrientation") and ntype == "Transform":
+                T[f] = np.array(self.numbers(4))
+            else:
+                self.skip_value()
+        self.expect("}")
+        if ntype == "Switch":
+            kids = kids[:1]
+        if ntype != "Transform":
+            return kids
+        M = _vrml_transform(T)
+        return [(V @ M[:3, :3].T + M[:3, 3], faces, name) for V, faces, name in kids]
+
+    def _shape(self, defname: str | None) -> list[tuple]:
+        geo = []
+        while self.peek() != "}":
+            f = self.next()
+            if f == "geometry":
+                if self.peek() == "NULL":
+                    self.next()
+                    continue
+                save_name = self.peek()
+                got = self.node()
+                geo = [g for g in got if g and g[0] == "ifs"]
+                if save_name == "DEF" and defname is None:
+                    pass
+            else:
+                self.skip_value()
+        self.expect("}")
+        out = []
+        for _, V, faces, gname in geo:
+            out.append((V, faces, gname or defname))
+        return out
+
+    def _coordinate(self) -> np.ndarray:
+        P = np.zeros((0, 3))
+        while self.peek() != "}":
+            f = self.next()
+            if f == "point":
+                a = self.mf_numbers()
+                if len(a) % 3:
+                    raise InputError(self.path, f"Coordinate point has {len(a)} numbers (not a multiple of 3)")
+                P = a.reshape(-1, 3)
+            else:
+                self.skip_value()
+        self.expect("}")
+        return P
+
+    def _ifs(self) -> tuple[np.ndarray, list[np.ndarray], str | None]:
+        P = None
+        idx = np.zeros(0)
+        while self.peek() != "}":
+            f = self.next()
+            if f == "coord":
+                if self.peek() == "NULL":
+                    self.next()
+                    continue
+                got = self.node()
+                cs = [g for g in got if g and g[0] == "coord"]
+                if cs:
+                    P = cs[0][1]
+            elif f == "coordIndex":
+                idx = self.mf_numbers()
+            else:
+                self.skip_value()
+        self.expect("}")
+        if P is None:
+            raise InputError(self.path, "IndexedFaceSet without Coordinate points")
+        idx = idx.astype(np.int64)
+        faces = _split_minus_one(idx)
+        for f in faces:
+            if len(f) and (f.min() < 0 or f.max() >= len(P)):
+                raise InputError(self.path, f"coordIndex {int(f.max())} out of range ({len(P)} points)")
+        return P, faces, None
+
+
+def _split_minus_one(idx: np.ndarray) -> list[np.ndarray]:
+    if len(idx) == 0:
+        return []
+    if idx[-1] != -1:
+        idx = np.append(idx, -1)
+    ends = np.flatnonzero(idx == -1)
+    starts = np.concatenate([[0], ends[:-1] + 1])
+    return [idx[s:e] for s, e in zip(starts, ends) if e > s]
+
+
+def _is_number(tok: str) -> bool:
+    try:
+        float(tok)
+        return True
+    except ValueError:
+        return tok in ("TRUE", "FALSE")
+
+
+def _axis_angle(r: np.ndarray) -> np.ndarray:
+    axis = np.asarray(r[:3], float)
+    n = np.linalg.norm(axis)
+    if n == 0 or r[3] == 0:
+        return np.eye(3)
+    k = axis / n
+    K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    a = float(r[3])
+    return np.eye(3) + math.sin(a) * K + (1 - math.cos(a)) * (K @ K)
+
+
+def _vrml_transform(T: dict) -> np.ndarray:
+    """4x4 of a VRML Transform: T * C * R * SR * S * -SR * -C (VRML 2.0 spec order)."""
+    def h(R=None, t=None):
+        M = np.eye(4)
+        if R is not None:
+            M[:3, :3] = R
+        if t is not None:
+            M[:3, 3] = t
+        return M
+
+    SR = _axis_angle(T["scaleOrientation"])
+    return (h(t=T["translation"]) @ h(t=T["center"]) @ h(R=_axis_angle(T["rotation"])) @ h(R=SR)
+            @ h(R=np.diag(T["scale"])) @ h(R=SR.T) @ h(t=-T["center"]))
+
+
+def read_vrml(p: Path) -> PolygonModel:
+    """VRML 2.0: all ``IndexedFaceSet`` faces of all Shapes, transforms applied, in file order.
+
+    Each Shape's points are kept as they are (not welded across shapes). Face names: the ``DEF``
+    name of the Shape or of its IndexedFaceSet, if any.
+    """
+    text = p.read_text(encoding="utf-8")
+    head = text.lstrip()[:16]
+    if not head.startswith("#VRML V2.0"):
+        if head.startswith("#VRML V1.0"):
+            raise InputError(p, "VRML 1.0 is not supported (need VRML 2.0 / VRML97)")
+        raise InputError(p, "not a VRML 2.0 file (missing '#VRML V2.0' header)")
+    ps = _VrmlParser(text, p)
+    ps.scene()
+    V = np.concatenate(ps.V) if ps.V else np.zeros((0, 3))
+    return PolygonModel(V, ps.faces, names=ps.names)
+
+
+def vrml_text(model: PolygonModel) -> str:
+    """VRML 2.0 text: one Shape with one IndexedFaceSet; holes bridged (module docstring).
+
+    Polygons are listed in model order, each ending with -1. ``solid FALSE`` and ``convex FALSE``
+    tell viewers that faces may be non-convex; ``creaseAngle 0`` keeps flat shading.
+    """
+    loops = _output_loops(model)
+    pts = _fmt_rows("", model.vertices).rstrip("\n").replace("\n", ",\n      ")
+    idx = ",\n      ".join(",".join(str(int(i)) for i in f) + ",-1" for f in loops)
+    return (
+        "#VRML V2.0 utf8\n"
+        f"# mst polygon model: {len(model.vertices)} vertices, {len(loops)} faces\n"
+        "Shape {\n"
+        "  appearance Appearance { material Material { diffuseColor 0.8 0.8 0.8 } }\n"
+        "  geometry IndexedFaceSet {\n"
+        "    solid FALSE\n"
+        "    convex FALSE\n"
+        "    creaseAngle 0\n"
+        "    coord Coordinate {\n"
+        "      point [\n"
+        f"      {pts}\n"
+        "      ]\n"
+        "    }\n"
+        "    coordIndex [\n"
+        f"      {idx}\n"
+        "    ]\n"
+        "  }\n"
+        "}\n"
+    )
+
+
+# ====================================================================== ViSP .cao
+def _theta_u_matrix(tu: np.ndarray) -> np.ndarray:
+    th = float(np.linalg.norm(tu))
+    if th == 0:
+        return np.eye(3)
+    return _axis_angle(np.array([*(np.asarray(tu) / th), th]))
+
+
+_CAO_LOAD = re.compile(r'load\s*\(\s*"([^"]+)"\s*(?:,(.*))?\)\s*$')
+_CAO_VEC = re.compile(r"(t|tu)\s*=\s*\[([^\]]*)\]")
+
+
+def read_cao(p: Path, _depth: int = 0) -> PolygonModel:
+    """ViSP ``.cao`` (V1): points, lines, faces from lines, faces from points, cylinders, circles.
+
+    ``load("sub.cao", t=[tx, ty, tz], tu=[rx, ry, rz])`` lines (before the points) include another
+    model, path relative to this file, its points mapped by ``X = R(tu) X_sub + t`` (tu = theta-u
+    rotation vector, radians; t metres). Faces from lines are turned into point loops. Lines used
+    by no face-from-lines are kept in ``model.lines``; cylinders ``{p1, p2, radius, name}`` and circles
+    ``{radius, center, p1, p2, name}`` are kept as dicts (point indices into ``model.vertices``).
+    ``name=...`` parameters become face names; other parameters (useLod, ...) are ignored.
+    """
+    if _depth > 16:
+        raise InputError(p, "load() nesting deeper than 16 (a cycle?)")
+    rows: list[str] = []
+    with open(p, encoding="utf-8") as fh:
+        for raw in fh:
+            s = raw.split("#", 1)[0].strip()
+            if s:
+                rows.append(s)
+    parts: list[PolygonModel] = []
+    k = 0
+    if k < len(rows) and rows[k].upper().startswith("V1"):
+        k += 1
+    while k < len(rows) and rows[k].startswith("load"):
+        m = _CAO_LOAD.match(rows[k])
+        if not m:
+            raise InputError(p, f"cannot parse {rows[k]!r}")
+        sub = (p.parent / m.group(1)).resolve()
+        if not sub.is_file():
+            raise InputError(p, f"load(): {m.group(1)} not found (looked at {sub})")
+        vec = {name: np.array([float(x) for x in val.replace(",", " ").split()]) for name, val in _CAO_VEC.findall(m.group(2) or "")}
+        sm = read_cao(sub, _depth + 1)
+        R = _theta_u_matrix(vec.get("tu", np.zeros(3)))
+        t = vec.get("t", np.zeros(3))
+        sm.vertices = sm.vertices @ R.T + t
+        parts.append(sm)
+        k += 1
+
+    def take_count(what: str) -> int:
+        nonlocal k
+        if k >= len(rows):
+            raise InputError(p, f"missing the number of {what}")
+        try:
+            n = int(rows[k].split()[0])
+        except ValueError:
+            raise InputError(p, f"expected the number of {what}, got {rows[k]!r}") from None
+        k += 1
+        if n < 0 or k + n > len(rows):
+            raise InputError(p, f"{n} {what} announced, file truncated")
+        return n
+
+    def split_params(s: str) -> tuple[list[str], dict[str, str]]:
+        toks = s.split()
+        vals = [t for t in toks if "=" not in t]
+        params = dict(t.split("=", 1) for t in toks if "=" in t)
+        # name="a b" style: join quoted names
+        mq = re.search(r'name\s*=\s*"([^"]*)"', s)
+        if mq:
+            params["name"] = mq.group(1)
+            vals = s[: mq.start()].split()
+            vals = [t for t in vals if "=" not in t]
+        return vals, params
+
+    n = take_count("points")
+    V = np.array([[float(x) for x in rows[k + i].split()[:3]] for i in range(n)], np.float64).reshape(-1, 3)
+    if any(len(rows[k + i].split()) < 3 for i in range(n)):
+        raise InputError(p, "a point needs 3 coordinates")
+    k += n
+    n = take_count("lines")
+    L = []
+    line_names = []
+    for i in range(n):
+        vals, par = split_params(rows[k + i])
+        L.append((int(vals[0]), int(vals[1])))
+        line_names.append(par.get("name"))
+    k += n
+    L_arr = np.array(L, np.int64).reshape(-1, 2)
+    faces: list[np.ndarray] = []
+    names: list[str | None] = []
+    used_lines = np.zeros(len(L_arr), bool)
+    n = take_count("faces from lines")
+    for i in range(n):
+        vals, par = split_params(rows[k + i])
+        cnt = int(vals[0])
+        li = [int(x) for x in vals[1:1 + cnt]]
+        if len(li) != cnt:
+            raise InputError(p, f"face from lines {i}: {cnt} lines announced, {len(li)} given")
+        if li and (min(li) < 0 or max(li) >= len(L_arr)):
+            raise InputError(p, f"face from lines {i}: line index out of range")
+        used_lines[li] = True
+        faces.append(_chain_lines(L_arr[li], p, i))
+        names.append(par.get("name"))
+    k += n
+    n = take_count("faces from points")
+    for i in range(n):
+        vals, par = split_params(rows[k + i])
+        cnt = int(vals[0])
+        pi = [int(x) for x in vals[1:1 + cnt]]
+        if len(pi) != cnt:
+            raise InputError(p, f"face from points {i}: {cnt} points announced, {len(pi)} given")
+        faces.append(np.array(pi, np.int64))
+        names.append(par.get("name"))
+    k += n
+    cyl: list[dict] = []
+    circ: list[dict] = []
+    if k < len(rows):
+        n = take_count("cylinders")
+        for i in range(n):
+            vals, par = split_params(rows[k + i])
+            cyl.append({"p1": int(vals[0]), "p2": int(vals[1]), "radius": float(vals[2]), "name": par.get("name")})
+        k += n
+    if k < len(rows):
+        n = take_count("circles")
+        for i in range(n):
+            vals, par = split_params(rows[k + i])
+            circ.append({"radius": float(vals[0]), "center": int(vals[1]), "p1": int(vals[2]), "p2": int(vals[3]),
+                         "name": par.get("name")})
+        k += n
+    own = PolygonModel(V, faces, names=names, lines=L_arr[~used_lines], cylinders=cyl, circles=circ)
+    if not parts:
+        return own
+    return merge_models([*parts, own])
+
+
+def _chain_lines(L: np.ndarray, p: Path, i: int) -> np.ndarray:
+    """Order the segments of a ViSP face-from-lines into one loop of point indices."""
+    if len(L) < 3:
+        raise InputError(p, f"face from lines {i}: needs at least 3 lines")
+    rest = [tuple(e) for e in L.tolist()]
+    a, b = rest.pop(0)
+    loop = [a, b]
+    while rest:
+        cur = loop[-1]
+        for j, (u, v) in enumerate(rest):
+            if u == cur or v == cur:
+                rest.pop(j)
+                loop.append(v if u == cur else u)
+                break
+        else:
+            raise InputError(p, f"face from lines {i}: lines do not form a closed loop")
+    if loop[-1] != loop[0]:
+        raise InputError(p, f"face from lines {i}: lines do not form a closed loop")
+    return np.array(loop[:-1], np.int64)
+
+
+def merge_models(models: list[PolygonModel]) -> PolygonModel:
+    """Concatenate models (vertex indices offset; no welding)."""
+    V, faces, holes, names, lines, cyl, circ = [], [], [], [], [], [], []
+    off = 0
+    for m in models:
+        V.append(m.vertices)
+        faces += [f + off for f in m.faces]
+        holes += [[h + off for h in hs] for hs in m.holes]
+        names += list(m.names)
+        lines.append(m.lines + off)
+        cyl += [{**c, "p1": c["p1"] + off, "p2": c["p2"] + off} for c in m.cylinders]
+        circ += [{**c, "center": c["center"] + off, "p1": c["p1"] + off, "p2": c["p2"] + off} for c in m.circles]
+        off += len(m.vertices)
+    return PolygonModel(np.concatenate(V) if V else np.zeros((0, 3)), faces, holes=holes, names=names,
+                        lines=np.concatenate(lines) if lines else np.zeros((0, 2), np.int64), cylinders=cyl, circles=circ)
+
+
+def cao_text(model: PolygonModel) -> str:
+    """ViSP ``.cao`` V1 text: points, lines, no faces from lines, faces from points (holes bridged,
+    ``name=`` when named), cylinders, circles."""
+    loops = _output_loops(model)
+    out = ["V1\n", "# 3D Points\n", f"{len(model.vertices)}\n", _fmt_rows("", model.vertices)]
+    out += ["# 3D Lines\n", f"{len(model.lines)}\n", _fmt_rows("", model.lines)]
+    out += ["# Faces from 3D lines\n", "0\n"]
+    out += ["# Faces from 3D points\n", f"{len(loops)}\n"]
+    for f, name in zip(loops, model.names):
+        s = f"{len(f)} " + " ".join(str(int(i)) for i in f)
+        if name:
+            s += f" name={_token(name)}"
+        out.append(s + "\n")
+    out += ["# 3D cylinders\n", f"{len(model.cylinders)}\n"]
+    for c in model.cylinders:
+        s = f"{int(c['p1'])} {int(c['p2'])} {_fmt_num(c['radius'])}"
+        out.append(s + (f" name={_token(c['name'])}" if c.get("name") else "") + "\n")
+    out += ["# 3D circles\n", f"{len(model.circles)}\n"]
+    for c in model.circles:
+        s = f"{_fmt_num(c['radius'])} {int(c['center'])} {int(c['p1'])} {int(c['p2'])}"
+        out.append(s + (f" name={_token(c['name'])}" if c.get("name") else "") + "\n")
+    return "".join(out)
+
+
+# ====================================================================== CityJSON
+def read_cityjson(p: Path, lod: str | None = None) -> PolygonModel:
+    """CityJSON 1.0-2.0: every surface of every city object, holes kept, transform applied.
+
+    Per city object only the geometries of one LoD are read (``lod``, default the highest the
+    object has), so that LoD1 and LoD2 shells are not stacked. Face names are the city object ids
+    (a face of a BuildingPart is named after the part). GeometryInstance (templates) are resolved
+    with their transformation matrix. Vertices: ``vertex * scale + translate`` (metres in the file's CRS).
+    """
+    with open(p, encoding="utf-8") as fh:
+        try:
+            d = json.load(fh)
+        except json.JSONDecodeError as e:
+            raise InputError(p, f"not valid JSON: {e}") from None
+    if not isinstance(d, dict) or d.get("type") != "CityJSON":
+        raise InputError(p, "not a CityJSON file (type != 'CityJSON')")
+    V = np.asarray(d.get("vertices", []), dtype=np.float64).reshape(-1, 3)
+    tr = d.get("transform")
+    if tr:
+        V = V * np.asarray(tr["scale"], float) + np.asarray(tr["translate"], float)
+    extra_V: list[np.ndarray] = []
+    nV = len(V)
+    tmpl = d.get("geometry-templates") or {}
+    tV = np.asarray(tmpl.get("vertices-templates", []), np.float64).reshape(-1, 3)
+    faces: list[np.ndarray] = []
+    holes: list[list[np.ndarray]] = []
+    names: list[str | None] = []
+
+    def surfaces(geom: dict):
+        t = geom.get("type")
+        b = geom.get("boundaries", [])
+        if t in ("MultiSurface", "CompositeSurface"):
+            yield from b
+        elif t == "Solid":
+            for shell in b:
+                yield from shell
+        elif t in ("MultiSolid", "CompositeSolid"):
+            for solid in b:
+                for shell in solid:
+                    yield from shell
+
+    for oid, obj in d.get("CityObjects", {}).items():
+        geoms = obj.get("geometry", []) or []
+        if not geoms:
+            continue
+        lods = [str(g.get("lod", "")) for g in geoms]
+        want = lod if lod is not None else max(lods, key=lambda s: (_lod_key(s)))
+        for g, gl in zip(geoms, lods):
+            if g.get("type") == "GeometryInstance":
+                tg = tmpl.get("templates", [])[g["template"]]
+                if lod is not None and str(tg.get("lod", "")) != lod:
+                    continue
+                M = np.asarray(g["transformationMatrix"], float).reshape(4, 4)
+                ref = V[g["boundaries"][0]]
+                used = sorted({i for s in surfaces(tg) for ring in s for i in ring})
+                remap = {u: nV + j for j, u in enumerate(used)}
+                X = tV[used] @ M[:3, :3].T + M[:3, 3] + ref
+                extra_V.append(X)
+                nV += len(X)
+                for s in surfaces(tg):
+                    rings = [np.array([remap[i] for i in ring], np.int64) for ring in s]
+                    faces.append(rings[0])
+                    holes.append(rings[1:])
+                    names.append(oid)
+                continue
+            if gl != want:
+                continue
+            for s in surfaces(g):
+                rings = [np.asarray(ring, np.int64) for ring in s]
+                if not rings or len(rings[0]) < 3:
+                    continue
+                faces.append(rings[0])
+                holes.append([r for r in rings[1:] if len(r) >= 3])
+                names.append(oid)
+    if extra_V:
+        V = np.concatenate([V, *extra_V])
+    return PolygonModel(V, faces, holes=holes, names=names)
+
+
+def _lod_key(s: str) -> tuple:
+    try:
+        return (float(s),)
+    except ValueError:
+        return (-1.0,)
+
+
+# ====================================================================== holes -> bridged loops
+def _output_loops(model: PolygonModel) -> list[np.ndarray]:
+    """One index loop per face: holes bridged, loop started at a strictly convex corner."""
+    out = []
+    normals = model.face_normals()
+    for f, hs, n in zip(model.faces, model.holes, normals):
+        lp = bridge_holes(model.vertices, f, hs, n) if hs else np.asarray(f, np.int64)
+        out.append(start_at_convex_corner(model.vertices, lp, n))
+    return out
+
+
+def _plane_basis(n: np.ndarray) -> np.ndarray:
+    """(3, 2) orthonormal in-plane axes (u, v) with u x v = n (so CCW about n stays CCW in 2D)."""
+    n = np.asarray(n, float)
+    nn = np.linalg.norm(n)
+    if nn == 0:
+        return np.eye(3)[:, :2]
+    n = n / nn
+    a = np.eye(3)[int(np.argmin(np.abs(n)))]
+    u = np.cross(a, n)
+    u /= np.linalg.norm(u)
+    v = np.cross(n, u)
+    return np.stack([u, v], axis=1)
+
+
+def start_at_convex_corner(V: np.ndarray, loop: np.ndarray, n: np.ndarray) -> np.ndarray:
+    """Rotate ``loop`` so that its vertex 1 is a strictly convex corner (points 0, 1, 2 give the
+    face's outward normal ``n``): the lexicographic-minimum vertex in plane coordinates, whose turn is
+    positive. The rotation is deterministic (same loop -> same output) so writes are stable."""
+    loop = np.asarray(loop, np.int64)
+    k = len(loop)
+    if k < 3 or not np.any(n):
+        return loop
+    P = (V[loop] - V[loop[0]]) @ _plane_basis(n)
+    order = np.lexsort((P[:, 1], P[:, 0]))
+    for j in order[: min(k, 8)]:
+        a, b, c = P[(j - 1) % k], P[j], P[(j + 1) % k]
+        turn = (b[0] - a[0]) * (c[1] - b[1]) - (b[1] - a[1]) * (c[0] - b[0])
+        if turn > 0:
+            return np.roll(loop, -((j - 1) % k))
+    return loop
+
+
+def bridge_holes(V: np.ndarray, outer: np.ndarray, holes: list[np.ndarray], n: np.ndarray) -> np.ndarray:
+    """Cut every hole open into the outer loop with a bridge edge: one weakly-simple loop.
+
+    Holes are processed by decreasing maximum u coordinate (plane basis from ``n``); each hole is
+    joined from its rightmost vertex H to the closest vertex P of the current loop such that the
+    segment H-P crosses no edge of the outer loop or of any hole (standard hole elimination, as in
+    earcut). The result visits ``P ... H (hole loop) H P ...``: P and H appear twice.
+    Outer loop CCW about ``n``, holes CW (as stored in :class:`PolygonModel`).
+    """
+    B = _plane_basis(n)
+    outer = np.asarray(outer, np.int64)
+    P2 = lambda idx: (V[idx] - V[outer[0]]) @ B  # noqa: E731
+    holes = [np.asarray(h, np.int64) for h in holes if len(h) >= 3]
+    loop = list(outer.tolist())
+    # all segments of outer + holes, for visibility tests
+    segs_idx = [np.stack([lp, np.roll(lp, -1)], 1) for lp in [outer, *holes]]
+    S = np.concatenate(segs_idx)
+    SA, SB = P2(S[:, 0]), P2(S[:, 1])
+    hole_pts = [P2(h) for h in holes]
+    order = np.argsort([-hp[:, 0].max() for hp in hole_pts], kind="stable")
+    for hi in order:
+        h = holes[hi]
+        hp = hole_pts[hi]
+        j = int(np.argmax(hp[:, 0]))
+        H = hp[j]
+        L = np.array(loop, np.int64)
+        LP = P2(L)
+        d2 = ((LP - H) ** 2).sum(1)
+        cand = np.argsort(d2, kind="stable")
+        chosen = None
+        for c in cand:
+            if _segment_clear(H, LP[c], SA, SB, S, int(h[j]), int(L[c])):
+                chosen = int(c)
+                break
+        if chosen is None:
+            chosen = int(cand[0])
+        hrot = np.roll(h, -j).tolist()
+        loop = loop[: chosen + 1] + hrot + [hrot[0]] + loop[chosen:]
+        # the bridge itself becomes an obstacle for the next holes
+        S = np.vstack([S, [[int(L[chosen]), int(h[j])]]])
+        SA = np.vstack([SA, LP[chosen][None]])
+        SB = np.vstack([SB, H[None]])
+    return np.array(loop, np.int64)
+
+
+def _segment_clear(a, b, SA, SB, S, ia, ib) -> bool:
+    """True if segment a-b properly crosses none of the segments SA-SB (those sharing an endpoint
+    index with a-b are ignored)."""
+    share = (S[:, 0] == ia) | (S[:, 1] == ia) | (S[:, 0] == ib) | (S[:, 1] == ib)
+
+    def orient(p, q, r):
+        return (q[..., 0] - p[..., 0]) * (r[..., 1] - p[..., 1]) - (q[..., 1] - p[..., 1]) * (r[..., 0] - p[..., 0])
+
+    d1 = orient(a, b, SA)
+    d2 = orient(a, b, SB)
+    d3 = orient(SA, SB, a)
+    d4 = orient(SA, SB, b)
+    cross = (d1 * d2 < 0) & (d3 * d4 < 0)
+    return not np.any(cross & ~share)
+
+
+# ====================================================================== triangulation
+def triangulate_model(model: PolygonModel, return_index: bool = False):
+    """Triangulate every face (holes included) with earcut in the face's plane.
+
+    Returns ``V`` (N, 3) float64 (= ``model.vertices``, unchanged) and ``F`` (M, 3) int64, each
+    triangle wound like its polygon (right-hand normal = the polygon's Newell normal). With
+    ``return_index`` also ``face_index`` (M,) int64: the source face of each triangle.
+    Degenerate faces (zero area) give no triangles.
+    """
+    import mapbox_earcut
+
+    V = model.vertices
+    tris: list[np.ndarray] = []
+    src: list[np.ndarray] = []
+    # fast path: plain triangles
+    simple_tri = [i for i, (f, hs) in enumerate(zip(model.faces, model.holes)) if len(f) == 3 and not hs]
+    if simple_tri:
+        tris.append(np.stack([model.faces[i] for i in simple_tri]))
+        src.append(np.array(simple_tri, np.int64))
+    simple = set(simple_tri)
+    normals = None
+    for i, (f, hs) in enumerate(zip(model.faces, model.holes)):
+        if i in simple:
+            continue
+        if normals is None:
+            normals = model.face_normals()
+        n = normals[i]
+        if not np.any(n):
+            continue
+        rings = [f, *[h for h in hs if len(h) >= 3]]
+        idx = np.concatenate(rings)
+        P = (V[idx] - V[f[0]]) @ _plane_basis(n)
+        ends = np.cumsum([len(r) for r in rings]).astype(np.uint32)
+        t = np.asarray(mapbox_earcut.triangulate_float64(P, ends), np.int64).reshape(-1, 3)
+        if len(t) == 0:
+            continue
+        a, b, c = P[t[:, 0]], P[t[:, 1]], P[t[:, 2]]
+        s = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
+        t = np.where((s < 0)[:, None], t[:, [0, 2, 1]], t)
+        tris.append(idx[t])
+        src.append(np.full(len(t), i, np.int64))
+    F = np.concatenate(tris).astype(np.int64) if tris else np.zeros((0, 3), np.int64)
+    fi = np.concatenate(src) if src else np.zeros(0, np.int64)
+    if len(simple_tri) and len(tris) > 1:
+        order = np.argsort(fi, kind="stable")
+        F, fi = F[order], fi[order]
+    if return_index:
+        return V, F, fi
+    return V, F
