@@ -1,0 +1,280 @@
+"""``mst init``: the first camera pose from clicked model points (PnP + robust refinement).
+
+Inputs: a clicks file with ``X Y Z u v`` per line (model metres, pixels), or ``u v`` per line with a
+ViSP ``.init`` points file (first line the count, then ``X Y Z`` per line), in the same order.
+Pose: ``cv2.solvePnP`` (SQPnP, EPnP and iterative; the lowest error wins) then a robust
+Levenberg-Marquardt refinement (Huber weights at 2 px) of the reprojection error. Per-point
+residuals (pixels) are returned; large residuals are diagnosed: a swap of two clicks that fits
+is named, otherwise the camera (focal length / principal point) is suspected.
+
+``pose_from_gps``: an approximate pose from a position and yaw/pitch/roll in the model frame (a
+UAV's GPS + AHRS) and a fixed camera-mount rotation; conventions in its docstring.
+"""
+
+from __future__ import annotations
+
+import itertools
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from mst import InputError
+
+
+def _read_numbers(path: Path) -> list[list[float]]:
+    rows = []
+    for ln, line in enumerate(path.read_text(errors="replace").splitlines(), 1):
+        s = line.split("#", 1)[0].replace(",", " ").strip()
+        if not s:
+            continue
+        try:
+            rows.append([float(x) for x in s.split()])
+        except ValueError:
+            raise InputError(path, f"line {ln}: not a number: {s!r}") from None
+    return rows
+
+
+def read_init_points(path: str | os.PathLike) -> np.ndarray:
+    """ViSP ``.init`` file: count, then ``X Y Z`` lines -> (N,3) metres (model frame)."""
+    p = Path(path)
+    if not p.is_file():
+        raise InputError(p, "points file does not exist")
+    rows = _read_numbers(p)
+    if not rows or len(rows[0]) != 1:
+        raise InputError(p, "expected the point count on the first line (ViSP .init format)")
+    n = int(rows[0][0])
+    pts = rows[1:]
+    if len(pts) != n or any(len(r) != 3 for r in pts):
+        raise InputError(p, f"header says {n} points but {len(pts)} 'X Y Z' lines follow"
+                         if len(pts) != n else "every point line needs 3 numbers 'X Y Z'")
+    a = np.array(pts, float).reshape(-1, 3)
+    if not np.isfinite(a).all():
+        raise InputError(p, "points hold NaN or infinite values")
+    return a
+
+
+def read_clicks(path: str | os.PathLike, points_path: str | os.PathLike | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Return ``(X_model (N,3) metres, uv (N,2) px)`` from a clicks file (+ optional .init file)."""
+    p = Path(path)
+    if not p.is_file():
+        raise InputError(p, "clicks file does not exist")
+    rows = _read_numbers(p)
+    if not rows:
+        raise InputError(p, "no clicks in the file")
+    widths = {len(r) for r in rows}
+    if points_path is not None:
+        if widths != {2}:
+            raise InputError(p, "with --points, every click line needs 2 numbers 'u v'")
+        X = read_init_points(points_path)
+        uv = np.array(rows, float)
+        if len(X) != len(uv):
+            raise InputError(p, f"{len(uv)} clicks but {len(X)} points in {points_path}: they must pair up in order")
+    else:
+        if widths == {2}:
+            raise InputError(p, "clicks are 'u v' only: give the model points with --points FILE.init")
+        if widths != {5}:
+            raise InputError(p, "every click line needs 5 numbers 'X Y Z u v' (or 'u v' with --points)")
+        a = np.array(rows, float)
+        X, uv = a[:, :3], a[:, 3:]
+    if not (np.isfinite(X).all() and np.isfinite(uv).all()):
+        raise InputError(p, "clicks hold NaN or infinite values")
+    if len(uv) < 4:
+        raise InputError(p, f"{len(uv)} clicks, need at least 4")
+    return X, uv
+
+
+def project(T_cam_model: np.ndarray, K: np.ndarray, X: np.ndarray) -> np.ndarray:
+    """(N,3) model points -> (N,2) pixels (no distortion)."""
+    Xc = X @ T_cam_model[:3, :3].T + T_cam_model[:3, 3]
+    return Xc[:, :2] / Xc[:, 2:3] * [K[0, 0], K[1, 1]] + K[:2, 2]
+
+
+def _T_from_rt(rvec, tvec) -> np.ndarray:
+    import cv2
+
+    T = np.eye(4)
+    T[:3, :3] = cv2.Rodrigues(np.asarray(rvec, float).reshape(3, 1))[0]
+    T[:3, 3] = np.asarray(tvec, float).ravel()
+    return T
+
+
+def refine_pose(T: np.ndarray, K: np.ndarray, X: np.ndarray, uv: np.ndarray, iters: int = 30, huber_px: float = 2.0) -> np.ndarray:
+    """Robust LM (Huber) refinement of the reprojection error; perturbation ``se3_exp(xi) @ T``."""
+    from mst.pipeline.poses import se3_exp
+    from mst.pipeline.vvs import _point_jacobian
+
+    fx, fy = K[0, 0], K[1, 1]
+    mu = 1e-3
+
+    def res(Tc):
+        return (project(Tc, K, X) - uv).ravel()
+
+    for _ in range(iters):
+        Xc = X @ T[:3, :3].T + T[:3, 3]
+        iz = 1.0 / Xc[:, 2]
+        J = _point_jacobian(Xc[:, 0] * iz, Xc[:, 1] * iz, iz, fx, fy).reshape(-1, 6)
+        r = res(T)
+        a = np.abs(r)
+        w = np.where(a <= huber_px, 1.0, huber_px / np.maximum(a, 1e-12))
+        H = J.T @ (w[:, None] * J)
+        g = J.T @ (w * r)
+        cost = np.sum(w * r * r)
+        improved = False
+        for _ in range(6):
+            xi = -np.linalg.solve(H + mu * np.diag(np.diag(H) + 1e-12), g)
+            Tn = se3_exp(xi) @ T
+            rn = res(Tn)
+            if np.sum(w * rn * rn) <= cost:
+                T, mu, improved = Tn, mu * 0.1, True
+                break
+            mu *= 10
+        if not improved or np.abs(xi).max() < 1e-12:
+            break
+    return T
+
+
+def solve_pnp(X: np.ndarray, uv: np.ndarray, K: np.ndarray, dist: np.ndarray | None = None) -> np.ndarray:
+    """Best of SQPnP / EPnP / iterative PnP (lowest RMS), refined robustly. Returns ``T_cam_model``."""
+    import cv2
+
+    dist = np.zeros(4) if dist is None or not len(dist) else np.asarray(dist, float)
+    best, best_err = None, np.inf
+    Xf, uf = X.astype(np.float64).reshape(-1, 1, 3), uv.astype(np.float64).reshape(-1, 1, 2)
+    flags = [cv2.SOLVEPNP_SQPNP, cv2.SOLVEPNP_EPNP, cv2.SOLVEPNP_ITERATIVE]
+    if len(X) == 4:
+        flags.append(cv2.SOLVEPNP_AP3P)
+    for flag in flags:
+        try:
+            ok, rvec, tvec = cv2.solvePnP(Xf, uf, K, dist, flags=flag)
+        except cv2.error:
+            continue
+        if not ok:
+            continue
+        T = _T_from_rt(rvec, tvec)
+        Xc = X @ T[:3, :3].T + T[:3, 3]
+        if (Xc[:, 2] <= 0).any():
+            continue
+        if not dist.any():
+            T = refine_pose(T, K, X, uv)
+        e = np.sqrt(np.mean(np.sum((project(T, K, X) - uv) ** 2, 1)))
+        if e < best_err:
+            best, best_err = T, e
+    if best is None:
+        raise ValueError("PnP found no pose with the points in front of the camera")
+    return best
+
+
+@dataclass
+class InitResult:
+    """T_cam_model (4,4); residual_px (N,) per click; rms_px; diagnosis ('' when fine)."""
+
+    T_cam_model: np.ndarray
+    residual_px: np.ndarray
+    rms_px: float
+    diagnosis: str
+
+
+def diagnose(X: np.ndarray, uv: np.ndarray, K: np.ndarray, residual_px: np.ndarray, max_px: float) -> str:
+    """Explain large residuals: a swap of two clicks that fits, else a suspect camera."""
+    n = len(X)
+    base = float(np.sqrt(np.mean(residual_px**2)))
+    best = None
+    worst = np.argsort(-residual_px)[: min(n, 6)]
+    for i, j in itertools.combinations(sorted(set(worst.tolist()) | set(range(min(n, 6)))), 2):
+        uv2 = uv.copy()
+        uv2[[i, j]] = uv2[[j, i]]
+        try:
+            T = solve_pnp(X, uv2, K)
+        except ValueError:
+            continue
+        r = np.linalg.norm(project(T, K, X) - uv2, axis=1)
+        rms = float(np.sqrt(np.mean(r**2)))
+        if best is None or rms < best[0]:
+            best = (rms, i, j)
+    if best is not None and best[0] <= max_px and best[0] < 0.25 * base:
+        return (f"clicks {best[1] + 1} and {best[2] + 1} look swapped: swapping them gives {best[0]:.2f} px RMS "
+                f"instead of {base:.2f} px")
+    return (f"reprojection RMS {base:.1f} px > {max_px:g} px and no swap of two clicks fits: the camera "
+            f"intrinsics (focal length fx={K[0, 0]:.1f}, principal point {K[0, 2]:.1f},{K[1, 2]:.1f}) are suspect, "
+            "or the clicks/points do not correspond")
+
+
+def init_from_clicks(X: np.ndarray, uv: np.ndarray, K: np.ndarray, dist: np.ndarray | None = None,
+                     max_rms_px: float = 10.0) -> InitResult:
+    """PnP + refinement; ``diagnosis`` is set when the RMS residual exceeds ``max_rms_px``."""
+    if len(X) < 4:
+        raise ValueError(f"{len(X)} points, need at least 4")
+    if np.linalg.matrix_rank(X - X.mean(0), tol=1e-9 * max(1.0, np.abs(X).max())) < 2:
+        raise ValueError("the model points are collinear: PnP needs them spread out")
+    T = solve_pnp(X, uv, K, dist)
+    r = np.linalg.norm(project(T, K, X) - uv, axis=1)
+    rms = float(np.sqrt(np.mean(r**2)))
+    diag = diagnose(X, uv, K, r, max_rms_px) if rms > max_rms_px else ""
+    return InitResult(T, r, rms, diag)
+
+
+def pose_from_gps(position_m: np.ndarray, yaw_deg: float, pitch_deg: float, roll_deg: float,
+                  mount_ypr_deg: tuple[float, float, float] = (0.0, 0.0, 0.0),
+                  mount_offset_m: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> np.ndarray:
+    """An approximate ``T_cam_model`` from a vehicle position and attitude in the model frame.
+
+    Conventions: the model frame is x east, y north, z up (ENU, metres). The vehicle body frame is
+    x forward, y left, z up; its attitude is ``R_model_body = Rz(yaw) @ Ry(-pitch) @ Rx(roll)``:
+    yaw counter-clockwise from the model x axis (east) about z, pitch positive nose *up*, roll
+    positive right wing *down* (so yaw=0, pitch=0, roll=0 looks along +x, level). The camera
+    mount is a fixed rotation of the camera relative to the body, given as yaw/pitch/roll with the
+    same convention (e.g. ``(0, -90, 0)`` for a nadir camera) plus a lever arm ``mount_offset_m``
+    in the body frame. The camera looks along the rotated body x axis; its image x is the body's
+    -y (right) and image y the body's -z (down).
+    """
+    from scipy.spatial.transform import Rotation as Rot
+
+    def ypr(y, p, r):
+        return Rot.from_euler("ZYX", [y, -p, r], degrees=True).as_matrix()
+
+    R_model_body = ypr(yaw_deg, pitch_deg, roll_deg)
+    R_body_mount = ypr(*mount_ypr_deg)
+    # camera axes (x right, y down, z forward) in the mount frame (x fwd, y left, z up)
+    R_mount_cam = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+    R_model_cam = R_model_body @ R_body_mount @ R_mount_cam
+    t_model_cam = np.asarray(position_m, float) + R_model_body @ np.asarray(mount_offset_m, float)
+    T_model_cam = np.eye(4)
+    T_model_cam[:3, :3] = R_model_cam
+    T_model_cam[:3, 3] = t_model_cam
+    from mst.pipeline.poses import inv_T
+
+    return inv_T(T_model_cam)
+
+
+def draw_model(bgr: np.ndarray, model, T_cam_model: np.ndarray, K: np.ndarray, near: float = 1e-3,
+               color=(0, 255, 0), points: np.ndarray | None = None, numbers: bool = False, clicks: np.ndarray | None = None) -> np.ndarray:
+    """Draw the model's edges (clipped at the near plane) and optional numbered points."""
+    import cv2
+
+    from mst.pipeline.visibility import _clip_near_far
+
+    out = bgr.copy()
+    E = model.edges()
+    V = np.asarray(model.vertices)
+    A = V[E[:, 0]] @ T_cam_model[:3, :3].T + T_cam_model[:3, 3]
+    B = V[E[:, 1]] @ T_cam_model[:3, :3].T + T_cam_model[:3, 3]
+    A, B, keep, _, _ = _clip_near_far(A, B, near, 1e12)
+    A, B = A[keep], B[keep]
+    pa = A[:, :2] / A[:, 2:3] * [K[0, 0], K[1, 1]] + K[:2, 2]
+    pb = B[:, :2] / B[:, 2:3] * [K[0, 0], K[1, 1]] + K[:2, 2]
+    lim = 1e5
+    for a, b in zip(np.clip(pa, -lim, lim), np.clip(pb, -lim, lim)):
+        cv2.line(out, (int(a[0]), int(a[1])), (int(b[0]), int(b[1])), color, 1, cv2.LINE_AA)
+    if points is not None:
+        pp = project(T_cam_model, K, points)
+        for i, p in enumerate(pp):
+            c = (int(round(p[0])), int(round(p[1])))
+            cv2.circle(out, c, 4, (0, 0, 255), -1)
+            if numbers:
+                cv2.putText(out, str(i + 1), (c[0] + 6, c[1] - 6), cv2.FONT_HERSHEY_SIMPLEX, 0.7, (0, 0, 255), 2, cv2.LINE_AA)
+    if clicks is not None:
+        for p in clicks:
+            cv2.drawMarker(out, (int(round(p[0])), int(round(p[1]))), (255, 0, 255), cv2.MARKER_CROSS, 10, 1)
+    return out

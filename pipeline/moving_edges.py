@@ -1,0 +1,163 @@
+"""Moving edges (ViSP ``vpMe``/``vpMeSite``), vectorised over all samples at once.
+
+At each edge sample (pixel position ``uv``, unit normal ``n`` of the projected model edge) the
+tracker looks ``+-range`` pixels along ``n`` in the new image. At each candidate position the
+likelihood is the convolution of the image with an oriented step-edge mask (``n_masks``
+precomputed masks over 180 degrees, ``mask_size`` px wide, chosen by the edge angle). With a
+reference convolution ``ref`` (the same mask at the edge in the previous image) ViSP's contrast
+test applies: ``conv/ref`` must lie in ``[1-mu1, 1+mu2]`` (same polarity, similar contrast) and the
+likelihood ``|conv + ref|`` must exceed ``2 * threshold``; without a reference (first frame, after
+a loss) the likelihood is ``2 |conv|``. Local maxima of the likelihood are ranked and the best
+``n_candidates`` kept per sample, with a parabolic sub-pixel refinement.
+
+Units: pixels for positions and offsets; masks are normalised so that a step edge of contrast
+``c`` gray levels convolves to ``+-c`` (so the threshold is in gray levels, ViSP's normalised
+threshold).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+
+
+@lru_cache(maxsize=8)
+def make_masks(size: int, n_masks: int) -> tuple[np.ndarray, np.ndarray]:
+    """Oriented step-edge masks: returns ``(masks (n_masks, size*size) float32, offsets (size*size, 2) int)``.
+
+    Mask ``k`` detects an edge whose normal makes the angle ``k * 180 / n_masks`` degrees with the
+    image x axis (y down): weights are the signed distance to the edge line through the centre,
+    clipped to [-1, 1], inside a disc of radius ``size/2``; positive weights sum to 1.
+    """
+    r = size // 2
+    dy, dx = np.mgrid[-r:r + 1, -r:r + 1]
+    dx, dy = dx.ravel().astype(np.float64), dy.ravel().astype(np.float64)
+    inside = dx**2 + dy**2 <= (r + 0.5) ** 2
+    ang = np.radians(np.arange(n_masks) * 180.0 / n_masks)
+    s = np.cos(ang)[:, None] * dx[None] + np.sin(ang)[:, None] * dy[None]
+    w = np.clip(s, -1.0, 1.0) * inside[None]
+    pos = np.maximum(w, 0).sum(axis=1, keepdims=True)
+    w = w / np.maximum(pos, 1e-12)
+    return w.astype(np.float32), np.stack([dx, dy], 1).astype(np.int64)
+
+
+def canonical_normals(normal: np.ndarray, n_masks: int) -> tuple[np.ndarray, np.ndarray]:
+    """Flip normals into the half-plane of the masks (angle in [0, 180)) and pick each mask index.
+
+    Returns ``(normal (N,2), mask_index (N,))``; the flip keeps search direction and mask polarity
+    consistent.
+    """
+    ang = np.degrees(np.arctan2(normal[:, 1], normal[:, 0]))
+    flip = (ang < 0) | (ang >= 180)
+    n = np.where(flip[:, None], -normal, normal)
+    ang = np.where(flip, ang + 180.0, ang) % 180.0
+    idx = np.round(ang / (180.0 / n_masks)).astype(np.int64) % n_masks
+    return n, idx
+
+
+def convolve_along(img: np.ndarray, uv: np.ndarray, normal: np.ndarray, offsets: np.ndarray,
+                   mask_idx: np.ndarray, masks: np.ndarray, mask_off: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Mask responses at ``uv + k * normal`` for every ``k`` in ``offsets`` (nearest pixel).
+
+    img: (H, W) float32 gray; uv (N,2) px; normal (N,2) unit; offsets (M,) px.
+    Returns ``(conv (N, M) float32, k_eff (N, M))`` where ``k_eff`` is the signed distance (px)
+    along the normal of the pixel actually sampled (rounding moves it off ``k``).
+    """
+    H, W = img.shape
+    r = int(np.abs(mask_off).max())
+    pos = uv[:, None, :] + offsets[None, :, None] * normal[:, None, :]
+    ip = np.rint(pos)
+    ix = np.clip(ip[..., 0], r, W - 1 - r).astype(np.int64)
+    iy = np.clip(ip[..., 1], r, H - 1 - r).astype(np.int64)
+    base = iy * W + ix
+    flat_off = mask_off[:, 1] * W + mask_off[:, 0]
+    patches = img.ravel()[base[..., None] + flat_off[None, None, :]]
+    conv = np.einsum("nms,ns->nm", patches, masks[mask_idx], optimize=False)
+    k_eff = (ix - uv[:, None, 0]) * normal[:, None, 0] + (iy - uv[:, None, 1]) * normal[:, None, 1]
+    return conv, k_eff
+
+
+@dataclass
+class EdgeMatches:
+    """Result of one moving-edge search.
+
+    offset (N, C) px along ``normal`` to each candidate (NaN: none); likelihood (N, C);
+    normal (N, 2) the (canonicalised) normals used; ref (N,) the chosen candidate's convolution.
+    """
+
+    offset: np.ndarray
+    likelihood: np.ndarray
+    normal: np.ndarray
+    conv: np.ndarray
+
+    def candidates_uv(self, uv: np.ndarray) -> np.ndarray:
+        """(N, C, 2) candidate pixel positions."""
+        return uv[:, None, :] + self.offset[..., None] * self.normal[:, None, :]
+
+
+def reference_contrast(img_prev: np.ndarray, uv_prev: np.ndarray, normal: np.ndarray, mask_idx: np.ndarray,
+                       size: int, n_masks: int, reach: int = 2) -> np.ndarray:
+    """Convolution of the strongest response within ``+-reach`` px of each sample in the previous image."""
+    masks, moff = make_masks(size, n_masks)
+    k = np.arange(-reach, reach + 1, dtype=np.float64)
+    conv, _ = convolve_along(img_prev, uv_prev, normal, k, mask_idx, masks, moff)
+    j = np.argmax(np.abs(conv), axis=1)
+    return conv[np.arange(len(conv)), j]
+
+
+def search_edges(img: np.ndarray, uv: np.ndarray, normal: np.ndarray, ref: np.ndarray | None, *,
+                 search_range: int, threshold: float, mu1: float, mu2: float, size: int, n_masks: int,
+                 n_candidates: int = 2, mask_idx: np.ndarray | None = None) -> EdgeMatches:
+    """Search ``+-search_range`` px along each normal; keep up to ``n_candidates`` positions.
+
+    ``normal`` must be canonical (see :func:`canonical_normals`) when ``ref`` is given, and
+    ``mask_idx`` the matching mask indices (computed here when None).
+    """
+    if mask_idx is None:
+        normal, mask_idx = canonical_normals(normal, n_masks)
+    masks, moff = make_masks(size, n_masks)
+    N = len(uv)
+    ks = np.arange(-search_range, search_range + 1, dtype=np.float64)
+    conv, k_eff = convolve_along(img, uv, normal, ks, mask_idx, masks, moff)
+    if ref is not None:
+        ref = ref[:, None]
+        strong = np.abs(ref) >= threshold
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ratio = conv / ref
+        like_c = np.abs(conv + ref)
+        ok_c = (ratio > 1.0 - mu1) & (ratio < 1.0 + mu2) & (like_c > 2.0 * threshold)
+        like_n = 2.0 * np.abs(conv)
+        ok_n = like_n > 2.0 * threshold
+        like = np.where(strong, like_c, like_n)
+        ok = np.where(strong, ok_c, ok_n)
+    else:
+        like = 2.0 * np.abs(conv)
+        ok = like > 2.0 * threshold
+    M = like.shape[1]
+    lp = np.pad(like, ((0, 0), (1, 1)), constant_values=-np.inf)
+    locmax = (like >= lp[:, :-2]) & (like >= lp[:, 2:])
+    score = np.where(ok & locmax, like, -np.inf)
+    C = min(n_candidates, M)
+    if C < M:
+        top = np.argpartition(-score, C - 1, axis=1)[:, :C]
+    else:
+        top = np.tile(np.arange(M), (N, 1))
+    ts = np.take_along_axis(score, top, 1)
+    order = np.argsort(-ts, axis=1)
+    top = np.take_along_axis(top, order, 1)
+    ts = np.take_along_axis(ts, order, 1)
+    rows = np.arange(N)[:, None]
+    # parabolic sub-pixel refinement on the likelihood
+    l0 = lp[rows, top]  # like[m-1]
+    l1 = like[rows, top]
+    l2 = lp[rows, top + 2]  # like[m+1]
+    den = l0 - 2 * l1 + l2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        delta = np.where(np.isfinite(den) & (den < -1e-9), 0.5 * (l0 - l2) / den, 0.0)
+    delta = np.clip(np.nan_to_num(delta), -0.5, 0.5)
+    off = k_eff[rows, top] + delta
+    valid = np.isfinite(ts)
+    off = np.where(valid, off, np.nan)
+    return EdgeMatches(off, np.where(valid, ts, 0.0), normal, np.where(valid[:, 0], conv[np.arange(N), top[:, 0]], 0.0))

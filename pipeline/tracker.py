@@ -1,0 +1,526 @@
+"""``mst track``: model-based edge tracking (ViSP's ``vpMbEdgeTracker``) over a frame source.
+
+Per frame: project the model with the previous (or the SLAM aid's predicted) pose, keep visible
+edges (:mod:`mst.pipeline.visibility`), search moving edges along their normals
+(:mod:`mst.pipeline.moving_edges`), then robust VVS (:mod:`mst.pipeline.vvs`); optional KLT points
+inside visible faces join the same optimisation (``use_klt``). A health test (mean angle between
+the image gradient and the model edge normal at the samples, ViSP's projection error; inlier
+ratio; sample count) marks a frame ``lost`` instead of drifting; the next frame restarts from the
+last good pose with a widened, coarse-to-fine search.
+
+Frames: ``T_cam_model`` (ViSP cMo) internally; files hold ``T_model_cam`` (TUM). Pixels, metres.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import os
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from mst import InputError, atomic_outputs
+from mst.pipeline.settings import TrackerConfig, config_to_dict
+
+
+# ---------------------------------------------------------------------------- model loading
+def load_polygon_model(path: str | os.PathLike):
+    """Load a polygon model with :func:`mst.meshtools.io.load_model` (fallback: a small .cao/.obj reader)."""
+    p = Path(path)
+    if not p.is_file():
+        raise InputError(p, "model file does not exist")
+    try:
+        from mst.meshtools.io import load_model
+    except ImportError:
+        load_model = _fallback_load_model
+    model = load_model(p)
+    if not len(model.faces) and not len(getattr(model, "lines", [])):
+        raise InputError(p, "model has no faces")
+    model.check_finite(str(p))
+    return model
+
+
+def _fallback_load_model(p: Path):
+    from mst.meshtools.model import PolygonModel
+
+    text = p.read_text(errors="replace")
+    if p.suffix.lower() == ".obj":
+        V, F = [], []
+        for line in text.splitlines():
+            s = line.split()
+            if not s:
+                continue
+            if s[0] == "v":
+                V.append([float(x) for x in s[1:4]])
+            elif s[0] == "f":
+                F.append([int(x.split("/")[0]) - 1 for x in s[1:]])
+        return PolygonModel(np.array(V), F)
+    if p.suffix.lower() != ".cao":
+        raise InputError(p, "model format not readable without mst.meshtools.io (use .cao or .obj)")
+    toks = []
+    for line in text.splitlines():
+        s = line.split("#", 1)[0].strip()
+        if s and not s.startswith("V1") and not s.startswith("load("):
+            toks.extend(s.split())
+    it = iter(toks)
+    try:
+        nv = int(next(it))
+        V = [[float(next(it)) for _ in range(3)] for _ in range(nv)]
+        nl = int(next(it))
+        lines = [[int(next(it)), int(next(it))] for _ in range(nl)]
+        nfl = int(next(it))
+        faces = []
+        for _ in range(nfl):
+            k = int(next(it))
+            ids = [int(next(it)) for _ in range(k)]
+            faces.append([lines[i][0] for i in ids])
+        nfp = int(next(it))
+        for _ in range(nfp):
+            k = int(next(it))
+            faces.append([int(next(it)) for _ in range(k)])
+    except (StopIteration, ValueError, IndexError):
+        raise InputError(p, "could not parse the .cao model") from None
+    return PolygonModel(np.array(V), faces)
+
+
+# ---------------------------------------------------------------------------- one-frame tracker
+@dataclass
+class FrameResult:
+    """Tracking result for one frame (pose ``T_cam_model``; statistics in pixels and degrees)."""
+
+    T_cam_model: np.ndarray | None
+    healthy: bool
+    n_samples: int
+    n_inliers: int
+    residual_px: float
+    proj_error_deg: float
+    W: np.ndarray | None
+    cov: np.ndarray | None
+    uv: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    inlier: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
+    edge_uv: np.ndarray = field(default_factory=lambda: np.zeros((0, 2, 2)))
+    klt_uv: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    reason: str = ""
+    support: float = 0.0
+
+
+def _sobel_at(img: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """(N,2) Sobel gradient (gx, gy) of ``img`` at the nearest pixels of ``uv``."""
+    H, W = img.shape
+    ix = np.clip(np.rint(uv[:, 0]).astype(np.int64), 1, W - 2)
+    iy = np.clip(np.rint(uv[:, 1]).astype(np.int64), 1, H - 2)
+    b = iy * W + ix
+    f = img.ravel()
+    p = [f[b + dy * W + dx] for dy in (-1, 0, 1) for dx in (-1, 0, 1)]
+    gx = (p[2] + 2 * p[5] + p[8]) - (p[0] + 2 * p[3] + p[6])
+    gy = (p[6] + 2 * p[7] + p[8]) - (p[0] + 2 * p[1] + p[2])
+    return np.stack([gx, gy], 1)
+
+
+class EdgeTracker:
+    """ViSP-style edge (+ optional KLT) tracker for one model and camera.
+
+    ``track(gray, T_cam_model_init)`` refines the pose on a new 8-bit gray frame; the previous
+    frame and pose (kept internally) give each sample's reference contrast and polarity.
+    """
+
+    def __init__(self, model, camera, cfg: TrackerConfig):
+        from mst.pipeline.visibility import ModelGeometry
+
+        self.geom = ModelGeometry.from_model(model)
+        self.cam = camera
+        self.K = camera.K
+        self.cfg = cfg
+        self.prev_img: np.ndarray | None = None
+        self.prev_T: np.ndarray | None = None
+        self.prev_faces: np.ndarray | None = None
+        self.klt = None
+        self.klt_pts: np.ndarray | None = None  # (M,2) px in prev frame
+        self.klt_X: np.ndarray | None = None  # (M,3) model frame
+        self.prev_gray: np.ndarray | None = None
+
+    # -------------------------------------------------------------- helpers
+    def _samples(self, T, K, W, H):
+        from mst.pipeline.visibility import visible_samples
+
+        c = self.cfg
+        return visible_samples(self.geom, T, K, W, H, c.sample_step, c.near_clip, c.far_clip, c.angle_appear,
+                               c.angle_disappear, self.prev_faces, border_px=c.mask_size // 2 + 1,
+                               hidden_lines=c.hidden_lines, zbuffer_scale=c.zbuffer_scale, max_samples=c.max_samples)
+
+    def _edge_pass(self, img, K, T, search_range, ref_img, ref_T, klt=None):
+        from mst.pipeline.moving_edges import canonical_normals, reference_contrast, search_edges
+        from mst.pipeline.vvs import solve_pose
+
+        c = self.cfg
+        H, W = img.shape
+        S = self._samples(T, K, W, H)
+        if len(S) < 6:
+            return None, S, None, None
+        normal, midx = canonical_normals(S.normal, c.n_masks)
+        ref = None
+        if ref_img is not None:
+            Xc = S.X_model @ ref_T[:3, :3].T + ref_T[:3, 3]
+            z = np.maximum(Xc[:, 2], 1e-9)
+            uvp = np.stack([K[0, 0] * Xc[:, 0] / z + K[0, 2], K[1, 1] * Xc[:, 1] / z + K[1, 2]], 1)
+            ref = reference_contrast(ref_img, uvp, normal, midx, c.mask_size, c.n_masks)
+        m = search_edges(img, S.uv, normal, ref, search_range=int(search_range), threshold=c.edge_threshold,
+                         mu1=c.mu1, mu2=c.mu2, size=c.mask_size, n_masks=c.n_masks, n_candidates=c.n_candidates,
+                         mask_idx=midx)
+        cand = m.candidates_uv(S.uv)
+        kx, ku = (None, None) if klt is None else klt
+        try:
+            res = solve_pose(T, K, S.X_model, S.edge, S.A_model, S.B_model, cand, iters=c.vvs_iters, lm_mu=c.lm_mu,
+                             min_mad_px=c.min_mad_px, tukey_c=c.tukey_c, klt_X_model=kx, klt_uv=ku,
+                             klt_weight=c.klt_weight)
+        except ValueError:
+            return None, S, m, None
+        return res, S, m, cand
+
+    # -------------------------------------------------------------- KLT (ViSP hybrid tracker)
+    def _klt_points(self, gray, T):
+        """Detect KLT corners inside visible faces; their model points from the face plane."""
+        import cv2
+
+        c = self.cfg
+        H, W = gray.shape
+        fv = self.prev_faces if self.prev_faces is not None else np.ones(len(self.geom.faces), bool)
+        from mst.pipeline.visibility import inverse_depth_buffer
+
+        # face-id buffer: which face is in front at each pixel (full resolution, inverse depth)
+        ids = np.full((H, W), -1, np.int32)
+        best = np.zeros((H, W), np.float32)
+        for f in np.flatnonzero(fv):
+            sel = np.zeros(len(fv), bool)
+            sel[f] = True
+            buf, _ = inverse_depth_buffer(self.geom, T, self.K, W, H, sel, c.near_clip, 1.0)
+            upd = buf > best * (1 + 1e-4)
+            ids[upd] = f
+            best[upd] = buf[upd]
+        mask = (ids >= 0).astype(np.uint8) * 255
+        mask = cv2.erode(mask, np.ones((2 * c.klt_border + 1,) * 2, np.uint8))
+        pts = cv2.goodFeaturesToTrack(gray, c.klt_max_features, c.klt_quality, c.klt_min_distance, mask=mask,
+                                      blockSize=c.klt_block, useHarrisDetector=False, k=c.klt_harris)
+        if pts is None:
+            return None, None
+        pts = pts.reshape(-1, 2).astype(np.float64)
+        ix, iy = np.rint(pts[:, 0]).astype(int), np.rint(pts[:, 1]).astype(int)
+        iz = best[iy, ix].astype(np.float64)
+        ok = iz > 0
+        pts, iz = pts[ok], iz[ok]
+        xn = (pts - self.K[:2, 2]) / np.array([self.K[0, 0], self.K[1, 1]])
+        Xc = np.column_stack([xn, np.ones(len(xn))]) / iz[:, None]
+        X_model = (Xc - T[:3, 3]) @ T[:3, :3]
+        return pts, X_model
+
+    def _klt_track(self, gray):
+        import cv2
+
+        if self.klt_pts is None or len(self.klt_pts) < 4 or self.prev_gray is None:
+            return None
+        c = self.cfg
+        p0 = self.klt_pts.astype(np.float32).reshape(-1, 1, 2)
+        p1, st, _ = cv2.calcOpticalFlowPyrLK(self.prev_gray, gray, p0, None, winSize=(2 * c.klt_window + 1,) * 2,
+                                             maxLevel=c.klt_pyramid)
+        p0r, st2, _ = cv2.calcOpticalFlowPyrLK(gray, self.prev_gray, p1, None, winSize=(2 * c.klt_window + 1,) * 2,
+                                               maxLevel=c.klt_pyramid)
+        ok = (st.ravel() == 1) & (st2.ravel() == 1) & (np.linalg.norm((p0r - p0).reshape(-1, 2), axis=1) < 1.0)
+        if ok.sum() < 4:
+            return None
+        return self.klt_X[ok], p1.reshape(-1, 2)[ok].astype(np.float64)
+
+    # -------------------------------------------------------------- main entry
+    def track(self, gray: np.ndarray, T_init: np.ndarray, recover: bool = False, first: bool = False) -> FrameResult:
+        """Refine ``T_init`` (T_cam_model) on ``gray`` (H, W) uint8; update the internal reference."""
+        import cv2
+
+        c = self.cfg
+        img = gray.astype(np.float32)
+        H, W = img.shape
+        T = T_init.copy()
+        ref_img = None if (first or recover or self.prev_img is None) else self.prev_img
+        ref_T = self.prev_T
+        R = c.search_range * (c.recover_range_factor if recover else 1.0)
+        klt = self._klt_track(gray) if c.use_klt and not (first or recover) else None
+        # coarse-to-fine: a half-resolution pass first (always after a loss)
+        levels = max(c.pyramid_levels, 2 if recover else 1)
+        for lev in range(levels - 1, 0, -1):
+            s = 0.5**lev
+            small = img
+            for _ in range(lev):
+                small = cv2.pyrDown(small)
+            Ks = self.K.copy()
+            Ks[:2] *= s
+            Ks[0, 2] = (self.K[0, 2] + 0.5) * s - 0.5
+            Ks[1, 2] = (self.K[1, 2] + 0.5) * s - 0.5
+            ref_small = None
+            res, *_ = self._edge_pass(small, Ks, T, R, ref_small, ref_T)
+            if res is not None and np.isfinite(res.T_cam_model).all():
+                T = res.T_cam_model
+        passes = 2 if (first or recover) else 1
+        res = S = None
+        for ps in range(passes):
+            rng = R if ps == 0 else max(2, c.search_range // 2)
+            res_p, S_p, _, _ = self._edge_pass(img, self.K, T, rng, ref_img, ref_T, klt if ps == passes - 1 else None)
+            if res_p is None:
+                break
+            res, S = res_p, S_p
+            T = res.T_cam_model
+        if res is None:
+            return FrameResult(None, False, 0 if S is None else len(S), 0, float("nan"), 90.0, None, None,
+                               reason="too few visible edge samples")
+        # health: projection error (gradient vs model normal) at the final pose, inlier ratio
+        Xc = S.X_model @ T[:3, :3].T + T[:3, 3]
+        ok_z = Xc[:, 2] > c.near_clip * 0.5
+        z = np.where(ok_z, Xc[:, 2], 1.0)
+        uv = np.stack([self.K[0, 0] * Xc[:, 0] / z + self.K[0, 2], self.K[1, 1] * Xc[:, 1] / z + self.K[1, 2]], 1)
+        Ae = S.A_model @ T[:3, :3].T + T[:3, 3]
+        Be = S.B_model @ T[:3, :3].T + T[:3, 3]
+        pa = Ae[:, :2] / Ae[:, 2:3] * [self.K[0, 0], self.K[1, 1]] + self.K[:2, 2]
+        pb = Be[:, :2] / Be[:, 2:3] * [self.K[0, 0], self.K[1, 1]] + self.K[:2, 2]
+        d = pb - pa
+        d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
+        n = np.stack([-d[:, 1], d[:, 0]], 1)[S.edge]
+        g = _sobel_at(img, uv)
+        gn = np.linalg.norm(g, axis=1)
+        cosang = np.abs((g * n).sum(1)) / np.maximum(gn, 1e-9)
+        ang = np.degrees(np.arccos(np.clip(cosang, 0, 1)))
+        strong = gn >= 2.0 * c.edge_threshold  # Sobel of a step of `threshold` gray levels is 4x it
+        support = float(strong.mean()) if len(strong) else 0.0
+        proj_err = float(ang[strong].mean()) if strong.sum() >= 3 else 90.0
+        n_s = len(S)
+        n_in = int(res.inlier.sum())
+        ratio = n_in / max(n_s, 1)
+        healthy = bool(n_s >= c.min_samples and ratio >= c.min_inlier_ratio and proj_err <= c.max_proj_error_deg
+                       and support >= c.min_support and np.isfinite(T).all() and ok_z.all())
+        reason = "" if healthy else (f"samples {n_s}" if n_s < c.min_samples else f"inliers {ratio:.0%}"
+                                     if ratio < c.min_inlier_ratio else f"gradient support {support:.0%}"
+                                     if support < c.min_support else f"projection error {proj_err:.1f} deg")
+        out = FrameResult(T, healthy, n_s, n_in, res.rms_px, proj_err, res.W, res.cov, uv, res.inlier,
+                          S.edge_uv, np.zeros((0, 2)) if klt is None else klt[1], reason, support)
+        return out
+
+    def accept(self, gray: np.ndarray, T_cam_model: np.ndarray) -> None:
+        """Make ``(gray, T_cam_model)`` the reference for the next frame (a good pose)."""
+        from mst.pipeline.visibility import face_visibility
+
+        c = self.cfg
+        self.prev_img = gray.astype(np.float32)
+        self.prev_T = T_cam_model.copy()
+        self.prev_faces = face_visibility(self.geom, T_cam_model, self.prev_faces, c.angle_appear, c.angle_disappear)
+        if c.use_klt:
+            pts, X = self._klt_points(gray, T_cam_model)
+            self.klt_pts, self.klt_X = pts, X
+            self.prev_gray = gray
+
+
+# ---------------------------------------------------------------------------- checks
+def check_pose_in_view(model, T_cam_model: np.ndarray, cam, path, near: float = 1e-6) -> None:
+    """Raise :class:`mst.InputError` when the pose puts the model behind the camera or out of view."""
+    V = np.asarray(model.vertices)
+    Xc = V @ T_cam_model[:3, :3].T + T_cam_model[:3, 3]
+    cz = float(Xc[:, 2].mean())
+    if cz <= 0 or (Xc[:, 2] <= near).all():
+        raise InputError(path, f"the pose puts the model behind the camera (model centre at z = {cz:.3g} m in the "
+                               "camera frame; expected a cMo / TUM camera pose looking at the model)")
+    front = Xc[:, 2] > near
+    uv = Xc[front, :2] / Xc[front, 2:3] * [cam.fx, cam.fy] + [cam.cx, cam.cy]
+    inside = (uv[:, 0] >= 0) & (uv[:, 0] < cam.width) & (uv[:, 1] >= 0) & (uv[:, 1] < cam.height)
+    if cam.width and not inside.any():
+        raise InputError(path, "the pose puts the whole model outside the image")
+
+
+# ---------------------------------------------------------------------------- overlay
+def draw_overlay(bgr: np.ndarray, fr: FrameResult, status: str) -> np.ndarray:
+    """Projected visible edges (blue), samples (inliers green, outliers red), status text."""
+    import cv2
+
+    out = bgr.copy()
+    for a, b in fr.edge_uv:
+        cv2.line(out, (int(round(a[0])), int(round(a[1]))), (int(round(b[0])), int(round(b[1]))), (255, 128, 0), 1, cv2.LINE_AA)
+    if len(fr.uv):
+        H, W = out.shape[:2]
+        ix = np.clip(np.rint(fr.uv[:, 0]).astype(int), 0, W - 1)
+        iy = np.clip(np.rint(fr.uv[:, 1]).astype(int), 0, H - 1)
+        inl = fr.inlier if len(fr.inlier) == len(ix) else np.zeros(len(ix), bool)
+        for dy in (-1, 0, 1):
+            for dx in (-1, 0, 1):
+                yy, xx = np.clip(iy + dy, 0, H - 1), np.clip(ix + dx, 0, W - 1)
+                out[yy[inl], xx[inl]] = (0, 255, 0)
+                out[yy[~inl], xx[~inl]] = (0, 0, 255)
+    for p in fr.klt_uv:
+        cv2.circle(out, (int(round(p[0])), int(round(p[1]))), 2, (0, 255, 255), -1)
+    col = (0, 200, 0) if status in ("model", "slam") else (0, 0, 255)
+    cv2.putText(out, f"{status} in={fr.n_inliers}/{fr.n_samples} res={fr.residual_px:.2f}px pe={fr.proj_error_deg:.1f}deg",
+                (8, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.5, col, 1, cv2.LINE_AA)
+    return out
+
+
+class OverlayWriter:
+    """Writes overlay frames to an .mp4/.avi (OpenCV ``mp4v``) or a folder of PNGs."""
+
+    def __init__(self, path: Path, fps: float):
+        self.path = Path(path)
+        self.fps = fps
+        self.is_video = self.path.suffix.lower() in (".mp4", ".avi", ".mov", ".mkv")
+        self.writer = None
+        self.count = 0
+        if not self.is_video:
+            self.path.mkdir(parents=True, exist_ok=True)
+
+    def write(self, img: np.ndarray, index: int) -> None:
+        import cv2
+
+        if self.is_video:
+            if self.writer is None:
+                self.writer = cv2.VideoWriter(str(self.path), cv2.VideoWriter_fourcc(*"mp4v"), self.fps,
+                                              (img.shape[1], img.shape[0]))
+            self.writer.write(img)
+        else:
+            cv2.imwrite(str(self.path / f"{index:06d}.png"), img)
+        self.count += 1
+
+    def close(self) -> None:
+        if self.writer is not None:
+            self.writer.release()
+
+
+# ---------------------------------------------------------------------------- the stage
+def _make_aid(mode: str, cam, config: TrackerConfig, depth_dir, depth_camera, T_depth_color, notes: list[str]):
+    if mode == "off":
+        return None, "off"
+    if mode == "auto":
+        mode = "rgbd" if depth_dir is not None else "mono"
+    try:
+        from mst.pipeline import slam
+    except ImportError:
+        notes.append(f"SLAM aid '{mode}' unavailable (mst.pipeline.slam not installed): edges only")
+        return None, "off"
+    aid = slam.make_aid(mode, cam, config_to_dict(config), depth_dir, depth_camera, T_depth_color)
+    return aid, mode
+
+
+def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, camera_path: str | os.PathLike,
+              init_pose_path: str | os.PathLike, out_traj: str | os.PathLike, config: TrackerConfig | None = None, *,
+              frames: str | None = None, scale: float = 1.0, fps: float | None = None, overlay: str | None = None,
+              slam: str = "off", depth_dir: str | os.PathLike | None = None, depth_camera_path=None,
+              depth_to_color_path=None, write_json: bool = False, progress=None, notes: list[str] | None = None) -> dict:
+    """Track a model through frames; write ``out_traj`` (TUM, tracked frames), ``.csv`` and ``.json``.
+
+    ``init_pose_path``: the pose of the first selected frame (TUM line or 4x4 cMo). Returns the
+    summary dict (also written as ``<stem>.json`` when ``write_json``). ``progress``: optional
+    callable advanced once per frame. Raises :class:`mst.InputError` for bad input before
+    anything is written.
+    """
+    import cv2
+
+    from mst.pipeline.camera import read_camera
+    from mst.pipeline.frames import check_camera_size, open_frames
+    from mst.pipeline.poses import T_to_tum, inv_T, read_pose_file
+    from mst.pipeline.settings import validate_config
+
+    cfg = config or TrackerConfig()
+    validate_config(cfg)
+    notes = notes if notes is not None else []
+    model = load_polygon_model(model_path)
+    cam0 = read_camera(camera_path)
+    src = open_frames(frames_spec, frames, scale, fps)
+    cam = check_camera_size(src, cam0, camera_path)
+    if cam.has_distortion:
+        notes.append("camera distortion is ignored by the edge tracker (undistorted pinhole model used)")
+    T0 = read_pose_file(init_pose_path)
+    if scale != 1.0:
+        pass  # poses are metric; only the intrinsics scale
+    check_pose_in_view(model, T0, cam, init_pose_path)
+    depth_camera = read_camera(depth_camera_path) if depth_camera_path else None
+    T_depth_color = None
+    if depth_to_color_path:
+        vals = np.array(Path(depth_to_color_path).read_text().split(), float) if Path(depth_to_color_path).is_file() else None
+        if vals is None or vals.size not in (12, 16):
+            raise InputError(depth_to_color_path, "expected a 4x4 (or 3x4) matrix")
+        T_depth_color = np.eye(4)
+        T_depth_color[: vals.size // 4] = vals.reshape(-1, 4)
+    if depth_dir is not None and not Path(depth_dir).is_dir():
+        raise InputError(depth_dir, "depth folder does not exist")
+    aid, aid_mode = _make_aid(slam, cam, cfg, Path(depth_dir) if depth_dir else None, depth_camera, T_depth_color, notes)
+
+    tracker = EdgeTracker(model, cam, cfg)
+    out_traj = Path(out_traj)
+    csv_path = out_traj.with_suffix(".csv")
+    json_path = out_traj.with_suffix(".json") if write_json else None
+    rows, times, poses = [], [], []
+    ov = OverlayWriter(Path(overlay), src.fps or 30.0) if overlay else None
+    T_prev = T0
+    lost_streak = 0
+    first = True
+    t_frames = []
+    try:
+        for idx, t_s, bgr in src:
+            gray = cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY)
+            t0 = time.perf_counter()
+            T_pred = aid.predict(idx, gray, T_prev) if aid is not None else None
+            T_start = T_pred if T_pred is not None else T_prev
+            fr = tracker.track(gray, T_start, recover=lost_streak > 0, first=first)
+            if aid is not None:
+                T_out, status = aid.update(idx, gray, fr.T_cam_model, fr.W, fr.healthy)
+            else:
+                T_out, status = (fr.T_cam_model, "model") if fr.healthy else (None, "lost")
+            if T_out is not None and status != "lost":
+                tracker.accept(gray, T_out)
+                T_prev = T_out
+                lost_streak = 0
+            else:
+                lost_streak += 1
+                T_out = None
+                status = "lost"
+            first = False
+            ms = (time.perf_counter() - t0) * 1000.0
+            t_frames.append(ms)
+            rows.append([idx, f"{t_s:.6f}", status, fr.n_samples, fr.n_inliers,
+                         f"{fr.residual_px:.4f}" if np.isfinite(fr.residual_px) else "nan",
+                         f"{fr.proj_error_deg:.3f}", f"{ms:.3f}"])
+            if T_out is not None:
+                times.append(t_s)
+                poses.append(inv_T(T_out))
+            if ov is not None:
+                ov.write(draw_overlay(bgr, fr, status), idx)
+            if progress:
+                progress()
+    finally:
+        if ov is not None:
+            ov.close()
+        if aid is not None and hasattr(aid, "close"):
+            aid.close()
+    n = len(rows)
+    n_tr = len(poses)
+    statuses = [r[2] for r in rows]
+    summary = {
+        "frames": n, "tracked": n_tr, "lost": statuses.count("lost"), "model": statuses.count("model"),
+        "slam": statuses.count("slam"), "first_lost_frame": next((r[0] for r in rows if r[2] == "lost"), None),
+        "median_ms": float(np.median(t_frames)) if t_frames else None,
+        "p95_ms": float(np.percentile(t_frames, 95)) if t_frames else None,
+        "mean_residual_px": float(np.nanmean([float(r[5]) for r in rows])) if rows else None,
+        "mean_proj_error_deg": float(np.mean([float(r[6]) for r in rows])) if rows else None,
+        "aid": aid_mode, "traj": str(out_traj), "csv": str(csv_path), "notes": notes,
+        "camera": cam.to_dict(), "config": config_to_dict(cfg),
+    }
+    from mst.pipeline.poses import format_tum
+
+    with atomic_outputs(out_traj, csv_path, json_path) as (tmp_traj, tmp_csv, tmp_json):
+        tmp_traj.write_text("# mst track: TUM 't tx ty tz qx qy qz qw' camera pose in model frame, tracked frames only\n"
+                            + (format_tum(np.array(times), np.array(poses)) if poses else ""))
+        buf = io.StringIO()
+        w = csv.writer(buf, lineterminator="\n")
+        w.writerow(["frame", "time", "status", "samples", "inliers", "residual_px", "health", "ms"])
+        w.writerows(rows)
+        tmp_csv.write_text(buf.getvalue())
+        if tmp_json is not None:
+            import json
+
+            tmp_json.write_text(json.dumps(summary, indent=2, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o)) + "\n")
+    _ = (T_to_tum, sys)
+    return summary
