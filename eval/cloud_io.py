@@ -1,0 +1,400 @@
+"""Point-cloud reading and writing, streamed in chunks (bounded memory).
+
+Formats (picked by suffix):
+
+* ``.ply``: binary (little/big endian, read with a numpy structured dtype straight from the file,
+  memory-mapped) or ascii; the ``vertex`` element with ``x y z`` properties of any numeric type.
+* ``.pcd``: PCL point clouds, ``DATA ascii`` or ``binary`` (``binary_compressed`` is refused).
+* ``.xyz``, ``.txt``, ``.csv``, ``.asc``, ``.pts``: text, the first three numeric columns are x y z;
+  separators space, tab, comma or semicolon; ``#``/``//`` comment lines and a non-numeric header line
+  are skipped.
+* ``.las``, ``.laz``: with laspy (LAZ through lazrs), scaled coordinates in float64.
+
+Coordinates come back as float64 (N, 3) arrays in the file's units (metres for survey data), so
+georeferenced clouds (1e6 m) keep their precision. Non-finite rows are passed through; callers decide.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from mst import InputError, require_file
+
+PLY_TYPES = {
+    "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1",
+    "short": "i2", "int16": "i2", "ushort": "u2", "uint16": "u2",
+    "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
+    "float": "f4", "float32": "f4", "double": "f8", "float64": "f8",
+}
+TEXT_SUFFIXES = {".xyz", ".txt", ".csv", ".asc", ".pts"}
+CLOUD_SUFFIXES = {".ply", ".pcd", ".las", ".laz"} | TEXT_SUFFIXES
+
+
+@dataclass
+class CloudSource:
+    """An opened cloud: ``count`` rows, read in chunks with :meth:`chunks`.
+
+    ``xyz_dtype`` is the numpy dtype of the stored coordinates (``f4`` or ``f8``), so writers can
+    keep float32 clouds float32.
+    """
+
+    path: Path
+    count: int
+    xyz_dtype: np.dtype
+    _reader: object = field(repr=False, default=None)
+
+    def chunks(self, size: int = 1_000_000) -> Iterator[np.ndarray]:
+        """Yield float64 (n, 3) coordinate blocks of at most ``size`` rows, in file order."""
+        yield from self._reader(size)  # type: ignore[misc]
+
+    def read_all(self) -> np.ndarray:
+        """All coordinates as one float64 (N, 3) array."""
+        parts = list(self.chunks(max(self.count, 1)))
+        return np.concatenate(parts) if parts else np.zeros((0, 3))
+
+
+def open_cloud(path: str | os.PathLike) -> CloudSource:
+    """Open a cloud file for chunked reading (see the module docstring for formats).
+
+    Raises :class:`mst.InputError` for a missing, unknown or corrupt file.
+    """
+    p = require_file(path, "cloud file")
+    suf = p.suffix.lower()
+    if suf == ".ply":
+        return _open_ply(p)
+    if suf == ".pcd":
+        return _open_pcd(p)
+    if suf in (".las", ".laz"):
+        return _open_las(p)
+    if suf in TEXT_SUFFIXES:
+        return _open_text(p)
+    raise InputError(p, f"unknown cloud format {suf!r} (use .ply .pcd .xyz .txt .csv .las .laz)")
+
+
+def read_cloud(path: str | os.PathLike) -> np.ndarray:
+    """Read a whole cloud: float64 (N, 3) coordinates (file units, usually metres)."""
+    return open_cloud(path).read_all()
+
+
+# ----------------------------------------------------------------------------------------- PLY
+def _read_header_lines(p: Path, magic: bytes, end: bytes, limit: int = 1 << 20) -> tuple[list[str], int]:
+    with open(p, "rb") as f:
+        head = f.read(limit)
+    if not head.startswith(magic):
+        raise InputError(p, f"not a {magic.decode().strip()} file (bad magic)")
+    lines, pos = [], 0
+    while True:
+        nl = head.find(b"\n", pos)
+        if nl < 0:
+            raise InputError(p, "truncated or corrupt header")
+        line = head[pos:nl].decode("ascii", "replace").strip()
+        pos = nl + 1
+        lines.append(line)
+        if line.startswith(end.decode()):
+            return lines, pos
+
+
+def _open_ply(p: Path) -> CloudSource:
+    lines, data_start = _read_header_lines(p, b"ply", b"end_header")
+    fmt = None
+    elements: list[tuple[str, int, list[tuple[str, str]]]] = []
+    for line in lines[1:]:
+        tok = line.split()
+        if not tok:
+            continue
+        if tok[0] == "format":
+            fmt = tok[1]
+        elif tok[0] == "element":
+            elements.append((tok[1], int(tok[2]), []))
+        elif tok[0] == "property":
+            if not elements:
+                raise InputError(p, "property before any element in the header")
+            if tok[1] == "list":
+                elements[-1][2].append((tok[-1], "list"))
+            else:
+                if tok[1] not in PLY_TYPES:
+                    raise InputError(p, f"unknown PLY type {tok[1]!r}")
+                elements[-1][2].append((tok[2], PLY_TYPES[tok[1]]))
+    if fmt not in ("ascii", "binary_little_endian", "binary_big_endian"):
+        raise InputError(p, f"unsupported PLY format {fmt!r}")
+    names = [e[0] for e in elements]
+    if "vertex" not in names:
+        raise InputError(p, "no 'vertex' element")
+    vi = names.index("vertex")
+    _, n, props = elements[vi]
+    pnames = [q[0] for q in props]
+    if not {"x", "y", "z"} <= set(pnames):
+        raise InputError(p, "vertex element lacks x, y, z properties")
+    xyz_dtype = np.dtype(max((dict(props)[k] for k in "xyz"), key=lambda s: np.dtype(s).itemsize))
+    if fmt == "ascii":
+        if any(e[1] > 0 for e in elements[:vi]):
+            raise InputError(p, "ascii PLY with elements before 'vertex' is not supported")
+        cols = [pnames.index(k) for k in "xyz"]
+        if any(t == "list" for _, t in props):
+            raise InputError(p, "ascii PLY vertex with list properties is not supported")
+
+        def reader(size: int) -> Iterator[np.ndarray]:
+            with open(p, "rb") as f:
+                f.seek(data_start)
+                left = n
+                while left > 0:
+                    k = min(size, left)
+                    try:
+                        a = np.loadtxt(f, dtype=np.float64, usecols=cols, max_rows=k, ndmin=2)
+                    except ValueError as e:
+                        raise InputError(p, f"corrupt ascii vertex data ({e})") from None
+                    if len(a) < k:
+                        raise InputError(p, f"file ends after {n - left + len(a)} of {n} vertices")
+                    left -= k
+                    yield a
+
+        return CloudSource(p, n, xyz_dtype, reader)
+    if any(t == "list" for e in elements[: vi + 1] for _, t in e[2]):
+        raise InputError(p, "binary PLY with list properties before/in 'vertex' is not supported")
+    end = "<" if fmt == "binary_little_endian" else ">"
+    offset = data_start
+    for e in elements[:vi]:
+        offset += e[1] * np.dtype([(nm, end + t) for nm, t in e[2]]).itemsize
+    dt = np.dtype([(nm, end + t) for nm, t in props])
+    need = offset + n * dt.itemsize
+    if p.stat().st_size < need:
+        raise InputError(p, f"file is truncated: {p.stat().st_size} bytes, header needs {need}")
+
+    def reader(size: int) -> Iterator[np.ndarray]:
+        if n == 0:
+            return
+        mm = np.memmap(p, dtype=dt, mode="r", offset=offset, shape=(n,))
+        for s in range(0, n, size):
+            blk = mm[s : s + size]
+            out = np.empty((len(blk), 3), np.float64)
+            for j, k in enumerate("xyz"):
+                out[:, j] = blk[k]
+            yield out
+        del mm
+
+    return CloudSource(p, n, xyz_dtype, reader)
+
+
+# ----------------------------------------------------------------------------------------- PCD
+def _open_pcd(p: Path) -> CloudSource:
+    with open(p, "rb") as f:
+        head = f.read(1 << 16)
+    hdr: dict[str, list[str]] = {}
+    pos = 0
+    while True:
+        nl = head.find(b"\n", pos)
+        if nl < 0:
+            raise InputError(p, "truncated or corrupt PCD header (no DATA line)")
+        line = head[pos:nl].decode("ascii", "replace").strip()
+        pos = nl + 1
+        if not line or line.startswith("#"):
+            continue
+        tok = line.split()
+        hdr[tok[0].upper()] = tok[1:]
+        if tok[0].upper() == "DATA":
+            break
+    try:
+        fields = hdr["FIELDS"]
+        n = int(hdr["POINTS"][0]) if "POINTS" in hdr else int(hdr["WIDTH"][0]) * int(hdr["HEIGHT"][0])
+        data = hdr["DATA"][0].lower()
+    except (KeyError, IndexError, ValueError):
+        raise InputError(p, "PCD header lacks FIELDS/POINTS/DATA") from None
+    if not {"x", "y", "z"} <= set(fields):
+        raise InputError(p, "PCD has no x, y, z fields")
+    sizes = [int(s) for s in hdr.get("SIZE", ["4"] * len(fields))]
+    types = hdr.get("TYPE", ["F"] * len(fields))
+    counts = [int(c) for c in hdr.get("COUNT", ["1"] * len(fields))]
+    kind = {"F": "f", "I": "i", "U": "u"}
+    xyz_dtype = np.dtype(f"f{max(sizes[fields.index(k)] for k in 'xyz')}")
+    if data == "ascii":
+        col, cols = 0, {}
+        for nm, c in zip(fields, counts):
+            cols[nm] = col
+            col += c
+
+        def reader(size: int) -> Iterator[np.ndarray]:
+            with open(p, "rb") as f:
+                f.seek(pos)
+                left = n
+                while left > 0:
+                    k = min(size, left)
+                    try:
+                        a = np.loadtxt(f, dtype=np.float64, usecols=[cols[c] for c in "xyz"], max_rows=k, ndmin=2)
+                    except ValueError as e:
+                        raise InputError(p, f"corrupt ascii PCD data ({e})") from None
+                    if len(a) < k:
+                        raise InputError(p, f"file ends after {n - left + len(a)} of {n} points")
+                    left -= k
+                    yield a
+
+        return CloudSource(p, n, xyz_dtype, reader)
+    if data != "binary":
+        raise InputError(p, f"PCD DATA {data!r} not supported (use ascii or binary)")
+    dt = np.dtype([(nm, "<" + kind[t] + str(s), (c,)) if c > 1 else (nm, "<" + kind[t] + str(s))
+                   for nm, s, t, c in zip(fields, sizes, types, counts)])
+    if p.stat().st_size < pos + n * dt.itemsize:
+        raise InputError(p, "file is truncated")
+
+    def reader(size: int) -> Iterator[np.ndarray]:
+        if n == 0:
+            return
+        mm = np.memmap(p, dtype=dt, mode="r", offset=pos, shape=(n,))
+        for s in range(0, n, size):
+            blk = mm[s : s + size]
+            yield np.stack([blk[k].astype(np.float64) for k in "xyz"], axis=1)
+        del mm
+
+    return CloudSource(p, n, xyz_dtype, reader)
+
+
+# ----------------------------------------------------------------------------------------- LAS
+def _open_las(p: Path) -> CloudSource:
+    import laspy
+
+    try:
+        with laspy.open(p) as f:
+            n = int(f.header.point_count)
+    except Exception as e:  # laspy raises several types for corrupt files
+        raise InputError(p, f"cannot read LAS/LAZ header ({e})") from None
+
+    def reader(size: int) -> Iterator[np.ndarray]:
+        try:
+            with laspy.open(p) as f:
+                for pts in f.chunk_iterator(size):
+                    yield np.stack([np.asarray(pts.x, np.float64), np.asarray(pts.y, np.float64),
+                                    np.asarray(pts.z, np.float64)], axis=1)
+        except InputError:
+            raise
+        except Exception as e:
+            raise InputError(p, f"cannot read LAS/LAZ points ({e})") from None
+
+    return CloudSource(p, n, np.dtype("f8"), reader)
+
+
+# ---------------------------------------------------------------------------------------- text
+_SPLIT = re.compile(rb"[,;\t ]+")
+
+
+def _open_text(p: Path) -> CloudSource:
+    """Text clouds are parsed once, whole (text is not used for very large clouds)."""
+    raw = p.read_bytes()
+    lines = [ln.strip() for ln in raw.splitlines()]
+    lines = [ln for ln in lines if ln and not ln.startswith((b"#", b"//"))]
+    if lines:
+        try:
+            [float(x) for x in _SPLIT.split(lines[0])[:3]]
+        except ValueError:
+            lines = lines[1:]  # a header line with column names
+    if not lines:
+        a = np.zeros((0, 3))
+    else:
+        try:
+            first = len(_SPLIT.split(lines[0]))
+            if first < 3:
+                raise InputError(p, "fewer than 3 columns (need x y z)")
+            body = b"\n".join(_SPLIT.sub(b" ", ln) for ln in lines)
+            a = np.array(body.split(), dtype=np.float64)
+            if a.size % first:
+                raise InputError(p, "rows have different numbers of columns")
+            a = a.reshape(-1, first)[:, :3]
+        except ValueError as e:
+            raise InputError(p, f"not a number in the cloud ({e})") from None
+
+    def reader(size: int) -> Iterator[np.ndarray]:
+        for s in range(0, len(a), size):
+            yield a[s : s + size]
+
+    return CloudSource(p, len(a), np.dtype("f8"), reader)
+
+
+# --------------------------------------------------------------------------------------- write
+class PlyChunkWriter:
+    """Write a binary little-endian PLY vertex cloud chunk by chunk.
+
+    ``fields`` are extra float32 scalar fields named ``scalar_<name>`` in the file, the convention
+    CloudCompare reads as scalar fields (e.g. ``C2M_absolute_distances``). Coordinates are written as
+    ``xyz_dtype`` (float32 or float64: keep float64 for georeferenced clouds). The vertex count must
+    be known up front (``count``); :meth:`close` checks it.
+    """
+
+    def __init__(self, path: str | os.PathLike, count: int, fields: list[str], xyz_dtype=np.float64):
+        self.path, self.count, self.fields = Path(path), int(count), list(fields)
+        xt = np.dtype(xyz_dtype)
+        tname = {4: "float", 8: "double"}[xt.itemsize]
+        self.dtype = np.dtype([(k, "<f" + str(xt.itemsize)) for k in "xyz"] + [(f, "<f4") for f in self.fields])
+        header = ["ply", "format binary_little_endian 1.0", "comment written by mst",
+                  f"element vertex {self.count}"]
+        header += [f"property {tname} {k}" for k in "xyz"]
+        header += [f"property float scalar_{f}" for f in self.fields]
+        header += ["end_header"]
+        self._f = open(self.path, "wb")
+        self._f.write(("\n".join(header) + "\n").encode("ascii"))
+        self.written = 0
+
+    def write(self, xyz: np.ndarray, **scalars: np.ndarray) -> None:
+        rec = np.empty(len(xyz), self.dtype)
+        for j, k in enumerate("xyz"):
+            rec[k] = xyz[:, j]
+        for f in self.fields:
+            rec[f] = scalars[f]
+        rec.tofile(self._f)
+        self.written += len(xyz)
+
+    def close(self) -> None:
+        self._f.close()
+        if self.written != self.count:
+            raise RuntimeError(f"PLY writer: {self.written} vertices written, header says {self.count}")
+
+    def __enter__(self) -> PlyChunkWriter:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        if exc[0] is None:
+            self.close()
+        else:
+            self._f.close()
+
+
+def write_cloud(path: str | os.PathLike, xyz: np.ndarray, scalars: dict[str, np.ndarray] | None = None,
+                xyz_dtype=np.float64) -> None:
+    """Write a cloud with optional scalar fields.
+
+    ``.ply`` (binary, fields as ``scalar_<name>``), ``.xyz``/``.txt``/``.csv`` (x y z then the fields,
+    with a ``//X,Y,Z,...`` header line for CSV), ``.las``/``.laz`` (fields as extra float32 dimensions).
+    Call it inside :func:`mst.atomic_output` for atomicity.
+    """
+    p = Path(path)
+    xyz = np.asarray(xyz, np.float64).reshape(-1, 3)
+    scalars = scalars or {}
+    suf = p.suffix.lower()
+    if suf == ".ply":
+        with PlyChunkWriter(p, len(xyz), list(scalars), xyz_dtype) as w:
+            w.write(xyz, **scalars)
+    elif suf in TEXT_SUFFIXES:
+        cols = np.column_stack([xyz] + [np.asarray(v, np.float64) for v in scalars.values()])
+        delim = "," if suf == ".csv" else " "
+        header = delim.join(["X", "Y", "Z", *scalars]) if suf == ".csv" else ""
+        np.savetxt(p, cols, fmt="%.9g" if xyz_dtype == np.float32 else "%.10f", delimiter=delim,
+                   header=header, comments="//")
+    elif suf in (".las", ".laz"):
+        import laspy
+
+        hdr = laspy.LasHeader(point_format=3, version="1.2")
+        lo = np.nanmin(xyz, axis=0) if len(xyz) else np.zeros(3)
+        hdr.offsets = np.floor(lo)
+        hdr.scales = np.array([1e-4, 1e-4, 1e-4])
+        for k in scalars:
+            hdr.add_extra_dim(laspy.ExtraBytesParams(name=k, type=np.float32))
+        las = laspy.LasData(hdr)
+        las.x, las.y, las.z = xyz[:, 0], xyz[:, 1], xyz[:, 2]
+        for k, v in scalars.items():
+            las[k] = np.asarray(v, np.float32)
+        las.write(p)
+    else:
+        raise InputError(p, f"unknown cloud format {suf!r} for writing")
