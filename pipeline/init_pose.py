@@ -278,3 +278,120 @@ def draw_model(bgr: np.ndarray, model, T_cam_model: np.ndarray, K: np.ndarray, n
         for p in clicks:
             cv2.drawMarker(out, (int(round(p[0])), int(round(p[1]))), (255, 0, 255), cv2.MARKER_CROSS, 10, 1)
     return out
+
+
+def _default_view(model, K: np.ndarray, width: int, height: int) -> np.ndarray:
+    """A look-at ``T_cam_model`` showing the whole model from an oblique direction."""
+    V = np.asarray(model.vertices)
+    c = 0.5 * (V.min(0) + V.max(0))
+    r = max(float(np.linalg.norm(V - c, axis=1).max()), 1e-6)
+    fov = 2 * np.arctan(0.5 * min(width / K[0, 0], height / K[1, 1]))
+    d = np.array([0.6, -0.8, 0.6])
+    d /= np.linalg.norm(d)
+    eye = c + d * (1.3 * r / np.sin(fov / 2))
+    z = (c - eye) / np.linalg.norm(c - eye)
+    up = np.array([0.0, 0.0, 1.0])
+    x = np.cross(z, -up)
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    R = np.stack([x, y, z])  # rows: camera axes in the model frame
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = -R @ eye
+    return T
+
+
+def _read_image(path) -> np.ndarray:
+    from mst.pipeline.frames import open_frames
+
+    src = open_frames(path, "0:1")
+    for _, _, bgr in src:
+        return bgr
+    raise InputError(path, "no frame could be read")
+
+
+def run_init(model_path, camera_path, out, *, clicks_path=None, points_path=None, from_pose=None,
+             mount=(0.0, 0.0, 0.0), mount_offset=(0.0, 0.0, 0.0), image_path=None, overlay_path=None,
+             show_points: bool = False, max_residual: float = 10.0) -> dict:
+    """The ``mst init`` stage: write the pose file ``out`` (or, with ``show_points``, a PNG).
+
+    Returns a summary dict (pose as ``T_cam_model``, per-click residuals in px, RMS).
+    Raises :class:`mst.InputError` for bad input or a failed, diagnosed initialisation.
+    """
+    import cv2
+
+    from mst import atomic_output, atomic_outputs
+    from mst.pipeline.camera import read_camera
+    from mst.pipeline.poses import write_pose_file
+    from mst.pipeline.tracker import check_pose_in_view, load_polygon_model
+
+    model = load_polygon_model(model_path)
+    cam = read_camera(camera_path)
+    img = None
+    if image_path is not None:
+        img = _read_image(image_path)
+        h, w = img.shape[:2]
+        if cam.width and cam.height and (cam.width, cam.height) != (w, h):
+            raise InputError(camera_path, f"camera is for {cam.width}x{cam.height} images but {image_path} is {w}x{h}")
+        cam = cam.with_size(w, h)
+    if not cam.width:
+        cam = cam.with_size(int(round(2 * cam.cx + 1)), int(round(2 * cam.cy + 1)))
+    K = cam.K
+    summary: dict = {"camera": cam.to_dict(), "residual_px": None}
+
+    if show_points:
+        pts = read_init_points(points_path) if points_path else None
+        if pts is None and clicks_path:
+            pts = read_clicks(clicks_path)[0]
+        if pts is None:
+            raise InputError(None, "--show-points needs --points FILE.init (or clicks with 'X Y Z u v')")
+        T = None
+        if clicks_path and img is not None:
+            X, uv = read_clicks(clicks_path, points_path)
+            T = solve_pnp(X, uv, K, cam.dist)
+        if T is None:
+            T = _default_view(model, K, cam.width, cam.height)
+            canvas = np.full((cam.height, cam.width, 3), 255, np.uint8)
+        else:
+            canvas = img
+        pic = draw_model(canvas, model, T, K, color=(200, 80, 0), points=pts, numbers=True)
+        with atomic_output(out) as tmp:
+            if not cv2.imwrite(str(tmp), pic):
+                raise InputError(out, "could not write the picture (use .png)")
+        summary.update({"picture": str(out), "points": pts})
+        return summary
+
+    if from_pose is not None:
+        if clicks_path:
+            raise InputError(clicks_path, "give either --clicks or --from-pose, not both")
+        T = pose_from_gps(np.array(from_pose[:3]), *from_pose[3:], mount_ypr_deg=tuple(mount), mount_offset_m=tuple(mount_offset))
+        check_pose_in_view(model, T, cam, out)
+        summary["source"] = "from-pose"
+    else:
+        if not clicks_path:
+            raise InputError(None, "give --clicks (with --points for 'u v' clicks) or --from-pose")
+        X, uv = read_clicks(clicks_path, points_path)
+        if img is not None:
+            outside = (uv[:, 0] < 0) | (uv[:, 1] < 0) | (uv[:, 0] > cam.width) | (uv[:, 1] > cam.height)
+            if outside.any():
+                raise InputError(clicks_path, f"click(s) {', '.join(str(i + 1) for i in np.flatnonzero(outside))} lie outside the "
+                                              f"{cam.width}x{cam.height} image")
+        try:
+            res = init_from_clicks(X, uv, K, cam.dist, max_residual)
+        except ValueError as e:
+            raise InputError(clicks_path, str(e)) from None
+        summary.update({"source": "clicks", "uv": uv, "X_model": X, "residual_px": res.residual_px, "rms_px": res.rms_px})
+        if res.diagnosis:
+            per = ", ".join(f"#{i + 1} {r:.1f}" for i, r in enumerate(res.residual_px))
+            raise InputError(clicks_path, f"{res.diagnosis} (residuals px: {per})")
+        T = res.T_cam_model
+    summary["T_cam_model"] = T
+    with atomic_outputs(out, overlay_path) as (tmp, tmp_ov):
+        write_pose_file(tmp, T)
+        if tmp_ov is not None:
+            if img is None:
+                raise InputError(overlay_path, "--overlay needs --image")
+            pic = draw_model(img, model, T, K, points=summary.get("X_model"), clicks=summary.get("uv"))
+            if not cv2.imwrite(str(tmp_ov), pic):
+                raise InputError(overlay_path, "could not write the overlay (use .png)")
+    return summary

@@ -1,0 +1,66 @@
+"""``mst init``: the first camera pose from clicked model points, or from GPS/attitude."""
+
+from __future__ import annotations
+
+import click
+
+from mst import InputError
+from mst.cli.common import emit_json, info, json_option, print_table, quiet_option
+
+
+@click.command("init")
+@click.option("--model", "model_path", required=True, type=click.Path(dir_okay=False), help="Polygon model (.cao .wrl .obj ...).")
+@click.option("--camera", "camera_path", required=True, type=click.Path(dir_okay=False), help="Camera file (ViSP XML, OpenCV YAML/JSON, mst JSON).")
+@click.option("--clicks", "clicks_path", type=click.Path(dir_okay=False), default=None,
+              help="Clicks: 'X Y Z u v' per line, or 'u v' per line with --points.")
+@click.option("--points", "points_path", type=click.Path(dir_okay=False), default=None,
+              help="ViSP .init file (count, then 'X Y Z' lines) paired in order with 'u v' clicks.")
+@click.option("--from-pose", "from_pose", nargs=6, type=float, default=None, metavar="X Y Z YAW PITCH ROLL",
+              help="Approximate pose: position (model frame, metres; x east, y north, z up) and yaw/pitch/roll (deg).")
+@click.option("--mount", nargs=3, type=float, default=(0.0, 0.0, 0.0), show_default=True, metavar="YAW PITCH ROLL",
+              help="Fixed camera-mount rotation relative to the vehicle body (deg), with --from-pose.")
+@click.option("--mount-offset", nargs=3, type=float, default=(0.0, 0.0, 0.0), show_default=True, metavar="DX DY DZ",
+              help="Camera lever arm in the body frame (metres), with --from-pose.")
+@click.option("--image", "image_path", type=click.Path(dir_okay=False), default=None,
+              help="The frame the clicks were taken on (a picture, or a video: its first frame).")
+@click.option("--overlay", "overlay_path", type=click.Path(dir_okay=False), default=None, help="PNG: the model drawn with the pose on --image.")
+@click.option("--show-points", is_flag=True, help="Render the model with the --points numbered (needs --image and a pose/clicks, or -o picture).")
+@click.option("--max-residual", type=float, default=10.0, show_default=True, help="RMS reprojection error (px) above which init fails with a diagnosis.")
+@click.option("-o", "--output", "out", required=True, type=click.Path(dir_okay=False), help="Pose file (TUM line + cMo comment); with --show-points a PNG.")
+@json_option
+@quiet_option
+def init_pose(model_path, camera_path, clicks_path, points_path, from_pose, mount, mount_offset, image_path,
+              overlay_path, show_points, max_residual, out, as_json, quiet):
+    """Compute the first camera pose from >= 4 clicked model points (PnP + robust refinement).
+
+    Per-click reprojection residuals (px) are printed. When they are large the command fails
+    and names the likely cause: two swapped clicks (and which), or a wrong camera.
+
+    \b
+    Examples:
+      mst init --model teabox.cao --camera teabox.xml --clicks teabox.clicks --points teabox.init \\
+               -o pose0.txt --image teabox.mp4 --overlay check.png
+      mst init --model teabox.cao --camera teabox.xml --points teabox.init --show-points \\
+               --image teabox.mp4 --clicks teabox.clicks -o where_to_click.png
+      mst init --model bldg.obj --camera cam.json --from-pose 10 -40 30 90 -20 0 -o pose0.txt
+
+    \b
+    --from-pose angles: yaw counter-clockwise from the model x axis (east) about z (up), pitch
+    positive nose up, roll positive right side down; the body looks along its x axis. The camera
+    looks along the body's forward axis after --mount (e.g. --mount 0 -90 0 for a nadir camera).
+    """
+    from mst.pipeline.init_pose import run_init
+
+    res = run_init(model_path, camera_path, out, clicks_path=clicks_path, points_path=points_path,
+                   from_pose=from_pose, mount=mount, mount_offset=mount_offset, image_path=image_path,
+                   overlay_path=overlay_path, show_points=show_points, max_residual=max_residual)
+    if res.get("residual_px") is not None:
+        print_table("click residuals", ["#", "u", "v", "residual px"],
+                    [(i + 1, f"{u:.1f}", f"{v:.1f}", f"{r:.2f}") for i, ((u, v), r) in enumerate(zip(res["uv"], res["residual_px"]))],
+                    quiet)
+        info(f"RMS {res['rms_px']:.2f} px -> {out}", quiet)
+    else:
+        info(f"-> {out}", quiet)
+    if as_json:
+        emit_json(res)
+    _ = InputError
