@@ -27,8 +27,9 @@ from mst.cli.common import emit_json, info, json_option, progress_bar, quiet_opt
               help="Drop pixels whose 4-neighbour depth jumps by more than K * depth (0: off).")
 @click.option("--max-angle", type=float, default=80.0, show_default=True,
               help="Degrees; drop samples seen more obliquely than this to their surface (90: off).")
-@click.option("--voxel", type=float, default=0.005, show_default=True,
-              help="Voxel size in metres: one averaged point per voxel (0: keep every sample); TSDF voxel with --tsdf.")
+@click.option("--voxel", type=float, default=None,
+              help="Voxel size in metres: one averaged point per voxel, 0 keeps every sample [default: 0.005]; "
+                   "with --tsdf the TSDF voxel [default: 0.01].")
 @click.option("--stride", type=int, default=1, show_default=True, help="Fuse every N-th depth frame.")
 @click.option("--fps", type=float, default=None,
               help="Trajectory times are seconds: frame index = round(t * FPS). Default: times are frame indices.")
@@ -69,6 +70,8 @@ def fuse(traj, depth, camera, output, depth_to_color, depth_scale, min_depth, ma
         raise click.UsageError("--depth needs --traj and --camera")
     if depth is None and landmarks is None:
         raise click.UsageError("give --depth (with --traj and --camera) or --landmarks")
+    if voxel is None:
+        voxel = 0.01 if tsdf else 0.005
     cfg = FuseConfig(depth_scale=depth_scale, min_depth=min_depth, max_depth=max_depth, edge_k=edge_k,
                      max_angle_deg=max_angle, voxel=voxel, stride=stride, fps=fps, tsdf=tsdf)
     summary = run_fuse(output, cfg, traj_path=traj, depth_dir=depth, camera_path=camera,

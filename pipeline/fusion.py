@@ -32,7 +32,6 @@ import time
 from collections.abc import Callable
 from contextlib import nullcontext
 from dataclasses import asdict, dataclass
-from pathlib import Path
 
 import numpy as np
 
@@ -62,7 +61,7 @@ class FuseConfig:
 
 # ---------------------------------------------------------------------------- small functions
 def pixel_rays(camera: Camera, width: int, height: int) -> np.ndarray:
-    """(H, W, 3) float64 rays ``(x, y, 1)`` in the camera frame for every pixel (distortion removed).
+    """(H, W, 3) float32 rays ``(x, y, 1)`` in the camera frame for every pixel (distortion removed).
 
     A pixel with z-depth ``d`` (metres) is the camera-frame point ``d * ray``.
     """
@@ -70,7 +69,7 @@ def pixel_rays(camera: Camera, width: int, height: int) -> np.ndarray:
     xy = camera.unproject(np.stack([u.ravel(), v.ravel()], axis=1))
     rays = np.ones((height, width, 3))
     rays[:, :, :2] = xy.reshape(height, width, 2)
-    return rays
+    return rays.astype(np.float32)
 
 
 def depth_edge_mask(depth_m: np.ndarray, k: float) -> np.ndarray:
@@ -93,17 +92,23 @@ def grazing_mask(points_cam: np.ndarray, valid: np.ndarray, max_angle_deg: float
     the 4-neighbours (samples whose neighbours are missing are never flagged).
     """
     P = points_cam
-    du = np.zeros_like(P)
-    dv = np.zeros_like(P)
-    du[:, 1:-1] = P[:, 2:] - P[:, :-2]
-    dv[1:-1] = P[2:] - P[:-2]
-    ok = np.zeros(valid.shape, bool)
-    ok[1:-1, 1:-1] = valid[1:-1, 2:] & valid[1:-1, :-2] & valid[2:, 1:-1] & valid[:-2, 1:-1]
-    n = np.cross(du, dv)
-    nn = np.linalg.norm(n, axis=2)
-    pn = np.linalg.norm(P, axis=2)
-    cos = np.abs(np.einsum("hwc,hwc->hw", n, P)) / np.maximum(nn * pn, 1e-30)
-    return ok & (nn > 0) & (cos < np.cos(np.radians(max_angle_deg)))
+    du = P[1:-1, 2:] - P[1:-1, :-2]
+    dv = P[2:, 1:-1] - P[:-2, 1:-1]
+    # n = du x dv, written out (np.cross is slow on images)
+    nx = du[..., 1] * dv[..., 2] - du[..., 2] * dv[..., 1]
+    ny = du[..., 2] * dv[..., 0] - du[..., 0] * dv[..., 2]
+    nz = du[..., 0] * dv[..., 1] - du[..., 1] * dv[..., 0]
+    Pc = P[1:-1, 1:-1]
+    dot = nx * Pc[..., 0] + ny * Pc[..., 1] + nz * Pc[..., 2]
+    nn2 = nx * nx + ny * ny + nz * nz
+    pn2 = np.einsum("hwc,hwc->hw", Pc, Pc)
+    c = np.float32(np.cos(np.radians(max_angle_deg))) if P.dtype == np.float32 else np.cos(np.radians(max_angle_deg))
+    # |cos| < c  <=>  dot^2 < c^2 |n|^2 |P|^2 (no square roots)
+    graze = (dot * dot < c * c * nn2 * pn2) & (nn2 > 0)
+    ok = valid[1:-1, 2:] & valid[1:-1, :-2] & valid[2:, 1:-1] & valid[:-2, 1:-1]
+    out = np.zeros(valid.shape, bool)
+    out[1:-1, 1:-1] = graze & ok
+    return out
 
 
 def backproject(depth_m: np.ndarray, rays: np.ndarray, cfg: FuseConfig) -> tuple[np.ndarray, np.ndarray, dict]:
@@ -121,14 +126,21 @@ def backproject(depth_m: np.ndarray, rays: np.ndarray, cfg: FuseConfig) -> tuple
         e = depth_edge_mask(np.where(in_range, d, np.float32(0)), cfg.edge_k) & keep
         n_edge = int(e.sum())
         keep &= ~e
-    P = rays * d[:, :, None].astype(np.float64)
+    P = rays * d[:, :, None]  # float32 camera-frame metres (rays are float32)
     if cfg.max_angle_deg < 90:
         g = grazing_mask(P, in_range, cfg.max_angle_deg) & keep
         n_graze = int(g.sum())
         keep &= ~g
     counts = {"samples": int(has.sum()), "dropped_range": int(has.sum() - in_range.sum()),
               "dropped_edge": n_edge, "dropped_grazing": n_graze}
-    return P[keep], keep, counts
+    return P[keep].astype(np.float64), keep, counts
+
+
+def transform_points_ew(T: np.ndarray, X: np.ndarray) -> np.ndarray:
+    """``T @ X`` for (N, 3) float64 points, elementwise (no BLAS call: BLAS threads stall when
+    the cores are busy, and 3x3 products gain nothing from them)."""
+    R, t = T[:3, :3], T[:3, 3]
+    return X[:, 0:1] * R[:, 0] + X[:, 1:2] * R[:, 1] + X[:, 2:3] * R[:, 2] + t
 
 
 def sample_colors(X_depth: np.ndarray, T_color_depth: np.ndarray, color_cam: Camera, image_bgr: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -137,7 +149,7 @@ def sample_colors(X_depth: np.ndarray, T_color_depth: np.ndarray, color_cam: Cam
     Returns ``(rgb (N, 3) uint8, ok (N,) bool)``; points behind the colour camera or outside its
     image get ``ok = False``.
     """
-    X_c = X_depth @ T_color_depth[:3, :3].T + T_color_depth[:3, 3]
+    X_c = transform_points_ew(T_color_depth, X_depth)
     ok = X_c[:, 2] > 1e-6
     uv = np.full((len(X_c), 2), -1.0)
     if ok.any():
@@ -578,7 +590,7 @@ def fuse(
                         rgb_img[keep] = rgb.astype(np.float32) / 255.0
                     acc.integrate(d_keep, cam.K, inv_T(T_local_depth), rgb_img)
                 else:
-                    X_local = X_cam @ T_local_depth[:3, :3].T + T_local_depth[:3, 3]
+                    X_local = transform_points_ew(T_local_depth, X_cam)
                     acc.add(X_local, rgb, rgb_ok)
                 summary["points_fused"] += len(X_cam)
                 summary["fused_frames"] += 1
