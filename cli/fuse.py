@@ -60,8 +60,9 @@ def fuse(traj, depth, camera, output, depth_to_color, depth_scale, min_depth, ma
                                                      # mst track --slam mono --landmarks map.ply
 
     \b
-    Output: binary PLY, x y z double (metres), red green blue uchar with --color,
-    count uint (samples merged per point; not with --tsdf). Summary on stderr, --json on stdout.
+    Output: binary PLY, x y z double (metres), red green blue uchar with --color (black where
+    no colour image saw the point), count uint (samples merged per point; not with --tsdf).
+    Summary on stderr, --json on stdout.
     """
     from mst.pipeline.fusion import FuseConfig
     from mst.pipeline.fusion import fuse as run_fuse

@@ -254,6 +254,16 @@ def test_color_points(seq, tmp_path):
     X, rgb = read_ply_points(tmp_path / "c.ply")
     assert rgb is not None and s["colored_samples"] == len(X)
     assert (rgb == [200, 0, 0]).all()
+    # voxel averaging mixes red (even frames) and blue (odd frames) where both saw a voxel
+    fuse(tmp_path / "v.ply", _cfg(voxel=0.05), r / "traj.txt", r / "depth", r / "camera.json", color_dir=tmp_path / "rgb")
+    _, rgbv = read_ply_points(tmp_path / "v.ply")
+    assert (rgbv[:, 1] == 0).all() and ((rgbv[:, 0] > 0) & (rgbv[:, 2] > 0)).mean() > 0.3
+    assert ((rgbv[:, 0] + rgbv[:, 2]).astype(int) - 200 <= 1).all()
+    # the TSDF carries colour too
+    fuse(tmp_path / "t.ply", FuseConfig(tsdf=True, voxel=0.03), tmp_path / "even.txt", r / "depth", r / "camera.json",
+         color_dir=tmp_path / "rgb")
+    _, rgbt = read_ply_points(tmp_path / "t.ply")
+    assert np.median(rgbt[:, 0]) == 200 and rgbt[:, 1:].max() == 0
 
 
 def test_landmarks_pass_through(tmp_path):
