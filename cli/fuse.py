@@ -84,6 +84,9 @@ def fuse(traj, depth, camera, output, depth_to_color, depth_scale, min_depth, ma
              f"{s['skipped_stride']} skipped by stride, {s['empty_frames']} empty); "
              f"{s['points_fused']:,} of {s['samples']:,} samples kept (range -{s['dropped_range']:,}, "
              f"edges -{s['dropped_edge']:,}, grazing -{s['dropped_grazing']:,})", quiet)
+        if s["poses_without_frame"]:
+            info(f"warning: {s['poses_without_frame']} pose(s) point past the last of {s['frames']} depth frames "
+                 "(wrong --fps, or a trajectory of another sequence?)", quiet)
     if s["landmarks"]:
         info(f"added {s['landmarks']:,} landmarks", quiet)
     info(f"wrote {s['points_out']:,} points ({s['mode']}) to {output} in {s['elapsed_s']:.2f} s "
