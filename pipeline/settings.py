@@ -44,7 +44,8 @@ class TrackerConfig:
     Health: ``max_proj_error_deg`` (mean angle between gradient and model normal above which a
     frame is lost; computed at samples whose gradient is strong), ``min_support`` (fraction of samples
     on a strong gradient), ``min_inlier_ratio``, ``min_samples``.
-    Coarse-to-fine: ``pyramid_levels`` (1 = none; 2 = a half-resolution pass first).
+    Coarse-to-fine: ``pyramid_levels`` (1 = none; 2 = a half-resolution pass first); ``passes``
+    (search + VVS rounds per frame; the first frame and recoveries use 3 with shrinking ranges).
     KLT (``use_klt``): ViSP ``<klt>`` values.
     """
 
@@ -64,13 +65,14 @@ class TrackerConfig:
     zbuffer_scale: float = 0.5
     vvs_iters: int = 30
     lm_mu: float = 0.01
-    min_mad_px: float = 1.0
+    min_mad_px: float = 0.3
     tukey_c: float = 4.6851
     max_proj_error_deg: float = 25.0
     min_inlier_ratio: float = 0.25
     min_support: float = 0.3
     min_samples: int = 12
     pyramid_levels: int = 1
+    passes: int = 1
     recover_range_factor: float = 2.0
     max_samples: int = 600
     use_klt: bool = False

@@ -152,7 +152,7 @@ class EdgeTracker:
                                c.angle_disappear, self.prev_faces, border_px=c.mask_size // 2 + 1,
                                hidden_lines=c.hidden_lines, zbuffer_scale=c.zbuffer_scale, max_samples=c.max_samples)
 
-    def _edge_pass(self, img, K, T, search_range, ref_img, ref_T, klt=None):
+    def _edge_pass(self, img, K, T, search_range, ref_img, ref_T, klt=None, min_mad_px=None):
         from mst.pipeline.moving_edges import canonical_normals, reference_contrast, search_edges
         from mst.pipeline.vvs import solve_pose
 
@@ -175,7 +175,7 @@ class EdgeTracker:
         kx, ku = (None, None) if klt is None else klt
         try:
             res = solve_pose(T, K, S.X_model, S.edge, S.A_model, S.B_model, cand, iters=c.vvs_iters, lm_mu=c.lm_mu,
-                             min_mad_px=c.min_mad_px, tukey_c=c.tukey_c, klt_X_model=kx, klt_uv=ku,
+                             min_mad_px=c.min_mad_px if min_mad_px is None else min_mad_px, tukey_c=c.tukey_c, klt_X_model=kx, klt_uv=ku,
                              klt_weight=c.klt_weight)
         except ValueError:
             return None, S, m, None
@@ -261,11 +261,14 @@ class EdgeTracker:
             res, *_ = self._edge_pass(small, Ks, T, R, ref_small, ref_T)
             if res is not None and np.isfinite(res.T_cam_model).all():
                 T = res.T_cam_model
-        passes = 2 if (first or recover) else 1
+        # first frame / after a loss: several passes, tolerant (wide robust scale) first, then tighter
+        passes = 3 if (first or recover) else c.passes
         res = S = None
         for ps in range(passes):
-            rng = R if ps == 0 else max(2, c.search_range // 2)
-            res_p, S_p, _, _ = self._edge_pass(img, self.K, T, rng, ref_img, ref_T, klt if ps == passes - 1 else None)
+            rng = R if ps == 0 else max(3, int(round(R / 2 ** ps)))
+            mad = max(c.min_mad_px, rng / 3.0) if (first or recover) and ps < passes - 1 else None
+            res_p, S_p, _, _ = self._edge_pass(img, self.K, T, rng, ref_img, ref_T, klt if ps == passes - 1 else None,
+                                               min_mad_px=mad)
             if res_p is None:
                 break
             res, S = res_p, S_p
@@ -301,7 +304,7 @@ class EdgeTracker:
                                      if ratio < c.min_inlier_ratio else f"gradient support {support:.0%}"
                                      if support < c.min_support else f"projection error {proj_err:.1f} deg")
         out = FrameResult(T, healthy, n_s, n_in, res.rms_px, proj_err, res.W, res.cov, uv, res.inlier,
-                          S.edge_uv, np.zeros((0, 2)) if klt is None else klt[1], reason, support)
+                          S.edge_uv[np.unique(S.edge)], np.zeros((0, 2)) if klt is None else klt[1], reason, support)
         return out
 
     def accept(self, gray: np.ndarray, T_cam_model: np.ndarray) -> None:

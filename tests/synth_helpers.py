@@ -1,0 +1,78 @@
+"""A tiny shaded renderer for tracker tests (faces Lambert-shaded, a ground plane, 2x supersampling).
+
+Used while ``mst.pipeline.synth`` is not available and for fast, small sequences: ground-truth
+poses ``T_cam_model`` (model -> camera), images 8-bit BGR, pixel centres at integer coordinates.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def look_at(eye, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:
+    """``T_cam_model`` of a camera at ``eye`` looking at ``target`` (model frame z up)."""
+    eye, target, up = (np.asarray(a, float) for a in (eye, target, up))
+    z = target - eye
+    z /= np.linalg.norm(z)
+    x = np.cross(z, up)
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    R = np.stack([x, y, z])
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = -R @ eye
+    return T
+
+
+def render_views(model, cam, poses, seed: int = 0, ground: float | None = 0.0, noise: float = 2.0) -> list[np.ndarray]:
+    """Render ``model`` (PolygonModel) from each ``T_cam_model`` in ``poses`` -> list of BGR uint8."""
+    import cv2
+
+    from mst.pipeline.camera import Camera
+    from mst.pipeline.render import Renderer
+
+    V, F = model.triangulate()
+    V = np.asarray(V, float)
+    F = np.asarray(F, np.int64)
+    nb = len(F)
+    if ground is not None:
+        c = V.mean(0)
+        s = 20 * float(np.ptp(V, axis=0).max())
+        G = np.array([[c[0] - s, c[1] - s, ground], [c[0] + s, c[1] - s, ground], [c[0] + s, c[1] + s, ground],
+                      [c[0] - s, c[1] + s, ground]])
+        F = np.concatenate([F, np.array([[0, 1, 2], [0, 2, 3]]) + len(V)])
+        V = np.concatenate([V, G - [0, 0, 1e-3]])
+    r = Renderer(V, F)
+    n = r.normals
+    rng = np.random.default_rng(seed)
+    # per-face albedo from the face's plane (coplanar triangles share it)
+    key = np.round(np.concatenate([n, (n * V[F[:, 0]]).sum(1, keepdims=True)], 1), 3)
+    _, inv = np.unique(key, axis=0, return_inverse=True)
+    alb = rng.uniform(0.7, 1.0, inv.max() + 1)[inv.ravel()]
+    light = np.array([0.4, 0.3, 0.85])
+    light /= np.linalg.norm(light)
+    shade = 0.5 + 0.5 * np.abs(n @ light)
+    col = np.clip(alb * shade, 0, 1) * 230 + 10
+    if ground is not None:
+        col[nb:] = 40.0
+    cam2 = Camera(cam.fx * 2, cam.fy * 2, (cam.cx + 0.5) * 2 - 0.5, (cam.cy + 0.5) * 2 - 0.5, cam.width * 2, cam.height * 2)
+    out = []
+    for T in poses:
+        ids = r.render_face_ids(cam2, T)
+        img = np.where(ids >= 0, col[np.maximum(ids, 0)], 200.0).astype(np.float32)
+        img = cv2.resize(img, (cam.width, cam.height), interpolation=cv2.INTER_AREA)
+        img = img + rng.normal(0, noise, img.shape).astype(np.float32)
+        g = np.clip(img, 0, 255).astype(np.uint8)
+        out.append(cv2.cvtColor(g, cv2.COLOR_GRAY2BGR))
+    return out
+
+
+def orbit_poses(center, radius: float, height: float, n: int, deg_per_frame: float, start_deg: float = -60.0):
+    """Camera poses on a horizontal circle around ``center`` looking at it."""
+    c = np.asarray(center, float)
+    out = []
+    for k in range(n):
+        a = np.radians(start_deg + k * deg_per_frame)
+        eye = c + [radius * np.cos(a), radius * np.sin(a), height]
+        out.append(look_at(eye, c))
+    return out
