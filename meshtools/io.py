@@ -145,7 +145,8 @@ def save_model(path: str | os.PathLike, model: PolygonModel) -> None:
 
 
 def save_triangles(path: str | os.PathLike, V: np.ndarray, F: np.ndarray) -> None:
-    """Write a triangle mesh: ``.obj`` (fast text writer) or anything trimesh exports (.ply, .stl, .off)."""
+    """Write a triangle mesh: ``.obj`` (text), ``.ply`` (binary, float64 vertices) or what trimesh
+    exports (.stl float32, .off)."""
     p = Path(path)
     V = np.asarray(V, np.float64)
     F = np.asarray(F, np.int64)
@@ -154,6 +155,18 @@ def save_triangles(path: str | os.PathLike, V: np.ndarray, F: np.ndarray) -> Non
             fh.write(f"# {len(V)} vertices, {len(F)} triangles\n")
             fh.write(_fmt_rows("v", V))
             fh.write(_fmt_rows("f", F + 1))
+        return
+    if _suffix(p) == ".ply":  # binary PLY with float64 vertices (trimesh would write float32)
+        head = (f"ply\nformat binary_little_endian 1.0\ncomment mst triangle mesh\nelement vertex {len(V)}\n"
+                "property double x\nproperty double y\nproperty double z\n"
+                f"element face {len(F)}\nproperty list uchar int vertex_indices\nend_header\n")
+        rec = np.empty(len(F), dtype=[("n", "u1"), ("i", "<i4", (3,))])
+        rec["n"] = 3
+        rec["i"] = F
+        with open(p, "wb") as fh:
+            fh.write(head.encode("ascii"))
+            fh.write(V.astype("<f8").tobytes())
+            fh.write(rec.tobytes())
         return
     import trimesh
 
@@ -232,17 +245,39 @@ def _read_obj_triangles_fast(p: Path) -> tuple[np.ndarray, np.ndarray] | None:
     data = p.read_bytes()
     if b"/" in data or b"\\\n" in data:
         return None
-    lines = data.split(b"\n")
-    vl = [ln[2:] for ln in lines if ln[:2] == b"v "]
-    fl = [ln[2:] for ln in lines if ln[:2] == b"f "]
-    other = [ln for ln in lines if ln[:2] not in (b"v ", b"f ") and ln.strip() and not ln.lstrip().startswith(b"#")]
-    if other or not fl:
-        return None
-    try:
-        V = np.array(b" ".join(vl).split(), dtype=np.float64)
-        F = np.array(b" ".join(fl).split(), dtype=np.int64)
-    except ValueError:
-        return None
+    while data[:1] == b"#":  # leading comment lines (cheap)
+        data = data[data.find(b"\n") + 1:] if b"\n" in data else b""
+    if b"#" in data:
+        data = re.sub(rb"(?m)^[ \t]*#[^\n]*\n?", b"", data)
+    data = data.replace(b"\r\n", b"\n")
+    if not data.endswith(b"\n"):
+        data += b"\n"
+    # common layout: all "v" lines, then all "f" lines -> parse two blocks in C
+    j = data.find(b"\nf ")
+    nv_lines = data.count(b"v ", 0, j + 1)
+    nf_lines = data.count(b"f ", j + 1)
+    if (data.startswith(b"v ") and j > 0 and data.count(b"\n", 0, j + 1) == nv_lines
+            and data.count(b"\n", j + 1) == nf_lines and data.count(b"v", 0, j + 1) == nv_lines):
+        import warnings
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", DeprecationWarning)
+            V = np.fromstring(data[: j + 1].replace(b"v ", b"").decode("ascii", "replace"), sep=" ")
+            F = np.fromstring(data[j + 1:].replace(b"f ", b"").decode("ascii", "replace"), dtype=np.int64, sep=" ")
+        vl = range(nv_lines)
+        fl = range(nf_lines)
+    else:
+        lines = data.split(b"\n")
+        vl = [ln[2:] for ln in lines if ln[:2] == b"v "]
+        fl = [ln[2:] for ln in lines if ln[:2] == b"f "]
+        other = [ln for ln in lines if ln[:2] not in (b"v ", b"f ") and ln.strip()]
+        if other or not fl:
+            return None
+        try:
+            V = np.array(b" ".join(vl).split(), dtype=np.float64)
+            F = np.array(b" ".join(fl).split(), dtype=np.int64)
+        except ValueError:
+            return None
     if len(V) != 3 * len(vl) or len(F) != 3 * len(fl):
         return None
     V = V.reshape(-1, 3)
