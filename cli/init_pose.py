@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import click
-
-from mst import InputError
 from mst.cli.common import emit_json, info, json_option, print_table, quiet_option
 
 
@@ -25,7 +23,7 @@ from mst.cli.common import emit_json, info, json_option, print_table, quiet_opti
               help="The frame the clicks were taken on (a picture, or a video: its first frame).")
 @click.option("--overlay", "overlay_path", type=click.Path(dir_okay=False), default=None, help="PNG: the model drawn with the pose on --image.")
 @click.option("--show-points", is_flag=True, help="Render the model with the --points numbered (needs --image and a pose/clicks, or -o picture).")
-@click.option("--max-residual", type=float, default=10.0, show_default=True, help="RMS reprojection error (px) above which init fails with a diagnosis.")
+@click.option("--max-residual", type=float, default=4.0, show_default=True, help="RMS reprojection error (px) above which init fails with a diagnosis.")
 @click.option("-o", "--output", "out", required=True, type=click.Path(dir_okay=False), help="Pose file (TUM line + cMo comment); with --show-points a PNG.")
 @json_option
 @quiet_option
@@ -63,4 +61,3 @@ def init_pose(model_path, camera_path, clicks_path, points_path, from_pose, moun
         info(f"-> {out}", quiet)
     if as_json:
         emit_json(res)
-    _ = InputError

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import click
-
 from mst.cli.common import emit_json, info, json_option, progress_bar, quiet_option
 
 
@@ -61,13 +60,10 @@ def track(frames_src, model_path, camera_path, init_path, out, settings_path, fr
         cfg = read_tracker_xml(camera_path)
     cfg = cfg.updated(search_range=search_range, sample_step=sample_step, pyramid_levels=pyramid_levels, use_klt=klt or None)
     notes: list[str] = []
-    from mst.pipeline.frames import open_frames
-
-    n = len(open_frames(frames_src, frame_range, scale, fps))
-    with progress_bar(n, "tracking", quiet) as advance:
-        summary = run_track(frames_src, model_path, camera_path, init_path, out, cfg, frames=frame_range, scale=scale,
-                            fps=fps, overlay=overlay, slam=slam, depth_dir=depth_dir, depth_camera_path=depth_camera,
-                            depth_to_color_path=depth_to_color, write_json=as_json, progress=advance, notes=notes)
+    summary = run_track(frames_src, model_path, camera_path, init_path, out, cfg, frames=frame_range, scale=scale,
+                        fps=fps, overlay=overlay, slam=slam, depth_dir=depth_dir, depth_camera_path=depth_camera,
+                        depth_to_color_path=depth_to_color, write_json=as_json, notes=notes,
+                        progress=lambda total: progress_bar(total, "tracking", quiet))
     for nt in notes:
         info(f"note: {nt}", quiet)
     info(f"tracked {summary['tracked']}/{summary['frames']} frames ({summary['lost']} lost), median "

@@ -19,7 +19,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-
 from mst import InputError
 
 
@@ -202,7 +201,7 @@ def diagnose(X: np.ndarray, uv: np.ndarray, K: np.ndarray, residual_px: np.ndarr
 
 
 def init_from_clicks(X: np.ndarray, uv: np.ndarray, K: np.ndarray, dist: np.ndarray | None = None,
-                     max_rms_px: float = 10.0) -> InitResult:
+                     max_rms_px: float = 4.0) -> InitResult:
     """PnP + refinement; ``diagnosis`` is set when the RMS residual exceeds ``max_rms_px``."""
     if len(X) < 4:
         raise ValueError(f"{len(X)} points, need at least 4")
@@ -252,7 +251,6 @@ def draw_model(bgr: np.ndarray, model, T_cam_model: np.ndarray, K: np.ndarray, n
                color=(0, 255, 0), points: np.ndarray | None = None, numbers: bool = False, clicks: np.ndarray | None = None) -> np.ndarray:
     """Draw the model's edges (clipped at the near plane) and optional numbered points."""
     import cv2
-
     from mst.pipeline.visibility import _clip_near_far
 
     out = bgr.copy()
@@ -312,14 +310,13 @@ def _read_image(path) -> np.ndarray:
 
 def run_init(model_path, camera_path, out, *, clicks_path=None, points_path=None, from_pose=None,
              mount=(0.0, 0.0, 0.0), mount_offset=(0.0, 0.0, 0.0), image_path=None, overlay_path=None,
-             show_points: bool = False, max_residual: float = 10.0) -> dict:
+             show_points: bool = False, max_residual: float = 4.0) -> dict:
     """The ``mst init`` stage: write the pose file ``out`` (or, with ``show_points``, a PNG).
 
     Returns a summary dict (pose as ``T_cam_model``, per-click residuals in px, RMS).
     Raises :class:`mst.InputError` for bad input or a failed, diagnosed initialisation.
     """
     import cv2
-
     from mst import atomic_output, atomic_outputs
     from mst.pipeline.camera import read_camera
     from mst.pipeline.poses import write_pose_file

@@ -16,13 +16,11 @@ from __future__ import annotations
 import csv
 import io
 import os
-import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-
 from mst import InputError, atomic_outputs
 from mst.pipeline.settings import TrackerConfig, config_to_dict
 
@@ -367,9 +365,13 @@ class OverlayWriter:
     """Writes overlay frames to an .mp4/.avi (OpenCV ``mp4v``) or a folder of PNGs."""
 
     def __init__(self, path: Path, fps: float):
-        self.path = Path(path)
+        self.final = Path(path)
+        if not self.final.parent.exists():
+            raise InputError(self.final, "output folder does not exist")
+        self.is_video = self.final.suffix.lower() in (".mp4", ".avi", ".mov", ".mkv")
+        # written under a temporary name, renamed by commit() (no partial overlay on failure)
+        self.path = self.final.with_name(f".{self.final.stem}.{os.getpid()}.tmp{self.final.suffix}")
         self.fps = fps
-        self.is_video = self.path.suffix.lower() in (".mp4", ".avi", ".mov", ".mkv")
         self.writer = None
         self.count = 0
         if not self.is_video:
@@ -387,9 +389,23 @@ class OverlayWriter:
             cv2.imwrite(str(self.path / f"{index:06d}.png"), img)
         self.count += 1
 
-    def close(self) -> None:
+    def close(self, commit: bool = False) -> None:
+        """Finish; with ``commit`` move the result onto the target, else delete it."""
+        import shutil
+
         if self.writer is not None:
             self.writer.release()
+            self.writer = None
+        if not self.path.exists():
+            return
+        if commit:
+            if self.final.is_dir() and not self.is_video:
+                shutil.rmtree(self.final)
+            os.replace(self.path, self.final)
+        elif self.path.is_dir():
+            shutil.rmtree(self.path)
+        else:
+            self.path.unlink()
 
 
 # ---------------------------------------------------------------------------- the stage
@@ -416,14 +432,13 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
 
     ``init_pose_path``: the pose of the first selected frame (TUM line or 4x4 cMo). Returns the
     summary dict (also written as ``<stem>.json`` when ``write_json``). ``progress``: optional
-    callable advanced once per frame. Raises :class:`mst.InputError` for bad input before
+    ``progress(total) -> context manager yielding advance()`` (called after the input checks). Raises :class:`mst.InputError` for bad input before
     anything is written.
     """
     import cv2
-
     from mst.pipeline.camera import read_camera
     from mst.pipeline.frames import check_camera_size, open_frames
-    from mst.pipeline.poses import T_to_tum, inv_T, read_pose_file
+    from mst.pipeline.poses import inv_T, read_pose_file
     from mst.pipeline.settings import validate_config
 
     cfg = config or TrackerConfig()
@@ -461,41 +476,45 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
     lost_streak = 0
     first = True
     t_frames = []
+    import contextlib
+
+    bar = progress(len(src)) if progress is not None else contextlib.nullcontext(lambda n=1: None)
     try:
-        for idx, t_s, bgr in src:
-            gray = cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY)
-            t0 = time.perf_counter()
-            T_pred = aid.predict(idx, gray, T_prev) if aid is not None else None
-            T_start = T_pred if T_pred is not None else T_prev
-            fr = tracker.track(gray, T_start, recover=lost_streak > 0, first=first)
-            if aid is not None:
-                T_out, status = aid.update(idx, gray, fr.T_cam_model, fr.W, fr.healthy)
-            else:
-                T_out, status = (fr.T_cam_model, "model") if fr.healthy else (None, "lost")
-            if T_out is not None and status != "lost":
-                tracker.accept(gray, T_out)
-                T_prev = T_out
-                lost_streak = 0
-            else:
-                lost_streak += 1
-                T_out = None
-                status = "lost"
-            first = False
-            ms = (time.perf_counter() - t0) * 1000.0
-            t_frames.append(ms)
-            rows.append([idx, f"{t_s:.6f}", status, fr.n_samples, fr.n_inliers,
-                         f"{fr.residual_px:.4f}" if np.isfinite(fr.residual_px) else "nan",
-                         f"{fr.proj_error_deg:.3f}", f"{ms:.3f}"])
-            if T_out is not None:
-                times.append(t_s)
-                poses.append(inv_T(T_out))
-            if ov is not None:
-                ov.write(draw_overlay(bgr, fr, status), idx)
-            if progress:
-                progress()
-    finally:
+        with bar as advance:
+            for idx, t_s, bgr in src:
+                gray = cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY)
+                t0 = time.perf_counter()
+                T_pred = aid.predict(idx, gray, T_prev) if aid is not None else None
+                T_start = T_pred if T_pred is not None else T_prev
+                fr = tracker.track(gray, T_start, recover=lost_streak > 0, first=first)
+                if aid is not None:
+                    T_out, status = aid.update(idx, gray, fr.T_cam_model, fr.W, fr.healthy)
+                else:
+                    T_out, status = (fr.T_cam_model, "model") if fr.healthy else (None, "lost")
+                if T_out is not None and status != "lost":
+                    tracker.accept(gray, T_out)
+                    T_prev = T_out
+                    lost_streak = 0
+                else:
+                    lost_streak += 1
+                    T_out, status = None, "lost"
+                first = False
+                ms = (time.perf_counter() - t0) * 1000.0
+                t_frames.append(ms)
+                rows.append([idx, f"{t_s:.6f}", status, fr.n_samples, fr.n_inliers,
+                             f"{fr.residual_px:.4f}" if np.isfinite(fr.residual_px) else "nan",
+                             f"{fr.proj_error_deg:.3f}", f"{ms:.3f}"])
+                if T_out is not None:
+                    times.append(t_s)
+                    poses.append(inv_T(T_out))
+                if ov is not None:
+                    ov.write(draw_overlay(bgr, fr, status), idx)
+                advance()
+    except BaseException:
         if ov is not None:
-            ov.close()
+            ov.close(commit=False)
+        raise
+    finally:
         if aid is not None and hasattr(aid, "close"):
             aid.close()
     n = len(rows)
@@ -525,5 +544,6 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
             import json
 
             tmp_json.write_text(json.dumps(summary, indent=2, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o)) + "\n")
-    _ = (T_to_tum, sys)
+        if ov is not None:
+            ov.close(commit=True)
     return summary

@@ -22,7 +22,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-
 from mst.pipeline.poses import se3_exp
 
 TUKEY_C = 4.6851
@@ -121,7 +120,7 @@ def solve_pose(T0: np.ndarray, K: np.ndarray, X_model: np.ndarray, edge: np.ndar
     w = np.ones(len(X))
     wk = np.ones(2 * nk)
     sigma = min_mad_px
-    for it in range(1, iters + 1):
+    for it in range(1, iters + 1):  # noqa: B007 (returned)
         r_all, n, (u, v, x, y, iz) = residuals(T)
         ch = np.argmin(np.abs(r_all), axis=1)
         r = r_all[rows, ch]

@@ -1,0 +1,58 @@
+"""Frame sources: video, image folder, glob, printf pattern, --frames, --scale, times, bad input."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from mst import InputError
+from mst.pipeline.camera import Camera
+from mst.pipeline.frames import check_camera_size, open_frames, parse_range
+
+
+def _write_seq(d, n=5, w=32, h=24):
+    import cv2
+
+    d.mkdir()
+    for k in range(n):
+        img = np.full((h, w, 3), 10 * k, np.uint8)
+        cv2.imwrite(str(d / f"{k:06d}.png"), img)
+    return d
+
+
+def test_parse_range():
+    assert parse_range(None) == (0, None, 1)
+    assert parse_range("2:10:3") == (2, 10, 3)
+    assert parse_range("5") == (5, None, 1)
+    assert parse_range("::2") == (0, None, 2)
+    with pytest.raises(InputError):
+        parse_range("5:2")
+    with pytest.raises(InputError):
+        parse_range("a:b")
+
+
+def test_image_folder_glob_printf(tmp_path):
+    d = _write_seq(tmp_path / "rgb")
+    for spec in (d, str(d / "*.png"), str(d / "%06d.png")):
+        src = open_frames(spec, "1:5:2")
+        got = [(i, t, int(img[0, 0, 0])) for i, t, img in src]
+        assert got == [(1, 1.0, 10), (3, 3.0, 30)]  # image sequences: t = index
+    src = open_frames(d, None, scale=0.5, fps=10)
+    frames = list(src)
+    assert len(frames) == 5 and frames[2][1] == pytest.approx(0.2)
+    assert frames[0][2].shape == (12, 16, 3) and (src.width, src.height) == (16, 12)
+    cam = check_camera_size(src, Camera(40, 40, 15.5, 11.5, 32, 24), "cam.json")
+    assert (cam.width, cam.height, cam.fx, cam.cx) == (16, 12, 20, 7.5)
+    with pytest.raises(InputError, match="camera is for 64x48 images but the frames are 32x24"):
+        check_camera_size(src, Camera(40, 40, 15.5, 11.5, 64, 48), "cam.json")
+
+
+def test_video_times_and_bad_video(shared_data, tmp_path):
+    src = open_frames(shared_data / "visp-teabox/teabox.mp4", "30:39:4")
+    got = [(i, t) for i, t, _ in src]
+    assert got == [(30, 30 / 25), (34, 34 / 25), (38, 38 / 25)]
+    bad = tmp_path / "broken.mp4"
+    bad.write_text("not a video")
+    with pytest.raises(InputError, match="could not be decoded"):
+        open_frames(bad)
+    with pytest.raises(InputError, match="does not exist"):
+        open_frames(tmp_path / "missing.mp4")
