@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import sys
+
 import click
 
 from mst.cli.common import emit_json, info, json_option, progress_bar, quiet_option
@@ -42,7 +44,9 @@ def convert_model(input_path: str, output_path: str, angle_tol: float, dist_tol:
     from mst.meshtools.convert import ConvertConfig, convert_model as run, summary_lines
 
     cfg = ConvertConfig(angle_tol_deg=angle_tol, dist_tol=dist_tol, weld_tol=weld_tol)
-    with progress_bar(len(STEPS), "convert-model", quiet=quiet or as_json) as advance:
+    # the bar only on a terminal: in logs and pipes it would leave a stale line before errors
+    show_bar = not (quiet or as_json) and sys.stderr.isatty()
+    with progress_bar(len(STEPS), "convert-model", quiet=not show_bar) as advance:
         summary = run(input_path, output_path, cfg, progress=lambda name: advance())
     for line in summary_lines(summary):
         info(line, quiet)
