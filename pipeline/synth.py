@@ -257,8 +257,8 @@ def _resolve(scenario: str, cfg: SynthConfig, lo: np.ndarray, hi: np.ndarray, ca
                  away_yaw_deg=-40.0)
         y0 = eye_y - 0.8 * D
         y1 = hi[1] + 0.8 * D
-        x0 = c[0] - 0.5 * length - 1.5 * D
-        x1 = c[0] + 0.5 * length + 1.5 * D
+        x0 = c[0] - 0.5 * length - 0.8 * D
+        x1 = c[0] + 0.5 * length + 0.8 * D
         z1 = max(eye_z, hi[2]) + 0.6 * D
         if cfg.environment:
             env = _box_room(np.array([x0, y0, lo[2]]), np.array([x1, y1, z1]), True, True, True)
