@@ -113,7 +113,7 @@ def _sobel_at(img: np.ndarray, uv: np.ndarray) -> np.ndarray:
     iy = np.clip(np.rint(uv[:, 1]).astype(np.int64), 1, H - 2)
     b = iy * W + ix
     f = img.ravel()
-    p = [f[b + dy * W + dx] for dy in (-1, 0, 1) for dx in (-1, 0, 1)]
+    p = [f[b + dy * W + dx].astype(np.float32) for dy in (-1, 0, 1) for dx in (-1, 0, 1)]
     gx = (p[2] + 2 * p[5] + p[8]) - (p[0] + 2 * p[3] + p[6])
     gy = (p[6] + 2 * p[7] + p[8]) - (p[0] + 2 * p[1] + p[2])
     return np.stack([gx, gy], 1)
@@ -237,7 +237,7 @@ class EdgeTracker:
         import cv2
 
         c = self.cfg
-        img = gray.astype(np.float32)
+        img = gray  # uint8: the moving-edge gathers convert only the pixels they read
         H, W = img.shape
         T = T_init.copy()
         ref_img = None if (first or recover or self.prev_img is None) else self.prev_img
@@ -310,7 +310,7 @@ class EdgeTracker:
         from mst.pipeline.visibility import face_visibility
 
         c = self.cfg
-        self.prev_img = gray.astype(np.float32)
+        self.prev_img = gray
         self.prev_T = T_cam_model.copy()
         self.prev_faces = face_visibility(self.geom, T_cam_model, self.prev_faces, c.angle_appear, c.angle_disappear)
         if c.use_klt:

@@ -22,7 +22,25 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from mst.pipeline.poses import se3_exp
+from mst.pipeline.poses import se3_exp as _se3_exp_batch
+
+
+def se3_exp(xi: np.ndarray) -> np.ndarray:
+    """Fast exact SE(3) exponential of one twist ``(v, w)`` (same as :func:`mst.pipeline.poses.se3_exp`)."""
+    v, w = xi[:3], xi[3:]
+    th2 = float(w @ w)
+    if th2 < 1e-16:
+        return _se3_exp_batch(xi)
+    th = np.sqrt(th2)
+    Kw = np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
+    K2 = Kw @ Kw
+    a = np.sin(th) / th
+    b = (1.0 - np.cos(th)) / th2
+    c = (th - np.sin(th)) / (th2 * th)
+    T = np.eye(4)
+    T[:3, :3] += a * Kw + b * K2
+    T[:3, 3] = v + b * (Kw @ v) + c * (K2 @ v)
+    return T
 
 TUKEY_C = 4.6851
 
@@ -44,12 +62,19 @@ class VVSResult:
     klt_inlier: np.ndarray | None = None
 
 
+def _median(a: np.ndarray) -> float:
+    n = len(a)
+    h = n // 2
+    p = np.partition(a, [h - 1, h] if n % 2 == 0 and n > 1 else h)
+    return float(0.5 * (p[h - 1] + p[h])) if n % 2 == 0 and n > 1 else float(p[h])
+
+
 def tukey_weights(r: np.ndarray, min_scale: float, c: float = TUKEY_C) -> tuple[np.ndarray, float]:
     """Tukey biweight weights of residuals ``r`` with a MAD scale (floored at ``min_scale``)."""
     if len(r) == 0:
         return np.zeros(0), min_scale
-    med = np.median(r)
-    sigma = max(1.4826 * float(np.median(np.abs(r - med))), min_scale)
+    med = _median(r)
+    sigma = max(1.4826 * _median(np.abs(r - med)), min_scale)
     u = r / (c * sigma)
     w = np.where(np.abs(u) < 1.0, (1.0 - u * u) ** 2, 0.0)
     return w, sigma
@@ -81,104 +106,128 @@ def _point_jacobian(x, y, iz, fx, fy):
     return J
 
 
+def _line_jacobian(nx, ny, x, y, iz, fx, fy) -> np.ndarray:
+    """(N,6) d(n . (u, v))/d(xi) for image normals ``(nx, ny)`` (left perturbation, xi = (v, w))."""
+    a = nx * fx
+    b = ny * fy
+    return np.column_stack([a * iz, b * iz, -(a * x + b * y) * iz, -a * x * y - b * (1.0 + y * y),
+                            a * (1.0 + x * x) + b * x * y, b * x - a * y])
+
+
 def solve_pose(T0: np.ndarray, K: np.ndarray, X_model: np.ndarray, edge: np.ndarray, A_model: np.ndarray,
                B_model: np.ndarray, cand_uv: np.ndarray, *, iters: int = 30, lm_mu: float = 0.01,
                min_mad_px: float = 1.0, tukey_c: float = TUKEY_C, klt_X_model: np.ndarray | None = None,
-               klt_uv: np.ndarray | None = None, klt_weight: float = 1.0) -> VVSResult:
+               klt_uv: np.ndarray | None = None, klt_weight: float = 1.0, stop_px: float = 0.05) -> VVSResult:
     """Robust VVS from ``T0``. ``cand_uv`` (N, C, 2) candidate pixels per sample (NaN = none).
 
-    Samples without any candidate are ignored (weight 0). Raises ``ValueError`` when fewer than
-    6 residuals are available.
+    Each iteration: residuals at the current pose, candidate choice, Tukey weights, a damped
+    Gauss-Newton step; a step that raises the weighted cost (evaluated at the next iteration
+    with the previous weights) is undone and the damping raised. Iterations stop when a step
+    moves image points by less than ``stop_px`` pixels. Samples without any candidate are
+    ignored (weight 0). Raises ``ValueError`` when fewer than 6 residuals are available.
     """
     fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
     has = np.isfinite(cand_uv[..., 0]).any(axis=1)
     X = X_model[has]
     e = edge[has]
     cand = np.where(np.isfinite(cand_uv[has]), cand_uv[has], 1e9)
+    cu, cv = cand[..., 0], cand[..., 1]
     nk = 0 if klt_X_model is None else len(klt_X_model)
     if len(X) + 2 * nk < 6:
         raise ValueError("fewer than 6 residuals")
+    AB = np.concatenate([A_model, B_model])
+    nE = len(A_model)
     T = T0.copy()
     mu = lm_mu
     rows = np.arange(len(X))
+    fmax = max(fx, fy)
+    Xc0 = X @ T[:3, :3].T + T[:3, 3]
+    iz_max = float(1.0 / max(Xc0[:, 2].min(), 1e-9)) if len(X) else 1.0
+    xy_max = float(np.abs(Xc0[:, :2] / np.maximum(Xc0[:, 2:3], 1e-9)).max()) if len(X) else 1.0
 
-    def residuals(Tc):
-        u, v, x, y, iz = _project(Tc, X, fx, fy, cx, cy)
-        ua, va, *_ = _project(Tc, A_model, fx, fy, cx, cy)
-        ub, vb, *_ = _project(Tc, B_model, fx, fy, cx, cy)
-        d = np.stack([ub - ua, vb - va], 1)
-        d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
-        n = np.stack([-d[:, 1], d[:, 0]], 1)[e]
-        r_all = (u[:, None] - cand[..., 0]) * n[:, None, 0] + (v[:, None] - cand[..., 1]) * n[:, None, 1]
-        return r_all, n, (u, v, x, y, iz)
+    def evaluate(Tc):
+        R, t = Tc[:3, :3], Tc[:3, 3]
+        Xc = X @ R.T + t
+        iz = 1.0 / Xc[:, 2]
+        x, y = Xc[:, 0] * iz, Xc[:, 1] * iz
+        u, v = fx * x + cx, fy * y + cy
+        P = AB @ R.T + t
+        pu = fx * P[:, 0] / P[:, 2]
+        pv = fy * P[:, 1] / P[:, 2]
+        du, dv = pu[nE:] - pu[:nE], pv[nE:] - pv[:nE]
+        ln = np.sqrt(du * du + dv * dv) + 1e-12
+        nx, ny = (-dv / ln)[e], (du / ln)[e]
+        r_all = (u[:, None] - cu) * nx[:, None] + (v[:, None] - cv) * ny[:, None]
+        return r_all, nx, ny, x, y, iz
 
-    def klt_res(Tc):
-        u, v, x, y, iz = _project(Tc, klt_X_model, fx, fy, cx, cy)
-        return np.concatenate([u - klt_uv[:, 0], v - klt_uv[:, 1]]), (x, y, iz)
+    def evaluate_klt(Tc):
+        Xc = klt_X_model @ Tc[:3, :3].T + Tc[:3, 3]
+        iz = 1.0 / Xc[:, 2]
+        x, y = Xc[:, 0] * iz, Xc[:, 1] * iz
+        rk = np.concatenate([fx * x + cx - klt_uv[:, 0], fy * y + cy - klt_uv[:, 1]])
+        Jp = _point_jacobian(x, y, iz, fx, fy)
+        return rk, np.concatenate([Jp[:, 0], Jp[:, 1]])
 
+    prev = None  # (T, cost, ch, w, wk, H, g) of the last accepted linearisation
     it = 0
-    w = np.ones(len(X))
-    wk = np.ones(2 * nk)
+    w = np.zeros(len(X))
+    wk = np.zeros(2 * nk)
     sigma = min_mad_px
+    H = np.zeros((6, 6))
+    r = np.zeros(len(X))
+    rk = np.zeros(0)
     for it in range(1, iters + 1):  # noqa: B007 (returned)
-        r_all, n, (u, v, x, y, iz) = residuals(T)
+        r_all, nx, ny, x, y, iz = evaluate(T)
+        if nk:
+            rk, Jk = evaluate_klt(T)
+        if prev is not None:
+            r_old = r_all[rows, prev[2]]
+            cost_new = float(np.sum(prev[3] * r_old * r_old))
+            if nk:
+                cost_new += float(np.sum(prev[4] * rk * rk))
+            if cost_new > prev[1] * (1 + 1e-9) and mu < 1e8:
+                # undo: retry from the previous linearisation with more damping
+                mu *= 10.0
+                T_prev, _, _, _, _, Hp, gp = prev
+                xi = -np.linalg.solve(Hp + mu * np.diag(np.diag(Hp) + 1e-9), gp)
+                T = se3_exp(xi) @ T_prev
+                continue
+            mu = max(mu / 10.0, 1e-7)
         ch = np.argmin(np.abs(r_all), axis=1)
         r = r_all[rows, ch]
         w, sigma = tukey_weights(r, min_mad_px, tukey_c)
-        Jp = _point_jacobian(x, y, iz, fx, fy)
-        J = n[:, 0, None] * Jp[:, 0] + n[:, 1, None] * Jp[:, 1]
-        H = J.T @ (w[:, None] * J)
-        g = J.T @ (w * r)
+        J = _line_jacobian(nx, ny, x, y, iz, fx, fy)
+        wJ = w[:, None] * J
+        H = J.T @ wJ
+        g = wJ.T @ r
         cost = float(np.sum(w * r * r))
         if nk:
-            rk, (xk, yk, izk) = klt_res(T)
             wk, _ = tukey_weights(rk, min_mad_px, tukey_c)
             wk = wk * klt_weight
-            Jk = _point_jacobian(xk, yk, izk, fx, fy)
-            Jk = np.concatenate([Jk[:, 0], Jk[:, 1]])
-            H += Jk.T @ (wk[:, None] * Jk)
-            g += Jk.T @ (wk * rk)
+            H = H + Jk.T @ (wk[:, None] * Jk)
+            g = g + Jk.T @ (wk * rk)
             cost += float(np.sum(wk * rk * rk))
-        for _ in range(8):
-            A = H + mu * np.diag(np.diag(H) + 1e-9)
-            try:
-                xi = -np.linalg.solve(A, g)
-            except np.linalg.LinAlgError:
-                xi = -np.linalg.lstsq(A, g, rcond=None)[0]
-            Tn = se3_exp(xi) @ T
-            r_all_n, _, _ = residuals(Tn)
-            rn = r_all_n[rows, ch]
-            cost_n = float(np.sum(w * rn * rn))
-            if nk:
-                rkn, _ = klt_res(Tn)
-                cost_n += float(np.sum(wk * rkn * rkn))
-            if cost_n <= cost * (1 + 1e-12):
-                mu = max(mu / 10.0, 1e-7)
-                break
-            mu *= 10.0
-        else:
+        try:
+            xi = -np.linalg.solve(H + mu * np.diag(np.diag(H) + 1e-9), g)
+        except np.linalg.LinAlgError:
             break
-        T = Tn
-        if np.abs(xi[:3]).max() < 1e-8 * max(1.0, abs(T[2, 3])) and np.abs(xi[3:]).max() < 1e-9:
+        prev = (T, cost, ch, w, wk, H, g)
+        step_px = fmax * (np.abs(xi[:3]).max() * iz_max + np.abs(xi[3:]).max() * (1.0 + xy_max))
+        T = se3_exp(xi) @ T
+        if step_px < stop_px:
             break
-    # final statistics at the solution
-    r_all, n, (u, v, x, y, iz) = residuals(T)
-    ch = np.argmin(np.abs(r_all), axis=1)
-    r = r_all[rows, ch]
-    w, sigma = tukey_weights(r, min_mad_px, tukey_c)
-    Jp = _point_jacobian(x, y, iz, fx, fy)
-    J = n[:, 0, None] * Jp[:, 0] + n[:, 1, None] * Jp[:, 1]
-    H = J.T @ (w[:, None] * J)
+    else:
+        # iteration budget spent: keep the last accepted pose
+        if prev is not None:
+            r_all, *_ = evaluate(T)
+            r_old = r_all[rows, prev[2]]
+            if float(np.sum(prev[3] * r_old * r_old)) > prev[1] * (1 + 1e-9):
+                T = prev[0]
     sw = float(w.sum())
     ssr = float(np.sum(w * r * r))
     klt_in = None
     if nk:
-        rk, (xk, yk, izk) = klt_res(T)
-        wk, _ = tukey_weights(rk, min_mad_px, tukey_c)
-        Jk = _point_jacobian(xk, yk, izk, fx, fy)
-        Jk = np.concatenate([Jk[:, 0], Jk[:, 1]])
-        H += Jk.T @ ((wk * klt_weight)[:, None] * Jk)
-        klt_in = (wk[:nk] > 0.5) & (wk[nk:] > 0.5)
+        klt_in = (wk[:nk] > 0.5 * klt_weight) & (wk[nk:] > 0.5 * klt_weight)
     rms = float(np.sqrt(ssr / max(sw, 1e-9)))
     try:
         cov = rms**2 * np.linalg.inv(H)
