@@ -706,7 +706,6 @@ class ModelAidedSlam:
     # ------------------------------------------------------------------ keyframes, BA, relocalisation
     def _add_keyframe(self, k: int, gray: np.ndarray, T: np.ndarray, status: str,
                       T_prior: np.ndarray | None, W_prior: np.ndarray | None) -> np.ndarray:
-        import cv2
 
         self.frames_since_kf = 0
         X = self._landmark_array(self.tid)
