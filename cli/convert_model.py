@@ -41,7 +41,8 @@ def convert_model(input_path: str, output_path: str, angle_tol: float, dist_tol:
       mst convert-model building_tin.obj -o building.wrl
       mst convert-model city.ply -o city.cao --angle-tol 2 --dist-tol 0.02 --json
     """
-    from mst.meshtools.convert import ConvertConfig, convert_model as run, summary_lines
+    from mst.meshtools.convert import ConvertConfig, summary_lines
+    from mst.meshtools.convert import convert_model as run
 
     cfg = ConvertConfig(angle_tol_deg=angle_tol, dist_tol=dist_tol, weld_tol=weld_tol)
     # the bar only on a terminal: in logs and pipes it would leave a stale line before errors

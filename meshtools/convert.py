@@ -181,34 +181,47 @@ def weld(X: np.ndarray, F: np.ndarray, tol: float) -> tuple[np.ndarray, int]:
     """Merge vertices closer than ``tol`` (exact duplicates when ``tol == 0``).
 
     Returns the remapped faces (each cluster -> its lowest vertex index) and the number of merged
-    vertices. Clusters are connected components of the "closer than tol" graph.
+    vertices. Clusters are connected components of the "closer than tol" graph. Close pairs are
+    found by a sweep along a generic direction (points within ``tol`` are within ``tol`` in any
+    projection): sorted projections are compared with their k-th successors for k = 1, 2, ...
+    while any gap is below ``tol`` (a few passes for real meshes; no KD-tree needed).
     """
     used_mask = np.zeros(len(X), bool)
     used_mask[F] = True
     used = np.flatnonzero(used_mask)
     P = X[used]
-    if tol > 0:
-        from scipy.sparse import coo_matrix
-        from scipy.sparse.csgraph import connected_components
-        from scipy.spatial import cKDTree
+    n = len(P)
+    w = np.array([0.8097, 0.5123, 0.2862])  # generic unit-ish direction (not axis-aligned)
+    w /= np.linalg.norm(w)
+    proj = P @ w
+    o = np.argsort(proj, kind="stable")
+    ps = proj[o]
+    I, J = [], []
+    k = 1
+    while k < n:
+        gap_ok = ps[k:] - ps[:-k] <= tol
+        if not gap_ok.any():
+            break
+        i = np.flatnonzero(gap_ok)
+        a, b = o[i], o[i + k]
+        close = ((P[a] - P[b]) ** 2).sum(1) <= tol * tol
+        I.append(a[close])
+        J.append(b[close])
+        k += 1
+    if not I or sum(len(x) for x in I) == 0:
+        return F, 0
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
 
-        pairs = cKDTree(P).query_pairs(tol, output_type="ndarray")
-        if len(pairs) == 0:
-            return F, 0
-        n = len(P)
-        g = coo_matrix((np.ones(len(pairs), np.int8), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
-        _, lab = connected_components(g, directed=False)
-        lab = lab.astype(np.int64)
-    else:
-        _, lab = np.unique(P, axis=0, return_inverse=True)
-        lab = lab.ravel()
-        if lab.max() + 1 == len(P):
-            return F, 0
+    I, J = np.concatenate(I), np.concatenate(J)
+    g = coo_matrix((np.ones(len(I), np.int8), (I, J)), shape=(n, n))
+    _, lab = connected_components(g, directed=False)
+    lab = lab.astype(np.int64)
     rep = np.full(lab.max() + 1, np.iinfo(np.int64).max)
     np.minimum.at(rep, lab, used)
     m = np.arange(len(X))
     m[used] = rep[lab]
-    merged = int(len(used) - (lab.max() + 1))
+    merged = int(n - (lab.max() + 1))
     return m[F], merged
 
 

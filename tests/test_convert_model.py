@@ -261,7 +261,7 @@ def test_cityjson_buildings(shared_data, fname):
     p = shared_data / "cityjson" / fname
     scale = float(json.loads(p.read_text())["transform"]["scale"][0])
     n_checked = 0
-    for name, (V, F, n_surfaces) in _buildings(p).items():
+    for V, F, n_surfaces in _buildings(p).values():
         e = np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1)
         _, cnt = np.unique(e, axis=0, return_counts=True)
         closed = bool((cnt == 2).all())
