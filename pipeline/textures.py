@@ -12,6 +12,7 @@ coordinates (level 0); colours are float32 in [0, 1], RGB order.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -19,23 +20,35 @@ import numpy as np
 
 # ---------------------------------------------------------------------------- generation helpers
 def _resize_wrap(grid: np.ndarray, size: int) -> np.ndarray:
-    """Bicubic upsampling of a periodic ``(c, c[, k])`` grid to ``(size, size[, k])``, keeping it tileable."""
+    """Bicubic upsampling of a periodic ``(c, c[, k])`` grid to ``(size, size[, k])``, keeping it tileable.
+
+    Coarse grids are first upsampled to at most 32 texels per cell (bicubic, with a wrapped border),
+    then bilinearly to ``size``: the result is smooth at those scales either way.
+    """
     import cv2
 
     c = grid.shape[0]
-    scale = size // c
+    inter = min(size, c * 32)
+    scale = inter // c
     pad = 2
     g = np.pad(grid, ((pad, pad), (pad, pad)) + ((0, 0),) * (grid.ndim - 2), mode="wrap").astype(np.float32)
     big = cv2.resize(g, ((c + 2 * pad) * scale, (c + 2 * pad) * scale), interpolation=cv2.INTER_CUBIC)
-    return big[pad * scale: pad * scale + size, pad * scale: pad * scale + size]
+    if inter == size:
+        return big[pad * scale: pad * scale + size, pad * scale: pad * scale + size]
+    # keep one wrapped intermediate texel on each side, then bilinear to the final size
+    k = size // inter
+    sub = big[pad * scale - 1: pad * scale + inter + 1, pad * scale - 1: pad * scale + inter + 1]
+    up = cv2.resize(sub, ((inter + 2) * k, (inter + 2) * k), interpolation=cv2.INTER_LINEAR)
+    return up[k: k + size, k: k + size]
 
 
 def value_noise(size: int, cells: int, rng: np.random.Generator, channels: int = 0) -> np.ndarray:
     """Tileable value noise: uniform random values on a ``cells x cells`` lattice, bicubic-interpolated.
 
-    Returns float32 ``(size, size)`` (or ``(size, size, channels)``), roughly in [0, 1].
+    Returns float32 ``(size, size)`` (or ``(size, size, channels)``), roughly in [0, 1]. ``cells`` is
+    rounded to a power of two (``size`` is one).
     """
-    cells = int(min(max(cells, 1), size))
+    cells = int(min(2 ** round(math.log2(max(cells, 1))), size))  # power of two: divides size
     shape = (cells, cells) if not channels else (cells, cells, channels)
     return _resize_wrap(rng.random(shape, dtype=np.float32), size)
 
@@ -74,26 +87,31 @@ def brick_texture(size: int, rng: np.random.Generator, rows: int = 32, bricks_pe
     """Running-bond brick wall: per-brick colour, mortar lines, grain noise. float32 (size, size, 3)."""
     h = size // rows
     w = size // bricks_per_row
-    y, x = np.mgrid[0:size, 0:size].astype(np.float32)
-    row = (y // h).astype(np.int64)
-    xo = x + (row % 2) * (w / 2.0)
-    col = (xo // w).astype(np.int64) % bricks_per_row
-    bx = xo - np.floor(xo / w) * w
+    y = np.arange(size, dtype=np.float32)
+    x = np.arange(size, dtype=np.float32)
+    row = (y // h).astype(np.int64)                      # (size,) brick row of each texel row
     by = y - row * h
+    dy = np.minimum(by, h - by)                          # distance to the horizontal mortar lines
+    par = (row % 2).astype(np.int64)
+    xo = x[None, :] + np.array([[0.0], [w / 2.0]], np.float32)   # (2, size): even / odd rows
+    col2 = (xo // w).astype(np.int64) % bricks_per_row
+    bx = xo - np.floor(xo / w) * w
+    dx2 = np.minimum(bx, w - bx)
+    dist = np.minimum(dx2[par], dy[:, None])             # (size, size)
     mortar_w = max(1.5, 0.12 * h)
-    dist = np.minimum(np.minimum(bx, w - bx), np.minimum(by, h - by))
-    mortar = np.clip((mortar_w - dist) / 1.0 + 0.5, 0.0, 1.0)  # 1 in the mortar, soft over 1 texel
+    mortar = np.clip((mortar_w - dist) + 0.5, 0.0, 1.0)[..., None]  # 1 in the mortar, soft over 1 texel
     tone = rng.random((rows, bricks_per_row), dtype=np.float32)
-    hue = rng.random((rows, bricks_per_row), dtype=np.float32)
-    t = tone[row, col][..., None]
-    hh = hue[row, col][..., None]
-    base = np.array([0.62, 0.30, 0.22], np.float32) * (1 - hh) + np.array([0.55, 0.42, 0.30], np.float32) * hh
-    brick = base * (0.6 + 0.7 * t)
+    hue = rng.random((rows, bricks_per_row), dtype=np.float32)[..., None]
+    c0 = np.array([0.62, 0.30, 0.22], np.float32)
+    c1 = np.array([0.55, 0.42, 0.30], np.float32)
+    brick_col = (c0 * (1 - hue) + c1 * hue) * (0.6 + 0.7 * tone)[..., None]   # (rows, bricks, 3)
+    img = brick_col[row[:, None], col2[par]]            # (size, size, 3)
     grain = fbm(size, 16, 6, rng, 0.6)[..., None]
-    brick = brick * (0.65 + 0.7 * grain)
+    img *= 0.65 + 0.7 * grain
     mortar_col = np.array([0.78, 0.76, 0.72], np.float32) * (0.8 + 0.4 * fbm(size, 64, 3, rng)[..., None])
-    img = brick * (1 - mortar[..., None]) + mortar_col * mortar[..., None]
-    return img * _speckle(size, rng, 0.004, 0.35)[..., None]
+    img += (mortar_col - img) * mortar
+    img *= _speckle(size, rng, 0.004, 0.35)[..., None]
+    return img
 
 
 def tile_texture(size: int, rng: np.random.Generator, tiles: int = 8) -> np.ndarray:
@@ -188,12 +206,14 @@ class Texture:
     @classmethod
     def from_image(cls, img: np.ndarray, texel_m: float) -> Texture:
         """Build the pyramid from a float image in [0, 1] (2x2 box filter per level, tileable)."""
-        lev = np.clip(img, 0, 1).astype(np.float32)
-        levels = [np.round(lev * 255).astype(np.uint8)]
+        import cv2
+
+        lev = np.clip(img, 0, 1).astype(np.float32) * np.float32(255.0)
+        levels = [np.clip(lev + 0.5, 0, 255).astype(np.uint8)]
         while lev.shape[0] > 4:
             h = lev.shape[0] // 2
-            lev = lev.reshape(h, 2, h, 2, 3).mean(axis=(1, 3))
-            levels.append(np.round(lev * 255).astype(np.uint8))
+            lev = cv2.resize(lev, (h, h), interpolation=cv2.INTER_AREA)  # exact 2x2 box average
+            levels.append(np.clip(lev + 0.5, 0, 255).astype(np.uint8))
         return cls(levels, float(texel_m))
 
     @classmethod
