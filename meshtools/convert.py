@@ -21,9 +21,12 @@ Algorithm (all vectorised with numpy/scipy except the fallback queue and pinch v
    (slowly curving surfaces that would chain) are regrown with an explicit queue (no recursion):
    seeds by decreasing area, region plane = seed plane.
 5. **Outlines**: half-edges whose opposite triangle is in another region (or missing) form the region
-   boundary, already oriented (region on the left). They are chained into loops; at a pinch vertex
-   (several outgoing edges) the tightest turn is taken so loops stay simple. Loop signed area in the
-   region plane tells the outer loop (> 0) from holes (< 0); zero-area loops (slits) are dropped.
+   boundary, already oriented (region on the left). They are chained into loops (vectorised list
+   ranking); at a pinch vertex (several outgoing edges) the region's wedges are closed locally and a
+   loop that still visits a vertex twice is split there, so every loop is simple (holes may touch
+   the outline or each other at single vertices). Loop signed area in the region plane tells the
+   outer loop (> 0) from holes (< 0); zero-area loops (slits) are dropped and counted. Half-edges
+   left unbalanced by non-orientable tangles are dropped and counted (never a crash).
 6. **Simplify**: a vertex is removed when it is a straight pass-through (within ``collinear_tol``)
    in *every* loop that uses it; a vertex where any loop turns (corners, T-junctions of three
    regions) is kept in all loops, so neighbouring polygons share the same vertices and no crack opens.
@@ -169,6 +172,8 @@ def tin_to_polygons(V: np.ndarray, F: np.ndarray, config: ConvertConfig | None =
     for lp in loops:
         used[lp] = True
     remap = np.cumsum(used) - 1
+    if not faces:
+        raise InputError(path, "no polygon could be formed (degenerate mesh)")
     model = PolygonModel(V[used], [remap[f] for f in faces], holes=[[remap[h] for h in hs] for hs in holes])
     stats.update(polygons_out=model.n_faces, vertices_out=int(used.sum()), holes=model.n_holes,
                  angle_tol_deg=float(cfg.angle_tol_deg), dist_tol=dist_tol, weld_tol=float(cfg.weld_tol))
@@ -501,8 +506,28 @@ def outlines(X, F, region, n_regions, cr, E: _Edges, col_tol: float, diag: float
     interior[p1[same]] = True
     hb = h_all[~interior]
     bu, bv, br = E.u[hb], E.v[hb], fr[hb]
-    B = len(hb)
     nv = len(X)
+    # every (region, vertex) must have as many boundary half-edges in as out; this holds for
+    # consistently oriented regions. Non-orientable or non-manifold tangles can break it: drop the
+    # half-edges at unbalanced vertices (repeat until balanced) and count them.
+    n_open = 0
+    while len(bu):
+        k_out = br * nv + bu
+        k_in = br * nv + bv
+        keys, inv = np.unique(np.concatenate([k_out, k_in]), return_inverse=True)
+        inv = inv.ravel()
+        n = len(bu)
+        bal = np.bincount(inv[:n], minlength=len(keys)) - np.bincount(inv[n:], minlength=len(keys))
+        if not bal.any():
+            break
+        bad_key = bal != 0
+        drop = bad_key[inv[:n]] | bad_key[inv[n:]]
+        n_open += int(drop.sum())
+        bu, bv, br = bu[~drop], bv[~drop], br[~drop]
+    B = len(bu)
+    if B == 0:
+        return [], [], {"loops": 0, "slit_loops_dropped": 0, "pinch_vertices": 0, "vertices_removed": 0,
+                        "regions_without_outer_loop": int(R), "open_boundary_edges_dropped": n_open}
     # successor: next boundary half-edge of the same region leaving bv
     out_key = br * nv + bu
     o = np.argsort(out_key, kind="stable")
@@ -511,8 +536,6 @@ def outlines(X, F, region, n_regions, cr, E: _Edges, col_tol: float, diag: float
     lo = np.searchsorted(ks, want, "left")
     hi = np.searchsorted(ks, want, "right")
     cnt = hi - lo
-    if (cnt == 0).any():  # cannot happen for a closed chain of half-edges; guard anyway
-        raise RuntimeError("open boundary chain (internal error)")
     succ = o[np.minimum(lo, len(o) - 1)]
     n_pinch = 0
     multi = np.flatnonzero(cnt > 1)
@@ -568,26 +591,40 @@ def outlines(X, F, region, n_regions, cr, E: _Edges, col_tol: float, diag: float
     removable &= keep_cnt[lab_o] >= 3
     keep = ~removable
     tiny = 1e-12 * diag**2
-    faces, holes = [], []
-    n_dropped = 0
     kept_u = u_o[keep]
     kept_lab = lab_o[keep]
     bounds = np.concatenate([[0], np.flatnonzero(np.diff(kept_lab)) + 1, [len(kept_lab)]])
     loop_of_seg = kept_lab[bounds[:-1]]
-    segs = {int(li): kept_u[s:e] for li, s, e in zip(loop_of_seg, bounds[:-1], bounds[1:])}
     lab_at_start = lab_o[loop_start]
     area_by_loop = np.empty(n_loops)
     area_by_loop[lab_at_start] = loop_area
     reg_by_loop = np.empty(n_loops, np.int64)
     reg_by_loop[lab_at_start] = loop_reg
+    # loops that pass a vertex twice (pinches) are split there into simple loops
+    uniq_per_loop = np.bincount(np.unique(kept_lab * nv + kept_u) // nv, minlength=n_loops)
+    len_per_loop = np.bincount(kept_lab, minlength=n_loops)
+    repeated = uniq_per_loop < len_per_loop
+    loops: list[tuple[int, float, np.ndarray]] = []  # (region, signed area, vertex loop)
+    for li, s0, e0 in zip(loop_of_seg.tolist(), bounds[:-1].tolist(), bounds[1:].tolist()):
+        seq = kept_u[s0:e0]
+        r = int(reg_by_loop[li])
+        if not repeated[li]:
+            loops.append((r, float(area_by_loop[li]), seq))
+            continue
+        for sub in _split_at_repeats(seq.tolist()):
+            P = X[sub]
+            a = 0.5 * float(np.cross(P, np.roll(P, -1, axis=0)).sum(0) @ nR[r])
+            loops.append((r, a, np.asarray(sub, np.int64)))
+    n_split = int(repeated.sum())
     outer_of_region: dict[int, list[int]] = {}
     holes_of_region: dict[int, list[int]] = {}
-    for li in range(n_loops):
-        a = area_by_loop[li]
-        if abs(a) <= tiny:
+    n_dropped = 0
+    for k, (r, a, seq) in enumerate(loops):
+        if abs(a) <= tiny or len(seq) < 3:
             n_dropped += 1
             continue
-        (outer_of_region if a > 0 else holes_of_region).setdefault(int(reg_by_loop[li]), []).append(li)
+        (outer_of_region if a > 0 else holes_of_region).setdefault(r, []).append(k)
+    faces, holes = [], []
     regions_without_outer = 0
     for r in range(R):
         outs = outer_of_region.get(r, [])
@@ -595,22 +632,43 @@ def outlines(X, F, region, n_regions, cr, E: _Edges, col_tol: float, diag: float
         if not outs:
             regions_without_outer += 1 if hs else 0
             continue
-        outs.sort(key=lambda li: -area_by_loop[li])
-        faces.append(segs[outs[0]])
-        holes.append([segs[h] for h in hs])
+        outs.sort(key=lambda k: -loops[k][1])
+        faces.append(loops[outs[0]][2])
+        holes.append([loops[h][2] for h in hs])
         for extra in outs[1:]:
-            faces.append(segs[extra])
+            faces.append(loops[extra][2])
             holes.append([])
-    stats = {"loops": int(n_loops), "slit_loops_dropped": int(n_dropped), "pinch_vertices": int(n_pinch),
-             "vertices_removed": int(len(np.unique(u_o[removable]))),
-             "regions_without_outer_loop": int(regions_without_outer)}
+    stats = {"loops": len(loops), "slit_loops_dropped": int(n_dropped), "pinch_vertices": int(n_pinch),
+             "loops_split_at_pinches": n_split, "vertices_removed": int(len(np.unique(u_o[removable]))),
+             "regions_without_outer_loop": int(regions_without_outer), "open_boundary_edges_dropped": n_open}
     return faces, holes, stats
+
+
+def _split_at_repeats(seq: list[int]) -> list[list[int]]:
+    """Split a closed vertex sequence that visits some vertex twice into simple closed loops."""
+    out: list[list[int]] = []
+    path: list[int] = []
+    pos: dict[int, int] = {}
+    for x in seq:
+        if x in pos:
+            p = pos[x]
+            out.append(path[p:])
+            for y in path[p + 1:]:
+                del pos[y]
+            path = path[: p + 1]
+        else:
+            pos[x] = len(path)
+            path.append(x)
+    out.append(path)
+    return [lp for lp in out if len(lp) >= 3]
 
 
 def _resolve_pinches(X, bu, bv, br, nR, o, lo, hi, multi, succ):
     """At vertices with several outgoing boundary half-edges of one region, pair each incoming
     half-edge with the first outgoing one met turning clockwise from the reversed incoming
-    direction (tightest turn: loops stay simple)."""
+    direction (the region's wedges close locally). Loops that still pass a vertex twice are split
+    there afterwards (:func:`_split_at_repeats`), so every output loop is simple; holes may touch
+    the outer loop or each other at single vertices (as OGC simple features allow)."""
     from mst.meshtools.io import _plane_basis
 
     succ = succ.copy()

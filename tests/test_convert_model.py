@@ -330,3 +330,94 @@ def test_stage_rejects_nan_arrays():
     V[3, 1] = np.inf
     with pytest.raises(InputError, match="NaN or infinite"):
         tin_to_polygons(V, F)
+
+
+# ====================================================================== topology corner cases
+def _grid_plate(n=6, size=6.0):
+    """Flat open n x n grid in z=0, normals up: (V, F, cell index per triangle)."""
+    x = np.linspace(0, size, n + 1)
+    X, Y = np.meshgrid(x, x, indexing="ij")
+    V = np.column_stack([X.ravel(), Y.ravel(), np.zeros(X.size)])
+    idx = np.arange((n + 1) ** 2).reshape(n + 1, n + 1)
+    a, b, c, d = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
+    F = np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
+    cell = np.concatenate([np.arange(n * n)] * 2)
+    return V, F, cell
+
+
+def test_holes_touching_outer_boundary_and_each_other():
+    """Cells removed from a plate so that holes touch the border and each other at single
+    vertices (pinch vertices): loops stay simple, area and holes are right."""
+    n = 6
+    V, F, cell = _grid_plate(n)
+    ci, cj = cell // n, cell % n
+    cells = [(1, 1), (2, 2), (0, 4), (1, 3), (4, 3)]  # (1,3) touches the border notch (0,4) at a vertex
+    removed = np.zeros(len(F), bool)
+    for i, j in cells:
+        removed |= (ci == i) & (cj == j)
+    F = F[~removed]
+    model, stats = convert(V, F)
+    assert model.n_faces >= 1 and stats["pinch_vertices"] >= 2
+    check_conversion(V, F, model, stats, 1.0)
+    for lp in model.loops():
+        assert len(np.unique(lp)) == len(lp)  # simple loops
+    Vo, Fo = model.triangulate()
+    assert tri_area(Vo, Fo) == pytest.approx(36 - 5, rel=1e-12)
+    assert xy_area(Vo, Fo) == pytest.approx(36 - 5, rel=1e-12)
+
+
+def test_many_holes_bridged_for_writers(tmp_path):
+    """A plate with 5 holes: each writer gets one weakly-simple loop per face whose earcut
+    triangulation covers exactly the plate minus the holes."""
+    n = 9
+    V, F, cell = _grid_plate(n, 9.0)
+    ci, cj = cell // n, cell % n
+    holes = [(1, 1), (1, 5), (4, 3), (6, 7), (7, 1)]
+    removed = np.zeros(len(F), bool)
+    for i, j in holes:
+        removed |= (ci == i) & (cj == j)
+    F = F[~removed]
+    model, stats = convert(V, F)
+    assert model.n_faces == 1 and model.n_holes == 5
+    for suf in (".wrl", ".cao", ".obj"):
+        save_model(tmp_path / f"p{suf}", model)
+        m = load_model(tmp_path / f"p{suf}")
+        assert m.n_faces == 1 and len(m.faces[0]) == 4 + 5 * 4 + 2 * 5
+        Vo, Fo = m.triangulate()
+        assert tri_area(Vo, Fo) == pytest.approx(81 - 5, rel=1e-12)
+        assert xy_area(Vo, Fo) == pytest.approx(81 - 5, rel=1e-12)  # all triangles face up
+
+
+def test_vrml_output_read_by_meshlab(tmp_path):
+    """An independent VRML 2.0 reader (MeshLab) accepts the bridged polygons: same area/volume."""
+    pymeshlab = pytest.importorskip("pymeshlab")
+    V, F = gen.courtyard(split=2)
+    model, _ = convert(V, F)
+    save_model(tmp_path / "c.wrl", model)
+    ms = pymeshlab.MeshSet()
+    try:
+        ms.load_new_mesh(str(tmp_path / "c.wrl"))
+    except pymeshlab.PyMeshLabException as e:  # VRML plugin missing (no libOpenGL on this machine)
+        pytest.skip(f"pymeshlab cannot read VRML here: {e}")
+    g = ms.get_geometric_measures()
+    assert g["surface_area"] == pytest.approx(tri_area(V, F), rel=1e-6)
+    assert g["mesh_volume"] == pytest.approx(signed_volume(V, F), rel=1e-6)
+
+
+def test_mobius_strip_does_not_crash():
+    """A non-orientable strip: orientation cannot be made consistent; conversion still succeeds."""
+    k = 48
+    t = np.linspace(0, 2 * np.pi, k, endpoint=False)
+    pts = []
+    for s_ in (-1.0, 1.0):
+        r = 5 + s_ * np.cos(t / 2)
+        pts.append(np.column_stack([r * np.cos(t), r * np.sin(t), s_ * np.sin(t / 2)]))
+    V = np.concatenate(pts)
+    F = []
+    for i in range(k):
+        j = (i + 1) % k
+        a, b = i, k + i
+        c, d = (j, k + j) if j else (k + j, j)  # the half twist swaps the two rails
+        F += [[a, c, b], [b, c, d]]
+    model, stats = convert(V, np.array(F), angle_tol_deg=1.0, dist_tol=0.01)
+    assert model.n_faces > 10 and stats["components"] == 1
