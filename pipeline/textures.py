@@ -223,7 +223,7 @@ class Texture:
         return cls.from_image(GENERATORS[kind](size, rng), texel_m)
 
     def sample(self, u: np.ndarray, v: np.ndarray, footprint_texels: np.ndarray) -> np.ndarray:
-        """Trilinear mip-mapped lookup.
+        """Mip-mapped lookup (bilinear in a level; levels blended over the middle half of each level step).
 
         ``u``, ``v``: (N,) level-0 texel coordinates (any range, wrapped; texel centres at integers).
         ``footprint_texels``: (N,) size of the pixel footprint in level-0 texels (selects the level).
@@ -238,12 +238,16 @@ class Texture:
         vw = np.mod(np.asarray(v, np.float32), size0)
         lod = np.clip(np.log2(np.maximum(np.asarray(footprint_texels, np.float32), np.float32(1.0))), 0, nlev - 1.001)
         lvl = lod.astype(np.int64)
-        frac = (lod - lvl)[:, None]
-        lo = self._lookup(lvl, uw, vw)
-        hi = self._lookup(lvl + 1, uw, vw)
-        lo += (hi - lo) * frac
-        lo *= np.float32(1.0 / 255.0)
-        return lo
+        # "brilinear" filtering: blend two levels only in the middle half of each level interval
+        w = np.clip((lod - lvl - np.float32(0.25)) * np.float32(2.0), 0.0, 1.0)
+        out = self._lookup(lvl + (w >= 1.0), uw, vw)
+        band = np.flatnonzero((w > 0.0) & (w < 1.0))
+        if len(band):
+            lo = out[band]
+            hi = self._lookup(lvl[band] + 1, uw[band], vw[band])
+            out[band] = lo + (hi - lo) * w[band, None]
+        out *= np.float32(1.0 / 255.0)
+        return out
 
     def _lookup(self, lvl: np.ndarray, uw: np.ndarray, vw: np.ndarray) -> np.ndarray:
         """Bilinear lookup at per-point mip levels ``lvl`` and wrapped level-0 coordinates: (N, 3) float32 0..255."""

@@ -1,0 +1,85 @@
+"""Benchmark of ``mst synth``: 640x480 colour + depth rendering speed and memory.
+
+Rows:
+
+Wall times on a shared machine vary with its load; ``cpu_ms_per_frame`` (process CPU time) of the
+one-thread row is the steadier single-core figure.
+
+* ``render_640x480_1thread``: in-process :class:`~mst.pipeline.render.ShadedRenderer` on the orbit
+  scene of the bundled sample house, one ray-casting thread: ms per colour+depth frame (edge
+  anti-aliasing on), split into ray casting and the rest; target <= 50 ms per frame on one core.
+* ``render_640x480_all_threads``: the same with all cores.
+* ``synth_orbit_60``: the whole command ``mst synth orbit --frames 60 --depth`` on the sample
+  (PNG/NPY writing, texture generation included): frames per second and peak RSS.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+
+from mst.eval.bench import mst_cmd, timed_command
+
+ROOT = Path(__file__).resolve().parents[1]
+SAMPLE = ROOT / "samples" / "building_tin.obj"
+
+
+def _render_rows() -> list[dict]:
+    from mst.pipeline.poses import inv_T
+    from mst.pipeline.synth import SynthConfig, _build_scene, load_model_triangles
+
+    import cv2
+
+    V, F = load_model_triangles(SAMPLE)
+    rows = []
+    n_cv = cv2.getNumThreads()
+    for nthreads, name in ((1, "render_640x480_1thread"), (0, "render_640x480_all_threads")):
+        cv2.setNumThreads(1 if nthreads == 1 else n_cv)  # OpenCV's remap is multi-threaded too
+        cfg = SynthConfig(nthreads=nthreads)
+        cam, R_cm, scene, renderer, _ = _build_scene("orbit", cfg, V, F)
+        poses = [inv_T(scene.pose(k / 30.0)) for k in range(20)]
+        renderer.render(cam, poses[0])  # warm-up (BVH, caches)
+        t_tot, t_cpu, t_cast, edge_px = [], [], [], []
+        for T in poses:
+            t0, c0 = time.perf_counter(), time.process_time()
+            out = renderer.render(cam, T, aa_samples=16)
+            t_tot.append(time.perf_counter() - t0)
+            t_cpu.append(time.process_time() - c0)
+            edge_px.append(out["n_edge_px"])
+            x, y, _ = renderer.camera_dirs(cam)
+            o, d = renderer.rays_for(T, x, y)
+            t1 = time.perf_counter()
+            renderer.cast(o, d)
+            t_cast.append(time.perf_counter() - t1)
+        ms = 1000 * float(np.median(t_tot))
+        row = {"bench": name, "ms_per_frame": ms, "fps": 1000.0 / ms, "cpu_ms_per_frame": 1000 * float(np.median(t_cpu)),
+               "cast_ms": 1000 * float(np.median(t_cast)), "edge_px": int(np.median(edge_px))}
+        if nthreads == 1:
+            row.update(target="<= 50 ms per 640x480 colour+depth frame on one core", ok=ms <= 50.0)
+        rows.append(row)
+    cv2.setNumThreads(n_cv)
+    return rows
+
+
+def run(workdir: Path) -> list[dict]:
+    workdir = Path(workdir)
+    workdir.mkdir(parents=True, exist_ok=True)
+    rows = _render_rows()
+    out = workdir / "orbit60"
+    r = timed_command(mst_cmd("synth", "orbit", "--model", SAMPLE, "-o", out, "--frames", "60", "--depth",
+                              "--overwrite", "-q"))
+    rows.append({"bench": "synth_orbit_60_640x480", "wall_s": r["wall_s"], "fps": 60 / r["wall_s"],
+                 "ms_per_frame": 1000 * r["wall_s"] / 60, "peak_rss_mib": r["peak_rss_mib"]})
+    return rows
+
+
+if __name__ == "__main__":
+    import json
+    import sys
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as tmp:
+        for row in run(Path(sys.argv[1]) if len(sys.argv) > 1 else Path(tmp)):
+            print(json.dumps(row))
