@@ -1130,7 +1130,8 @@ def bridge_holes(V: np.ndarray, outer: np.ndarray, holes: list[np.ndarray], n: n
     Holes are processed by decreasing maximum u coordinate (plane basis from ``n``); each hole is
     joined from its rightmost vertex H to the closest vertex P of the current loop such that the
     segment H-P crosses no edge of the outer loop or of any hole (standard hole elimination, as in
-    earcut). The result visits ``P ... H (hole loop) H P ...``: P and H appear twice.
+    earcut). The result visits ``P ... H (hole loop) H P ...``: P and H appear twice. A hole that
+    shares a vertex with the loop (touching holes) is spliced in at that vertex without a bridge.
     Outer loop CCW about ``n``, holes CW (as stored in :class:`PolygonModel`).
     """
     B = _plane_basis(n)
@@ -1147,6 +1148,14 @@ def bridge_holes(V: np.ndarray, outer: np.ndarray, holes: list[np.ndarray], n: n
     for hi in order:
         h = holes[hi]
         hp = hole_pts[hi]
+        shared = np.intersect1d(h, np.asarray(loop, np.int64))
+        if len(shared):  # the hole touches the loop at a vertex: splice it in there, no bridge
+            v = int(shared[0])
+            c = loop.index(v)
+            j = int(np.flatnonzero(h == v)[0])
+            hrot = np.roll(h, -j).tolist()
+            loop = loop[:c] + hrot + loop[c:]
+            continue
         j = int(np.argmax(hp[:, 0]))
         H = hp[j]
         L = np.array(loop, np.int64)

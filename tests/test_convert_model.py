@@ -345,7 +345,7 @@ def _grid_plate(n=6, size=6.0):
     return V, F, cell
 
 
-def test_holes_touching_outer_boundary_and_each_other():
+def test_holes_touching_outer_boundary_and_each_other(tmp_path):
     """Cells removed from a plate so that holes touch the border and each other at single
     vertices (pinch vertices): loops stay simple, area and holes are right."""
     n = 6
@@ -364,6 +364,14 @@ def test_holes_touching_outer_boundary_and_each_other():
     Vo, Fo = model.triangulate()
     assert tri_area(Vo, Fo) == pytest.approx(36 - 5, rel=1e-12)
     assert xy_area(Vo, Fo) == pytest.approx(36 - 5, rel=1e-12)
+    # written with holes spliced/bridged: no zero-length edge, same area, all triangles up
+    save_model(tmp_path / "p.cao", model)
+    m = load_model(tmp_path / "p.cao")
+    for f in m.faces:
+        assert (f != np.roll(f, -1)).all()
+    Vo, Fo = m.triangulate()
+    assert xy_area(Vo, Fo) == pytest.approx(36 - 5, rel=1e-12)
+    assert xy_area(Vo, Fo, signed=False) == pytest.approx(36 - 5, rel=1e-12)
 
 
 def test_many_holes_bridged_for_writers(tmp_path):
