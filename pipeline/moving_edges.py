@@ -107,11 +107,16 @@ def reference_contrast(img_prev: np.ndarray, uv_prev: np.ndarray, normal: np.nda
 
 def search_edges(img: np.ndarray, uv: np.ndarray, normal: np.ndarray, ref: np.ndarray | None, *,
                  search_range: int, threshold: float, mu1: float, mu2: float, size: int, n_masks: int,
-                 n_candidates: int = 2, mask_idx: np.ndarray | None = None) -> EdgeMatches:
+                 n_candidates: int = 2, mask_idx: np.ndarray | None = None,
+                 edge: np.ndarray | None = None) -> EdgeMatches:
     """Search ``+-search_range`` px along each normal; keep up to ``n_candidates`` positions.
 
     ``normal`` must be canonical (see :func:`canonical_normals`) when ``ref`` is given, and
-    ``mask_idx`` the matching mask indices (computed here when None).
+    ``mask_idx`` the matching mask indices (computed here when None). Without a reference and
+    with ``edge`` (the model edge of each sample), the polarity of each model edge is voted by
+    its samples' strongest responses (weighted by likelihood) and candidates of the other
+    polarity are dropped: texture edges next to a model edge have random polarity, the model
+    edge one.
     """
     if mask_idx is None:
         normal, mask_idx = canonical_normals(normal, n_masks)
@@ -133,6 +138,13 @@ def search_edges(img: np.ndarray, uv: np.ndarray, normal: np.ndarray, ref: np.nd
     else:
         like = 2.0 * np.abs(conv)
         ok = like > 2.0 * threshold
+        if edge is not None and len(edge):
+            j = np.argmax(np.where(ok, like, -1.0), axis=1)
+            rr = np.arange(N)
+            cbest = conv[rr, j]
+            vote = np.where(ok[rr, j], np.sign(cbest) * like[rr, j], 0.0)
+            pol = np.sign(np.bincount(edge, weights=vote, minlength=int(edge.max()) + 1))[edge]
+            ok &= (np.sign(conv) == pol[:, None]) | (pol[:, None] == 0)
     M = like.shape[1]
     lp = np.pad(like, ((0, 0), (1, 1)), constant_values=-np.inf)
     locmax = (like >= lp[:, :-2]) & (like >= lp[:, 2:])

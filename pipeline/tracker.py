@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 from mst import InputError, atomic_outputs
+from mst.pipeline.overlay import OverlayWriter, draw_overlay
 from mst.pipeline.settings import TrackerConfig, config_to_dict
 
 
@@ -168,7 +169,7 @@ class EdgeTracker:
             ref = reference_contrast(ref_img, uvp, normal, midx, c.mask_size, c.n_masks)
         m = search_edges(img, S.uv, normal, ref, search_range=int(search_range), threshold=c.edge_threshold,
                          mu1=c.mu1, mu2=c.mu2, size=c.mask_size, n_masks=c.n_masks, n_candidates=c.n_candidates,
-                         mask_idx=midx)
+                         mask_idx=midx, edge=S.edge)
         cand = m.candidates_uv(S.uv)
         kx, ku = (None, None) if klt is None else klt
         try:
@@ -189,23 +190,21 @@ class EdgeTracker:
         fv = self.prev_faces if self.prev_faces is not None else np.ones(len(self.geom.faces), bool)
         from mst.pipeline.visibility import inverse_depth_buffer
 
-        # face-id buffer: which face is in front at each pixel (full resolution, inverse depth)
-        ids = np.full((H, W), -1, np.int32)
-        best = np.zeros((H, W), np.float32)
-        for f in np.flatnonzero(fv):
-            sel = np.zeros(len(fv), bool)
-            sel[f] = True
-            buf, _ = inverse_depth_buffer(self.geom, T, self.K, W, H, sel, c.near_clip, 1.0)
-            upd = buf > best * (1 + 1e-4)
-            ids[upd] = f
-            best[upd] = buf[upd]
-        mask = (ids >= 0).astype(np.uint8) * 255
+        best, _ = inverse_depth_buffer(self.geom, T, self.K, W, H, fv, c.near_clip, 1.0)  # 1/z of the front surface
+        mask = (best > 0).astype(np.uint8) * 255
         mask = cv2.erode(mask, np.ones((2 * c.klt_border + 1,) * 2, np.uint8))
-        pts = cv2.goodFeaturesToTrack(gray, c.klt_max_features, c.klt_quality, c.klt_min_distance, mask=mask,
-                                      blockSize=c.klt_block, useHarrisDetector=False, k=c.klt_harris)
+        ys, xs = np.nonzero(mask[::8, ::8])
+        if not len(xs):
+            return None, None
+        x0, x1 = max(0, xs.min() * 8 - 8), min(W, xs.max() * 8 + 9)
+        y0, y1 = max(0, ys.min() * 8 - 8), min(H, ys.max() * 8 + 9)
+        pts = cv2.goodFeaturesToTrack(gray[y0:y1, x0:x1], c.klt_max_features, c.klt_quality, c.klt_min_distance,
+                                      mask=np.ascontiguousarray(mask[y0:y1, x0:x1]), blockSize=c.klt_block,
+                                      useHarrisDetector=False, k=c.klt_harris)
         if pts is None:
             return None, None
-        pts = pts.reshape(-1, 2).astype(np.float64)
+        pts = pts.reshape(-1, 2) + [x0, y0]
+        pts = pts.astype(np.float64)
         ix, iy = np.rint(pts[:, 0]).astype(int), np.rint(pts[:, 1]).astype(int)
         iz = best[iy, ix].astype(np.float64)
         ok = iz > 0
@@ -224,9 +223,11 @@ class EdgeTracker:
         p0 = self.klt_pts.astype(np.float32).reshape(-1, 1, 2)
         p1, st, _ = cv2.calcOpticalFlowPyrLK(self.prev_gray, gray, p0, None, winSize=(2 * c.klt_window + 1,) * 2,
                                              maxLevel=c.klt_pyramid)
+        # forward-backward check: drops unstable tracks (noise, occlusion boundaries)
         p0r, st2, _ = cv2.calcOpticalFlowPyrLK(gray, self.prev_gray, p1, None, winSize=(2 * c.klt_window + 1,) * 2,
                                                maxLevel=c.klt_pyramid)
-        ok = (st.ravel() == 1) & (st2.ravel() == 1) & (np.linalg.norm((p0r - p0).reshape(-1, 2), axis=1) < 1.0)
+        fb = np.linalg.norm((p0r - p0).reshape(-1, 2), axis=1)
+        ok = (st.ravel() == 1) & (st2.ravel() == 1) & (fb < 0.5)
         if ok.sum() < 4:
             return None
         return self.klt_X[ok], p1.reshape(-1, 2)[ok].astype(np.float64)
@@ -301,6 +302,8 @@ class EdgeTracker:
         reason = "" if healthy else (f"samples {n_s}" if n_s < c.min_samples else f"inliers {ratio:.0%}"
                                      if ratio < c.min_inlier_ratio else f"gradient support {support:.0%}"
                                      if support < c.min_support else f"projection error {proj_err:.1f} deg")
+        if klt is not None and res.klt_inlier is not None:
+            self._klt_next = (klt[0][res.klt_inlier], klt[1][res.klt_inlier])
         out = FrameResult(T, healthy, n_s, n_in, res.rms_px, proj_err, res.W, res.cov, uv, res.inlier,
                           S.edge_uv[np.unique(S.edge)], np.zeros((0, 2)) if klt is None else klt[1], reason, support)
         return out
@@ -314,8 +317,18 @@ class EdgeTracker:
         self.prev_T = T_cam_model.copy()
         self.prev_faces = face_visibility(self.geom, T_cam_model, self.prev_faces, c.angle_appear, c.angle_disappear)
         if c.use_klt:
-            pts, X = self._klt_points(gray, T_cam_model)
-            self.klt_pts, self.klt_X = pts, X
+            nxt = getattr(self, "_klt_next", None)
+            self._klt_next = None
+            self._klt_age = getattr(self, "_klt_age", 0) + 1
+            enough = nxt is not None and len(nxt[0]) >= max(20, 0.6 * getattr(self, "_klt_n0", 0))
+            # re-detect when too few points survive (at most every 5 frames: textureless scenes) or every 30
+            if nxt is not None and len(nxt[0]) >= 4 and (enough or self._klt_age < 5) and self._klt_age < 30:
+                self.klt_X, self.klt_pts = nxt  # keep tracking the surviving points (ViSP keeps its KLT set)
+            else:
+                pts, X = self._klt_points(gray, T_cam_model)
+                self.klt_pts, self.klt_X = pts, X
+                self._klt_n0 = 0 if pts is None else len(pts)
+                self._klt_age = 0
             self.prev_gray = gray
 
 
@@ -333,79 +346,6 @@ def check_pose_in_view(model, T_cam_model: np.ndarray, cam, path, near: float = 
     inside = (uv[:, 0] >= 0) & (uv[:, 0] < cam.width) & (uv[:, 1] >= 0) & (uv[:, 1] < cam.height)
     if cam.width and not inside.any():
         raise InputError(path, "the pose puts the whole model outside the image")
-
-
-# ---------------------------------------------------------------------------- overlay
-def draw_overlay(bgr: np.ndarray, fr: FrameResult, status: str) -> np.ndarray:
-    """Projected visible edges (blue), samples (inliers green, outliers red), status text."""
-    import cv2
-
-    out = bgr.copy()
-    for a, b in fr.edge_uv:
-        cv2.line(out, (int(round(a[0])), int(round(a[1]))), (int(round(b[0])), int(round(b[1]))), (255, 128, 0), 1, cv2.LINE_AA)
-    if len(fr.uv):
-        H, W = out.shape[:2]
-        ix = np.clip(np.rint(fr.uv[:, 0]).astype(int), 0, W - 1)
-        iy = np.clip(np.rint(fr.uv[:, 1]).astype(int), 0, H - 1)
-        inl = fr.inlier if len(fr.inlier) == len(ix) else np.zeros(len(ix), bool)
-        for dy in (-1, 0, 1):
-            for dx in (-1, 0, 1):
-                yy, xx = np.clip(iy + dy, 0, H - 1), np.clip(ix + dx, 0, W - 1)
-                out[yy[inl], xx[inl]] = (0, 255, 0)
-                out[yy[~inl], xx[~inl]] = (0, 0, 255)
-    for p in fr.klt_uv:
-        cv2.circle(out, (int(round(p[0])), int(round(p[1]))), 2, (0, 255, 255), -1)
-    col = (0, 200, 0) if status in ("model", "slam") else (0, 0, 255)
-    cv2.putText(out, f"{status} in={fr.n_inliers}/{fr.n_samples} res={fr.residual_px:.2f}px pe={fr.proj_error_deg:.1f}deg",
-                (8, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.5, col, 1, cv2.LINE_AA)
-    return out
-
-
-class OverlayWriter:
-    """Writes overlay frames to an .mp4/.avi (OpenCV ``mp4v``) or a folder of PNGs."""
-
-    def __init__(self, path: Path, fps: float):
-        self.final = Path(path)
-        if not self.final.parent.exists():
-            raise InputError(self.final, "output folder does not exist")
-        self.is_video = self.final.suffix.lower() in (".mp4", ".avi", ".mov", ".mkv")
-        # written under a temporary name, renamed by commit() (no partial overlay on failure)
-        self.path = self.final.with_name(f".{self.final.stem}.{os.getpid()}.tmp{self.final.suffix}")
-        self.fps = fps
-        self.writer = None
-        self.count = 0
-        if not self.is_video:
-            self.path.mkdir(parents=True, exist_ok=True)
-
-    def write(self, img: np.ndarray, index: int) -> None:
-        import cv2
-
-        if self.is_video:
-            if self.writer is None:
-                self.writer = cv2.VideoWriter(str(self.path), cv2.VideoWriter_fourcc(*"mp4v"), self.fps,
-                                              (img.shape[1], img.shape[0]))
-            self.writer.write(img)
-        else:
-            cv2.imwrite(str(self.path / f"{index:06d}.png"), img)
-        self.count += 1
-
-    def close(self, commit: bool = False) -> None:
-        """Finish; with ``commit`` move the result onto the target, else delete it."""
-        import shutil
-
-        if self.writer is not None:
-            self.writer.release()
-            self.writer = None
-        if not self.path.exists():
-            return
-        if commit:
-            if self.final.is_dir() and not self.is_video:
-                shutil.rmtree(self.final)
-            os.replace(self.path, self.final)
-        elif self.path.is_dir():
-            shutil.rmtree(self.path)
-        else:
-            self.path.unlink()
 
 
 # ---------------------------------------------------------------------------- the stage
