@@ -22,7 +22,7 @@ from mst.cli.common import emit_json, info, json_option, progress_bar, quiet_opt
 @click.option("--depth-scale", type=float, default=1000.0, show_default=True,
               help="Integer depth units per metre (1000 = mm, 5000 = TUM RGB-D); a value < 1 is metres per unit.")
 @click.option("--min-depth", type=float, default=0.1, show_default=True, help="Metres; nearer samples are dropped.")
-@click.option("--max-depth", type=float, default=10.0, show_default=True, help="Metres; farther samples are dropped.")
+@click.option("--max-depth", type=float, default=50.0, show_default=True, help="Metres; farther samples are dropped.")
 @click.option("--edge-k", type=float, default=0.03, show_default=True,
               help="Drop pixels whose 4-neighbour depth jumps by more than K * depth (0: off).")
 @click.option("--max-angle", type=float, default=80.0, show_default=True,

@@ -47,7 +47,7 @@ class FuseConfig:
 
     depth_scale: float = 1000.0  #: raw integer depth units per metre (see :mod:`mst.pipeline.depth_io`)
     min_depth: float = 0.1  #: metres; nearer samples dropped
-    max_depth: float = 10.0  #: metres; farther samples dropped
+    max_depth: float = 50.0  #: metres; farther samples dropped
     edge_k: float = 0.03  #: drop a pixel when a 4-neighbour's depth differs by more than edge_k * z (0: off)
     max_angle_deg: float = 80.0  #: drop samples whose surface normal is more than this from the view ray (>= 90: off)
     voxel: float = 0.005  #: metres; voxel size of the down-sampling grid (0: keep every sample)
