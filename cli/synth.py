@@ -19,10 +19,10 @@ SCENARIOS = ("orbit", "corridor", "flyover", "fast")
 @click.option("--width", type=int, default=640, show_default=True, help="Image width, pixels.")
 @click.option("--height", type=int, default=480, show_default=True, help="Image height, pixels.")
 @click.option("--focal", "focal_px", type=float, default=None, help="Focal length fx = fy, pixels [525 * width / 640].")
-@click.option("--speed", type=float, default=None, help="Camera speed, m/s [orbit: one turn per 12 s; corridor/flyover: "
-              "the pass spans the sequence].")
+@click.option("--speed", type=float, default=None, help="Camera speed, m/s [orbit: one turn per 12 s; corridor: "
+              "the pass spans the sequence; flyover max(8, distance/4)].")
 @click.option("--distance", type=float, default=None, help="Camera-to-model distance in metres (flyover: height above "
-              "the model) [model fills ~70% of the image height; flyover max(30, diag/2)].")
+              "the model) [model fills ~70% of the image height; flyover clamp(0.3 diag, 30, 150)].")
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of textures and noise.")
 @click.option("--drop", type=int, default=None, help="Keep every N-th frame of the trajectory (large motion) [fast: 8, else 1].")
 @click.option("--base", type=click.Choice(["orbit", "corridor", "flyover"]), default="orbit", show_default=True,

@@ -26,7 +26,8 @@ Output folder (the layout the other stages read)::
 Scenarios: ``orbit`` (the camera circles the model, always looking at it, with height and roll
 variation), ``corridor`` (walking past the model along a textured corridor; the camera turns away so
 that the model leaves the view for the middle ~40% of the sequence and comes back), ``flyover``
-(a UAV-like straight pass at ``distance`` metres above the model, pitched toward its facades),
+(a UAV-like straight pass at ``distance`` metres above the model top, default clamp(0.3 x model
+diagonal, 30, 150) m, at max(8, distance/4) m/s, looking at the model, pitched toward its facades),
 ``fast`` (any ``base`` scenario with only every ``drop``-th frame kept).
 
 Depth noise model (``depth_noise="kinect"``): axial noise sigma(z) = 0.0012 + 0.0019 (z - 0.4)^2 m
@@ -212,8 +213,20 @@ class Scene:
         raise ValueError(self.scenario)
 
 
-def _resolve(scenario: str, cfg: SynthConfig, lo: np.ndarray, hi: np.ndarray, cam: Camera) -> Scene:
-    """Scenario geometry from the model's canonical bounding box ``[lo, hi]`` and the camera."""
+def focus_point(Vc: np.ndarray, F: np.ndarray) -> np.ndarray:
+    """A point on the model to fly toward: the centroid of the triangle nearest the area-weighted
+    centroid (sparse city models can have an empty bounding-box centre). Canonical frame."""
+    C = Vc[F].mean(axis=1)
+    area = 0.5 * np.linalg.norm(np.cross(Vc[F[:, 1]] - Vc[F[:, 0]], Vc[F[:, 2]] - Vc[F[:, 0]]), axis=1)
+    g = (C * area[:, None]).sum(0) / max(area.sum(), 1e-12)
+    return C[int(np.argmin(np.linalg.norm(C[:, :2] - g[:2], axis=1)))]
+
+
+def _resolve(scenario: str, cfg: SynthConfig, lo: np.ndarray, hi: np.ndarray, cam: Camera,
+             focus: np.ndarray | None = None) -> Scene:
+    """Scenario geometry from the model's canonical bounding box ``[lo, hi]`` and the camera.
+
+    ``focus``: the point a flyover looks at (default: the bounding-box centre)."""
     base = cfg.base if scenario == "fast" else scenario
     if base not in BASE_SCENARIOS:
         raise ValueError(f"unknown base scenario {base!r} (expected one of {', '.join(BASE_SCENARIOS)})")
@@ -265,13 +278,14 @@ def _resolve(scenario: str, cfg: SynthConfig, lo: np.ndarray, hi: np.ndarray, ca
         p["room"] = [x0, y0, lo[2], x1, y1, z1]
         p["texture_distance"] = D
     else:  # flyover
-        D = float(cfg.distance or max(30.0, 0.5 * diag))
+        D = float(cfg.distance or min(max(30.0, 0.3 * diag), 150.0))
         off = 0.9 * D
-        path = max(2.0 * D, 1.5 * float(ext[0]) + D)
-        speed = float(cfg.speed if cfg.speed is not None else (path / duration if duration > 0 else 0.0))
+        speed = float(cfg.speed if cfg.speed is not None else max(8.0, D / 4.0))  # UAV pace, m/s
         length = speed * duration
-        p.update(distance=D, speed=speed, path_length=length, x_start=c[0] - 0.5 * length,
-                 eye_y=c[1] - 0.5 * ext[1] - off, eye_z=hi[2] + D)
+        fc = c if focus is None else np.array([focus[0], focus[1], c[2]])
+        p["center"] = fc.tolist()
+        p.update(distance=D, speed=speed, path_length=length, x_start=fc[0] - 0.5 * length,
+                 eye_y=fc[1] - off, eye_z=hi[2] + D)
         G = 0.5 * length + 5 * D + r_xy
         if cfg.environment:
             env = _box_room(np.array([c[0] - G, c[1] - G, lo[2]]), np.array([c[0] + G, c[1] + G, lo[2] + 1.0]),
@@ -477,7 +491,7 @@ def _build_scene(scenario: str, cfg: SynthConfig, V: np.ndarray, F: np.ndarray):
     Vc = V @ R_cm.T
     used = np.unique(F)
     lo, hi = Vc[used].min(0), Vc[used].max(0)
-    scene = _resolve(scenario, cfg, lo, hi, cam)
+    scene = _resolve(scenario, cfg, lo, hi, cam, focus=focus_point(Vc, F))
     rng = np.random.default_rng([int(cfg.seed), 7])
     Vs, Fs, mats, offs = [V], [F], [np.full(len(F), MODEL)], [np.zeros((len(F), 2))]
     off = len(V)
