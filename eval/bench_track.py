@@ -58,7 +58,6 @@ def _rows(name: str, model, cam, cfg, grays, T0) -> list[dict]:
 
 def run(workdir: Path) -> list[dict]:
     import cv2
-
     from mst.eval.bench import mst_cmd, timed_command
     from mst.pipeline.camera import Camera, read_camera
     from mst.pipeline.init_pose import init_from_clicks, read_clicks
@@ -95,9 +94,8 @@ def run(workdir: Path) -> list[dict]:
 
     # rendered orbit around an L-shaped building, 640x480
     sys.path.insert(0, str(ROOT / "tests"))
-    from synth_helpers import orbit_poses, render_views
-
     from mst.meshtools.generate import l_shape_model
+    from synth_helpers import orbit_poses, render_views
 
     m = l_shape_model()
     cam = Camera(600, 600, 319.5, 239.5, 640, 480)

@@ -139,10 +139,12 @@ def search_edges(img: np.ndarray, uv: np.ndarray, normal: np.ndarray, ref: np.nd
         like = 2.0 * np.abs(conv)
         ok = like > 2.0 * threshold
         if edge is not None and len(edge):
-            j = np.argmax(np.where(ok, like, -1.0), axis=1)
+            # each sample votes with its best response, favouring responses near the prediction
+            prox = np.exp(-((ks / max(1.0, 0.5 * search_range)) ** 2))
+            j = np.argmax(np.where(ok, like * prox[None, :], -1.0), axis=1)
             rr = np.arange(N)
             cbest = conv[rr, j]
-            vote = np.where(ok[rr, j], np.sign(cbest) * like[rr, j], 0.0)
+            vote = np.where(ok[rr, j], np.sign(cbest) * like[rr, j] * prox[j], 0.0)
             pol = np.sign(np.bincount(edge, weights=vote, minlength=int(edge.max()) + 1))[edge]
             ok &= (np.sign(conv) == pol[:, None]) | (pol[:, None] == 0)
     M = like.shape[1]
