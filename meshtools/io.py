@@ -195,12 +195,14 @@ def _validate(m: PolygonModel, path) -> None:
         raise InputError(path, "no faces in the model")
     m.check_finite(str(path))
     n = len(m.vertices)
-    for i, lp in enumerate(m.loops()):
-        if len(lp) and (lp.min() < 0 or lp.max() >= n):
-            raise InputError(path, f"loop {i} has a vertex index out of range (vertices: {n})")
-    for i, f in enumerate(m.faces):
-        if len(f) < 3:
-            raise InputError(path, f"face {i} has {len(f)} vertices (need at least 3)")
+    loops = m.loops()
+    if loops:
+        allidx = np.concatenate(loops)
+        if len(allidx) and (allidx.min() < 0 or allidx.max() >= n):
+            raise InputError(path, f"a face has a vertex index out of range (vertices: {n})")
+    short = [i for i, f in enumerate(m.faces) if len(f) < 3]
+    if short:
+        raise InputError(path, f"face {short[0]} has {len(m.faces[short[0]])} vertices (need at least 3)")
     if len(m.lines) and (m.lines.min() < 0 or m.lines.max() >= n):
         raise InputError(path, f"line vertex index out of range (vertices: {n})")
 
@@ -696,11 +698,10 @@ class _VrmlParser:
         if P is None:
             raise InputError(self.path, "IndexedFaceSet without Coordinate points")
         idx = idx.astype(np.int64)
-        faces = _split_minus_one(idx)
-        for f in faces:
-            if len(f) and (f.min() < 0 or f.max() >= len(P)):
-                raise InputError(self.path, f"coordIndex {int(f.max())} out of range ({len(P)} points)")
-        return P, faces, None
+        bad = (idx < -1) | (idx >= len(P))
+        if bad.any():
+            raise InputError(self.path, f"coordIndex {int(idx[bad][0])} out of range ({len(P)} points)")
+        return P, _split_minus_one(idx), None
 
 
 def _split_minus_one(idx: np.ndarray) -> list[np.ndarray]:
@@ -1082,12 +1083,51 @@ def _lod_key(s: str) -> tuple:
 # ====================================================================== holes -> bridged loops
 def _output_loops(model: PolygonModel) -> list[np.ndarray]:
     """One index loop per face: holes bridged, loop started at a strictly convex corner."""
-    out = []
     normals = model.face_normals()
-    for f, hs, n in zip(model.faces, model.holes, normals):
-        lp = bridge_holes(model.vertices, f, hs, n) if hs else np.asarray(f, np.int64)
-        out.append(start_at_convex_corner(model.vertices, lp, n))
-    return out
+    loops = [bridge_holes(model.vertices, f, hs, n) if hs else np.asarray(f, np.int64)
+             for f, hs, n in zip(model.faces, model.holes, normals)]
+    return start_loops_at_convex_corners(model.vertices, loops, normals)
+
+
+def start_loops_at_convex_corners(V: np.ndarray, loops: list[np.ndarray], normals: np.ndarray) -> list[np.ndarray]:
+    """Rotate each loop so that its vertex 1 is a strictly convex corner: points 0, 1, 2 then give
+    the face's outward normal (ViSP computes face visibility from them). Vectorised over all loops.
+
+    Among the corners whose turn about the face normal is clearly positive (sine > 1e-9), the one
+    with the smallest (vertex index, next vertex index) is chosen: the choice does not depend on
+    where the loop starts, so writing a model read back from our own file gives the same bytes.
+    Loops without such a corner (degenerate) are left as they are.
+    """
+    if not loops:
+        return []
+    lens = np.array([len(lp) for lp in loops], np.int64)
+    idx = np.concatenate([np.asarray(lp, np.int64) for lp in loops])
+    L = len(loops)
+    starts = np.concatenate([[0], np.cumsum(lens)[:-1]])
+    lid = np.repeat(np.arange(L), lens)
+    ls = starts[lid]
+    ll = np.maximum(lens[lid], 1)
+    loc = np.arange(len(idx)) - ls
+    prv = idx[ls + (loc - 1) % ll]
+    nxt = idx[ls + (loc + 1) % ll]
+    a = V[idx] - V[prv]
+    b = V[nxt] - V[idx]
+    turn = np.einsum("ij,ij->i", np.cross(a, b), np.asarray(normals, float)[lid])
+    scale = np.linalg.norm(a, axis=1) * np.linalg.norm(b, axis=1)
+    convex = (turn > 1e-9 * scale) & (scale > 0) & (lens[lid] >= 3)
+    big = np.iinfo(np.int64).max
+    k1 = np.where(convex, idx, big)
+    k2 = np.where(convex, nxt, big)
+    order = np.lexsort((k2, k1, lid))
+    first = order[np.concatenate([[0], np.flatnonzero(np.diff(lid[order])) + 1])]
+    shift = np.where(convex[first], (loc[first] - 1) % np.maximum(lens, 1), 0)
+    rotated = idx[ls + (loc + shift[lid]) % ll]
+    return np.split(rotated, starts[1:])
+
+
+def start_at_convex_corner(V: np.ndarray, loop: np.ndarray, n: np.ndarray) -> np.ndarray:
+    """Single-loop form of :func:`start_loops_at_convex_corners`."""
+    return start_loops_at_convex_corners(V, [np.asarray(loop, np.int64)], np.asarray(n, float)[None])[0]
 
 
 def _plane_basis(n: np.ndarray) -> np.ndarray:
@@ -1104,24 +1144,6 @@ def _plane_basis(n: np.ndarray) -> np.ndarray:
     ux, uy, uz = ux / un, uy / un, uz / un
     vx, vy, vz = ny * uz - nz * uy, nz * ux - nx * uz, nx * uy - ny * ux  # n x u
     return np.array([[ux, vx], [uy, vy], [uz, vz]])
-
-
-def start_at_convex_corner(V: np.ndarray, loop: np.ndarray, n: np.ndarray) -> np.ndarray:
-    """Rotate ``loop`` so that its vertex 1 is a strictly convex corner (points 0, 1, 2 give the
-    face's outward normal ``n``): the lexicographic-minimum vertex in plane coordinates, whose turn is
-    positive. The rotation is deterministic (same loop -> same output) so writes are stable."""
-    loop = np.asarray(loop, np.int64)
-    k = len(loop)
-    if k < 3 or not np.any(n):
-        return loop
-    P = (V[loop] - V[loop[0]]) @ _plane_basis(n)
-    order = np.lexsort((P[:, 1], P[:, 0]))
-    for j in order[: min(k, 8)]:
-        a, b, c = P[(j - 1) % k], P[j], P[(j + 1) % k]
-        turn = (b[0] - a[0]) * (c[1] - b[1]) - (b[1] - a[1]) * (c[0] - b[0])
-        if turn > 0:
-            return np.roll(loop, -((j - 1) % k))
-    return loop
 
 
 def bridge_holes(V: np.ndarray, outer: np.ndarray, holes: list[np.ndarray], n: np.ndarray) -> np.ndarray:

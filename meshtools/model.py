@@ -74,29 +74,51 @@ class PolygonModel:
         e = e[e[:, 0] != e[:, 1]]
         return np.unique(e, axis=0)
 
+    def _flat_loops(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """All loops concatenated: (idx, next_idx, face_of_entry, loop_start_of_entry), vectorised helpers."""
+        loops, face_of = [], []
+        for i, (f, hs) in enumerate(zip(self.faces, self.holes)):
+            loops.append(f)
+            face_of.append(i)
+            for h in hs:
+                loops.append(h)
+                face_of.append(i)
+        if not loops:
+            z = np.zeros(0, np.int64)
+            return z, z, z, z
+        lens = np.array([len(lp) for lp in loops], np.int64)
+        idx = np.concatenate(loops).astype(np.int64)
+        starts = np.concatenate([[0], np.cumsum(lens)[:-1]])
+        ls = np.repeat(starts, lens)
+        ll = np.repeat(lens, lens)
+        pos = np.arange(len(idx))
+        nxt = idx[ls + (pos - ls + 1) % np.maximum(ll, 1)]
+        return idx, nxt, np.repeat(np.array(face_of, np.int64), lens), ls
+
+    def _vector_areas(self) -> np.ndarray:
+        """(F, 3) Newell vector area of each face (outer loop + holes), vertices taken relative to
+        the face's first vertex for precision."""
+        idx, nxt, face, _ = self._flat_loops()
+        out = np.zeros((self.n_faces, 3))
+        if len(idx) == 0:
+            return out
+        ref = self.vertices[np.array([int(f[0]) if len(f) else 0 for f in self.faces], np.int64)]
+        p = self.vertices[idx] - ref[face]
+        q = self.vertices[nxt] - ref[face]
+        c = np.cross(p, q) * 0.5
+        for k in range(3):
+            out[:, k] = np.bincount(face, weights=c[:, k], minlength=self.n_faces)
+        return out
+
     def face_normals(self) -> np.ndarray:
-        """(F, 3) unit Newell normals of the outer loops (zero rows for degenerate faces)."""
-        n = np.zeros((self.n_faces, 3))
-        for i, f in enumerate(self.faces):
-            p = self.vertices[f]
-            q = np.roll(p, -1, axis=0)
-            n[i] = np.cross(p, q).sum(axis=0) * 0.5  # vector area of the outer loop
-            for h in self.holes[i]:
-                ph = self.vertices[h]
-                n[i] += np.cross(ph, np.roll(ph, -1, axis=0)).sum(axis=0) * 0.5
+        """(F, 3) unit Newell normals of the faces (outer loop and holes; zero rows for degenerate faces)."""
+        n = self._vector_areas()
         norm = np.linalg.norm(n, axis=1, keepdims=True)
         return np.divide(n, norm, out=np.zeros_like(n), where=norm > 0)
 
     def face_areas(self) -> np.ndarray:
         """(F,) area of each face (outer loop minus holes), square model units."""
-        a = np.zeros(self.n_faces)
-        for i, f in enumerate(self.faces):
-            vec = np.zeros(3)
-            for lp in [f, *self.holes[i]]:
-                p = self.vertices[lp] - self.vertices[f[0]]
-                vec += np.cross(p, np.roll(p, -1, axis=0)).sum(axis=0) * 0.5
-            a[i] = np.linalg.norm(vec)
-        return a
+        return np.linalg.norm(self._vector_areas(), axis=1)
 
     def bounds(self) -> np.ndarray:
         """(2, 3) min and max corner of the vertices used by faces or lines."""
