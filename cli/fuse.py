@@ -27,6 +27,10 @@ from mst.cli.common import emit_json, info, json_option, progress_bar, quiet_opt
               help="Drop pixels whose 4-neighbour depth jumps by more than K * depth (0: off).")
 @click.option("--max-angle", type=float, default=80.0, show_default=True,
               help="Degrees; drop samples seen more obliquely than this to their surface (90: off).")
+@click.option("--smooth", type=int, default=0, show_default=True,
+              help="Bilateral filter diameter in pixels for noisy depth (edge-preserving, on log-depth; 0: off).")
+@click.option("--smooth-rel", type=float, default=0.02, show_default=True,
+              help="Bilateral range sigma as a fraction of depth.")
 @click.option("--voxel", type=float, default=None,
               help="Voxel size in metres: one averaged point per voxel, 0 keeps every sample [default: 0.005]; "
                    "with --tsdf the TSDF voxel [default: 0.01].")
@@ -41,7 +45,8 @@ from mst.cli.common import emit_json, info, json_option, progress_bar, quiet_opt
               help="PLY of model-frame points to add (e.g. the mono SLAM map of `mst track --slam mono --landmarks`).")
 @json_option
 @quiet_option
-def fuse(traj, depth, camera, output, depth_to_color, depth_scale, min_depth, max_depth, edge_k, max_angle, voxel,
+def fuse(traj, depth, camera, output, depth_to_color, depth_scale, min_depth, max_depth, edge_k, max_angle, smooth,
+         smooth_rel, voxel,
          stride, fps, tsdf, color, color_camera, landmarks, as_json, quiet):
     """Fuse depth frames into one point cloud in model coordinates.
 
@@ -74,7 +79,7 @@ def fuse(traj, depth, camera, output, depth_to_color, depth_scale, min_depth, ma
     if voxel is None:
         voxel = 0.01 if tsdf else 0.005
     cfg = FuseConfig(depth_scale=depth_scale, min_depth=min_depth, max_depth=max_depth, edge_k=edge_k,
-                     max_angle_deg=max_angle, voxel=voxel, stride=stride, fps=fps, tsdf=tsdf)
+                     max_angle_deg=max_angle, smooth_px=smooth, smooth_rel=smooth_rel, voxel=voxel, stride=stride, fps=fps, tsdf=tsdf)
     summary = run_fuse(output, cfg, traj_path=traj, depth_dir=depth, camera_path=camera,
                        depth_to_color_path=depth_to_color, color_dir=color, color_camera_path=color_camera,
                        landmarks_path=landmarks, progress=lambda n: progress_bar(n, "fuse", quiet))

@@ -50,6 +50,8 @@ class FuseConfig:
     max_depth: float = 50.0  #: metres; farther samples dropped
     edge_k: float = 0.03  #: drop a pixel when a 4-neighbour's depth differs by more than edge_k * z (0: off)
     max_angle_deg: float = 80.0  #: drop samples whose surface normal is more than this from the view ray (>= 90: off)
+    smooth_px: int = 0  #: bilateral filter diameter (pixels) applied to each depth frame (0: off)
+    smooth_rel: float = 0.02  #: bilateral range sigma, relative depth difference (0.02 = 2 % of z)
     voxel: float = 0.005  #: metres; voxel size of the down-sampling grid (0: keep every sample)
     stride: int = 1  #: fuse every stride-th depth frame
     fps: float | None = None  #: trajectory time -> frame index: k = round(t * fps); None: k = t
@@ -111,15 +113,36 @@ def grazing_mask(points_cam: np.ndarray, valid: np.ndarray, max_angle_deg: float
     return out
 
 
-def backproject(depth_m: np.ndarray, rays: np.ndarray, cfg: FuseConfig) -> tuple[np.ndarray, np.ndarray, dict]:
+def smooth_depth(depth_m: np.ndarray, diameter_px: int, rel_sigma: float) -> np.ndarray:
+    """Edge-preserving depth denoising: a bilateral filter on log-depth (range sigma ``rel_sigma``
+    is then a relative depth difference, e.g. 0.02 = 2 % of z, right for depth noise that grows
+    with z). Pixels without depth stay 0 and never leak into their neighbours."""
+    import cv2
+
+    valid = depth_m > 0
+    if diameter_px < 2 or not valid.any():
+        return depth_m
+    L = np.empty(depth_m.shape, np.float32)
+    L[valid] = np.log(depth_m[valid])
+    # holes get a value far outside the range kernel (OpenCV's range LUT spans min..max, so a
+    # modest gap keeps its resolution)
+    L[~valid] = L[valid].max() + max(1.0, 50.0 * rel_sigma)
+    Ls = cv2.bilateralFilter(L, int(diameter_px), float(rel_sigma), float(diameter_px) / 2.0)
+    return np.where(valid, np.exp(Ls), np.float32(0)).astype(np.float32)
+
+
+def backproject(depth_m: np.ndarray, rays: np.ndarray, cfg: FuseConfig) -> tuple[np.ndarray, np.ndarray, dict, np.ndarray]:
     """Filtered depth -> camera-frame points.
 
-    Returns ``(X_cam (N, 3) float64 metres, keep (H, W) bool, counts)`` where ``counts`` holds the
-    valid samples and how many were dropped by range, edges and grazing angle.
+    Returns ``(X_cam (N, 3) float64 metres, keep (H, W) bool, counts, depth (H, W) metres)`` where
+    ``counts`` holds the valid samples and how many were dropped by range, edges and grazing angle,
+    and ``depth`` is the (smoothed, when ``cfg.smooth_px``) depth the points come from.
     """
     d = depth_m
     has = d > 0
     in_range = has & (d >= cfg.min_depth) & (d <= cfg.max_depth)
+    if cfg.smooth_px >= 2:
+        d = smooth_depth(np.where(in_range, d, np.float32(0)), cfg.smooth_px, cfg.smooth_rel)
     keep = in_range.copy()
     n_edge = n_graze = 0
     if cfg.edge_k > 0:
@@ -133,7 +156,7 @@ def backproject(depth_m: np.ndarray, rays: np.ndarray, cfg: FuseConfig) -> tuple
         keep &= ~g
     counts = {"samples": int(has.sum()), "dropped_range": int(has.sum() - in_range.sum()),
               "dropped_edge": n_edge, "dropped_grazing": n_graze}
-    return P[keep].astype(np.float64), keep, counts
+    return P[keep].astype(np.float64), keep, counts, d
 
 
 def transform_points_ew(T: np.ndarray, X: np.ndarray) -> np.ndarray:
@@ -551,7 +574,7 @@ def fuse(
                     rays = pixel_rays(cam, w, h)
                 elif (w, h) != size:
                     raise InputError(frames[k], f"depth frame is {w}x{h}, earlier frames are {size[0]}x{size[1]}")
-                X_cam, keep, counts = backproject(depth, rays, cfg)
+                X_cam, keep, counts, depth = backproject(depth, rays, cfg)
                 for key_, v in counts.items():
                     summary[key_] += v
                 if len(X_cam) == 0:

@@ -222,11 +222,30 @@ def test_edge_and_grazing_filters():
     # plane n . X = -c through (0, 0, 1): depth along each ray = (n . X0) / (n . ray)
     depth = ((n @ np.array([0, 0, 1.0])) / (rays @ n)).astype(np.float32)
     depth[(depth < 0.1) | (depth > 10)] = 0
-    _, keep80, c80 = backproject(depth, rays, FuseConfig(edge_k=0, max_angle_deg=80))
-    _, keep89, c89 = backproject(depth, rays, FuseConfig(edge_k=0, max_angle_deg=89.9))
+    _, keep80, c80, _ = backproject(depth, rays, FuseConfig(edge_k=0, max_angle_deg=80))
+    _, keep89, c89, _ = backproject(depth, rays, FuseConfig(edge_k=0, max_angle_deg=89.9))
     centre = keep89[20:30, 20:30]
     assert centre.all() and not keep80[20:30, 20:30].any()
     assert c80["dropped_grazing"] > c89["dropped_grazing"]
+
+
+def test_smooth_depth_denoises_keeps_steps_and_holes():
+    from mst.pipeline.fusion import smooth_depth
+
+    rng = np.random.default_rng(0)
+    z = np.full((60, 80), 2.0, np.float32)
+    z[:, 40:] = 2.5  # a 0.5 m step
+    noisy = (z + rng.normal(0, 0.01, z.shape)).astype(np.float32)
+    noisy[10:14, 10:14] = 0  # a hole
+    s = smooth_depth(noisy, 7, 0.02)
+    assert (s[10:14, 10:14] == 0).all() and (s[noisy > 0] > 0).all()
+    inner = (noisy > 0) & (np.abs(np.arange(80) - 39.5) > 4)[None, :]
+    inner[:4] = inner[-4:] = False
+    assert np.std((s - z)[inner]) < 0.3 * np.std((noisy - z)[inner])  # noise down by > 3x
+    # the step stays sharp: the columns next to it keep their own side's depth (no blending)
+    assert np.abs(s[20:40, 39] - 2.0).max() < 0.02 and np.abs(s[20:40, 40] - 2.5).max() < 0.02
+    # next to the hole, depths stay ~2 m (the hole's fill value never leaks in)
+    assert np.abs(s[9:15, 8:16][noisy[9:15, 8:16] > 0] - 2.0).max() < 0.02
 
 
 def test_tsdf_surface_close_to_mesh(seq, tmp_path):
