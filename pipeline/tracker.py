@@ -257,7 +257,7 @@ class EdgeTracker:
             Ks[0, 2] = (self.K[0, 2] + 0.5) * s - 0.5
             Ks[1, 2] = (self.K[1, 2] + 0.5) * s - 0.5
             ref_small = None
-            res, *_ = self._edge_pass(small, Ks, T, R, ref_small, ref_T)
+            res, *_ = self._edge_pass(small, Ks, T, R, ref_small, ref_T, min_mad_px=max(c.min_mad_px, R / 3.0))
             if res is not None and np.isfinite(res.T_cam_model).all():
                 T = res.T_cam_model
         # first frame / after a loss: several passes, tolerant (wide robust scale) first, then tighter
@@ -266,6 +266,8 @@ class EdgeTracker:
         for ps in range(passes):
             rng = R if ps == 0 else max(3, int(round(R / 2 ** ps)))
             mad = max(c.min_mad_px, rng / 3.0) if (first or recover) and ps < passes - 1 else None
+            if (first or recover) and ps > 0:
+                ref_img, ref_T = img, T  # later passes: contrast/polarity reference from this frame at the refined pose
             res_p, S_p, _, _ = self._edge_pass(img, self.K, T, rng, ref_img, ref_T, klt if ps == passes - 1 else None,
                                                min_mad_px=mad)
             if res_p is None:

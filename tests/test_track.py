@@ -182,3 +182,32 @@ def test_teabox_klt_hybrid(shared_data, mst, tmp_path):
         out[flag] = read_tum(o)[1]
     dt, dr = pose_error(out["--klt"], out["--no-klt"])
     assert dt.max() < 0.008 and dr.max() < 1.0  # box 45 cm away: < 2 % of the distance
+
+
+def test_synth_orbit_textured_scene(tmp_path, mst):
+    """`mst synth` orbit (textured ground and walls, 640x480, clicks noisy by 2 px), L-building.
+
+    Every frame is tracked. Measured: mean 0.5 % of the 26 m distance and 0.25 deg; the tile
+    grout lines of the ground run parallel to the wall bottoms and 1-2 px from them (the wall/
+    ground contrast is below the edge threshold), which biases those edges: the 0.1 % / 0.15 deg
+    target is met on the cleaner scene of `test_orbit_accuracy`, not here (see the issue report).
+    """
+    synth = pytest.importorskip("mst.pipeline.synth")
+    from mst.meshtools.generate import l_shape_model
+    from mst.meshtools.io import save_model
+
+    save_model(tmp_path / "l.obj", l_shape_model())
+    d = tmp_path / "seq"
+    s = synth.synthesize("orbit", tmp_path / "l.obj", d, synth.SynthConfig(
+        frames=12, width=640, height=480, click_noise=2.0, depth=False, aa_samples=4, texture_size=256, n_clicks=8))
+    mst("init", "--model", d / "model.obj", "--camera", d / "camera.json", "--clicks", d / "clicks.txt", "-o", tmp_path / "p0.txt")
+    out = tmp_path / "traj.txt"
+    r = mst("track", d / "rgb", "--model", d / "model.obj", "--camera", d / "camera.json", "--init", tmp_path / "p0.txt",
+            "-o", out, "--fps", "30", "--json")
+    assert json.loads(r.stdout)["tracked"] == 12
+    t, T_est = read_tum(out)
+    tg, T_gt = read_tum(d / "gt.txt")
+    assert np.allclose(t, tg)
+    dt, dr = pose_error(T_est, T_gt)
+    dist = s["distance_m"]
+    assert dt.mean() <= 0.008 * dist and dr.mean() <= 0.4, (dt / dist, dr)
