@@ -55,6 +55,22 @@ def face_normals(V: np.ndarray, F: np.ndarray) -> np.ndarray:
     return np.divide(n, ln, out=np.zeros_like(n), where=ln > 0)
 
 
+def row_ids(key: np.ndarray) -> np.ndarray:
+    """(N,) int64 group id of each row of an integer (N, k) array: equal rows -> equal ids (ids follow
+    the rows' lexicographic order). A faster ``np.unique(key, axis=0, return_inverse=True)[1]``."""
+    key = np.asarray(key)
+    n = len(key)
+    if n == 0:
+        return np.zeros(0, np.int64)
+    order = np.lexsort(key.T[::-1])
+    k = key[order]
+    new = np.ones(n, bool)
+    new[1:] = np.any(k[1:] != k[:-1], axis=1)
+    ids = np.empty(n, np.int64)
+    ids[order] = np.cumsum(new) - 1
+    return ids
+
+
 def pixel_grid(width: int, height: int) -> np.ndarray:
     """(H*W, 2) float64 pixel-centre coordinates ``(u, v)``, row-major."""
     v, u = np.mgrid[0:height, 0:width]
@@ -233,6 +249,8 @@ class ShadedRenderer(Renderer):
         if missing:
             raise ValueError(f"material ids without a material: {sorted(missing)}")
         self.materials = materials
+        mids = np.array(sorted(materials), np.int64)
+        mat_index = np.searchsorted(mids, self.material_ids)          # position of each triangle's material
         self.lighting = lighting or Lighting()
         self.R_tex_model = np.eye(3) if R_tex_model is None else np.asarray(R_tex_model, np.float64)
         uv_off = np.zeros((M, 2)) if uv_offset_m is None else np.asarray(uv_offset_m, np.float64).reshape(M, 2)
@@ -246,9 +264,8 @@ class ShadedRenderer(Renderer):
         # plane groups for the edge test: same plane (normal, offset) and same material -> same id
         diag = float(np.linalg.norm(self.V.max(0) - self.V.min(0))) or 1.0
         dpl = np.einsum("ij,ij->i", n, self._v0_local)
-        key = np.column_stack([np.round(n * 1e4), np.round(dpl / (1e-4 * diag)), self.material_ids])
-        _, inv = np.unique(key, axis=0, return_inverse=True)
-        self._plane_id = np.concatenate([inv.ravel().astype(np.int32), [-1]])  # entry M: no hit
+        key = np.column_stack([np.round(n * 1e4), np.round(dpl / (1e-4 * diag)), self.material_ids]).astype(np.int64)
+        self._plane_id = np.concatenate([row_ids(key).astype(np.int32), [-1]])  # entry M: no hit
         # texture mapping per triangle: u = a_u . P_model + off_u (metres), same for v
         n_tex = n @ self.R_tex_model.T
         axis = np.argmax(np.abs(n_tex), axis=1)
@@ -263,8 +280,9 @@ class ShadedRenderer(Renderer):
         tex_ids = sorted(k for k, m in materials.items() if m.texture is not None)
         self._tex_list = [materials[k] for k in tex_ids]
         lut = {k: i for i, k in enumerate(tex_ids)}
-        self._tex_mat = np.array([lut.get(int(m), -1) for m in self.material_ids] + [-1], np.int64)
-        self._albedo = np.array([materials[int(m)].albedo for m in self.material_ids], np.float32).reshape(M, 3)
+        lut_arr = np.array([lut.get(int(k), -1) for k in mids], np.int64)
+        self._tex_mat = np.concatenate([lut_arr[mat_index], [-1]])
+        self._albedo = np.array([materials[int(k)].albedo for k in mids], np.float32).reshape(-1, 3)[mat_index]
         if albedo_tri is not None:  # per-triangle flat colours (e.g. a face colouring of the model)
             self._albedo = np.asarray(albedo_tri, np.float32).reshape(M, 3)
 
@@ -331,17 +349,41 @@ class ShadedRenderer(Renderer):
         return rgb
 
     # ------------------------------------------------------------------ images
-    def edge_mask(self, prim: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-        """(H, W) bool: pixels whose hit plane (normal, offset, material; or hit/miss) differs from one of its 8 neighbours."""
+    def edge_mask(self, prim: np.ndarray, t: np.ndarray, shape: tuple[int, int], crease_deg: float = 3.0,
+                  rel_depth_jump: float = 0.02) -> np.ndarray:
+        """(H, W) bool: pixels on a silhouette or crease, to be supersampled.
+
+        A pixel and one of its 8 neighbours are separated by an edge when they see different planes
+        (plane id: normal, offset, material) and, further, one of them sees nothing, the materials
+        differ, the normals differ by more than ``crease_deg``, or the depth jumps by more than
+        ``rel_depth_jump`` (relative). Gentle creases of a terrain TIN are not edges.
+        """
         H, W = shape
-        pl = self._plane_id[np.minimum(prim, len(self.F)).astype(np.int64)].reshape(H, W)
+        M = len(self.F)
+        pc = np.minimum(prim, M).astype(np.int64).reshape(H, W)
+        pl = self._plane_id[pc]
+        tt = np.asarray(t, np.float32).reshape(H, W)
+        nx, ny, nz = self._n32
+        mat = np.concatenate([self.material_ids, [-1]])
+        cos_tol = np.float32(np.cos(np.radians(crease_deg)))
         edge = np.zeros((H, W), bool)
         for dy, dx in ((0, 1), (1, 0), (1, 1), (1, -1)):
             ys0, ys1 = slice(0, H - dy), slice(dy, H)
             xs0, xs1 = (slice(0, W - dx), slice(dx, W)) if dx >= 0 else (slice(-dx, W), slice(0, W + dx))
-            diff = pl[ys0, xs0] != pl[ys1, xs1]
-            edge[ys0, xs0] |= diff
-            edge[ys1, xs1] |= diff
+            ya, xa = np.nonzero(pl[ys0, xs0] != pl[ys1, xs1])
+            if not len(ya):
+                continue
+            yb, xb = ya + dy, xa + (dx if dx >= 0 else 0)
+            xa = xa + (0 if dx >= 0 else -dx)
+            pa, pb = pc[ya, xa], pc[yb, xb]
+            miss = (pa == M) | (pb == M)
+            pa0, pb0 = np.where(miss, 0, pa), np.where(miss, 0, pb)
+            cosn = nx[pa0] * nx[pb0] + ny[pa0] * ny[pb0] + nz[pa0] * nz[pb0]
+            ta, tb = tt[ya, xa], tt[yb, xb]
+            jump = np.abs(ta - tb) > np.float32(rel_depth_jump) * np.minimum(ta, tb)
+            sep = miss | (mat[pa] != mat[pb]) | (np.abs(cosn) < cos_tol) | jump
+            edge[ya[sep], xa[sep]] = True
+            edge[yb[sep], xb[sep]] = True
         return edge
 
     def render(self, cam: Camera, T_cam_model: np.ndarray, aa_samples: int = 16, with_cos: bool = False) -> dict:
@@ -362,7 +404,7 @@ class ShadedRenderer(Renderer):
         rgb = self.shade(o, d, inv_norm, t, prim, focal, tables)
         edges = np.zeros((H, W), bool)
         if aa_samples:
-            edges = self.edge_mask(prim, (H, W))
+            edges = self.edge_mask(prim, t, (H, W))
             e_idx = np.flatnonzero(edges)
             if len(e_idx):
                 pat = aa_pattern(aa_samples)

@@ -53,6 +53,7 @@ import numpy as np
 from mst import InputError, MstError, __version__
 from mst.pipeline.camera import Camera, write_camera
 from mst.pipeline.poses import format_tum, inv_T, make_T
+from mst.pipeline.render import row_ids
 
 SCENARIOS = ("orbit", "corridor", "flyover", "fast")
 BASE_SCENARIOS = ("orbit", "corridor", "flyover")
@@ -351,8 +352,7 @@ def plane_ids(V: np.ndarray, F: np.ndarray) -> np.ndarray:
     diag = float(np.linalg.norm(V.max(0) - V.min(0))) or 1.0
     d = np.einsum("ij,ij->i", n, V[F[:, 0]] - c)
     key = np.column_stack([np.round(n * 1e3), np.round(d / (1e-3 * diag))]).astype(np.int64)
-    _, inv = np.unique(key, axis=0, return_inverse=True)
-    return inv.ravel()
+    return row_ids(key)
 
 
 def face_albedo(V: np.ndarray, F: np.ndarray, lighting, base=(0.80, 0.78, 0.74)) -> np.ndarray:
@@ -377,9 +377,13 @@ def face_albedo(V: np.ndarray, F: np.ndarray, lighting, base=(0.80, 0.78, 0.74))
     for dvec, k in lighting.lights:
         shade += k * np.maximum(plane_n @ _unit(dvec), 0.0)
     # adjacency of planes through shared (welded) edges
+    palette = np.array([1.0, 0.62, 0.86, 0.72, 0.94, 0.67, 0.79, 0.90])
+    if P > 20000:  # a large TIN (terrain): per-plane palette pick, no greedy pass
+        alb = palette[np.random.default_rng(P).integers(0, len(palette), P)]
+        return (alb[pid][:, None] * np.asarray(base)[None, :]).astype(np.float32)
     key = np.round(V / (1e-7 * (np.abs(V).max() + 1.0))).astype(np.int64)
-    _, weld = np.unique(key, axis=0, return_inverse=True)
-    Fw = weld.ravel()[F]
+    weld = row_ids(key)
+    Fw = weld[F]
     e = np.sort(np.concatenate([Fw[:, [0, 1]], Fw[:, [1, 2]], Fw[:, [2, 0]]]), axis=1)
     tri = np.tile(np.arange(M), 3)
     order = np.lexsort((e[:, 1], e[:, 0]))
@@ -391,7 +395,6 @@ def face_albedo(V: np.ndarray, F: np.ndarray, lighting, base=(0.80, 0.78, 0.74))
     for i, j in adj_pairs.tolist():
         nbrs[i].append(j)
         nbrs[j].append(i)
-    palette = np.array([1.0, 0.62, 0.86, 0.72, 0.94, 0.67, 0.79, 0.90])
     alb = np.zeros(P)
     for pl in np.argsort(-plane_area, kind="stable"):
         done = [q for q in nbrs[pl] if alb[q] > 0]
@@ -412,13 +415,15 @@ def model_corners(V: np.ndarray, F: np.ndarray) -> np.ndarray:
 
     used = np.unique(F)
     key = np.round(V / (1e-6 * (np.abs(V).max() + 1.0))).astype(np.int64)
-    _, weld = np.unique(key, axis=0, return_inverse=True)
-    weld = weld.ravel()
+    weld = row_ids(key)
     n = np.round(face_normals(V, F) * 1e3).astype(np.int64)
     inc_v = weld[F.ravel()]
     inc_n = np.repeat(n, 3, axis=0)
-    pairs = np.unique(np.column_stack([inc_v, inc_n]), axis=0)
-    count = np.bincount(pairs[:, 0], minlength=weld.max() + 1)
+    pk = np.column_stack([inc_v, inc_n])
+    pid = row_ids(pk)
+    first = np.zeros(pid.max() + 1, np.int64)
+    first[pid] = np.arange(len(pid))
+    count = np.bincount(inc_v[first], minlength=weld.max() + 1)
     for k in (3, 2):
         c = used[count[weld[used]] >= k]
         if len(c):
@@ -508,14 +513,20 @@ def _build_scene(scenario: str, cfg: SynthConfig, V: np.ndarray, F: np.ndarray):
     size = int(cfg.texture_size)
     seed = int(cfg.seed)
     floor_kind = "terrain" if scene.scenario == "flyover" else "tiles"
-    materials = {
-        MODEL: (Material(texture=Texture.generate("plaster", size, texel, seed + 3)) if cfg.model_texture
-                else Material(albedo=(0.80, 0.78, 0.74))),
-        FLOOR: Material(texture=Texture.generate(floor_kind, size, texel, seed)),
-        WALL: Material(texture=Texture.generate("brick", size, texel, seed + 1)),
-        CEILING: Material(texture=Texture.generate("plaster", size, texel * 1.5, seed + 2)),
+    recipes = {  # material -> (texture kind, texel size, seed); generated only when the scene uses it
+        FLOOR: (floor_kind, texel, seed),
+        WALL: ("brick", texel, seed + 1),
+        CEILING: ("plaster", texel * 1.5, seed + 2),
     }
-    used_mats = {k: v for k, v in materials.items() if k in set(mat_all.tolist())}
+    if cfg.model_texture:
+        recipes[MODEL] = ("plaster", texel, seed + 3)
+    used_mats = {}
+    for m in sorted(set(np.unique(mat_all).tolist())):
+        if m in recipes:
+            kind, tx, sd = recipes[m]
+            used_mats[m] = Material(texture=Texture.generate(kind, size, tx, sd))
+        else:
+            used_mats[m] = Material(albedo=(0.80, 0.78, 0.74))
     lighting = Lighting()
     albedo = np.ones((len(F_all), 3), np.float32)
     if not cfg.model_texture:
