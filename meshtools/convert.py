@@ -448,8 +448,11 @@ def _queue_grow(X, F, N, area2, sub, f1, f2, angle_tol, dist_tol) -> np.ndarray:
     vstart = np.searchsorted(fv_s, np.arange(nf + 1))
     PV = X[vv_s]
     nFl = nF.tolist()
-    spl = spread.tolist()
     half = angle_tol / 2
+    # angle(n_f, n_s) + s_f <= half  <=>  n_f . n_s >= cos(half - s_f)   (never if s_f > half)
+    thr = np.where(spread <= half, np.cos(np.clip(half - spread, 0, np.pi)) - 1e-12, 2.0).tolist()
+    PVl = PV.tolist()
+    vst = vstart.tolist()
     label = [-1] * nf
     seeds = np.argsort(-areaF, kind="stable").tolist()
     r = 0
@@ -457,9 +460,11 @@ def _queue_grow(X, F, N, area2, sub, f1, f2, angle_tol, dist_tol) -> np.ndarray:
         if label[s] != -1:
             continue
         label[s] = r
-        ns = nF[s]
         nx, ny, nz = nFl[s]
-        off = float(ns @ cenF[s])
+        cx, cy, cz = cenF[s].tolist()
+        off = nx * cx + ny * cy + nz * cz
+        lo_d, hi_d = off - dist_tol, off + dist_tol
+        ns = nF[s]
         q = deque([s])
         while q:
             t = q.popleft()
@@ -468,15 +473,23 @@ def _queue_grow(X, F, N, area2, sub, f1, f2, angle_tol, dist_tol) -> np.ndarray:
                 if label[u] != -1:
                     continue
                 m = nFl[u]
-                c = m[0] * nx + m[1] * ny + m[2] * nz
-                if c < 1.0 and np.arccos(min(max(c, -1.0), 1.0)) + spl[u] > half:
+                if m[0] * nx + m[1] * ny + m[2] * nz < thr[u]:
                     continue
-                if c >= 1.0 and spl[u] > half:
-                    continue
-                P = PV[vstart[u]:vstart[u + 1]]
-                dd = P @ ns - off
-                if dd.max() > dist_tol or dd.min() < -dist_tol:
-                    continue
+                a0, a1 = vst[u], vst[u + 1]
+                if a1 - a0 <= 16:
+                    ok = True
+                    for k in range(a0, a1):
+                        x, y, z = PVl[k]
+                        d = x * nx + y * ny + z * nz
+                        if d < lo_d or d > hi_d:
+                            ok = False
+                            break
+                    if not ok:
+                        continue
+                else:
+                    dd = PV[a0:a1] @ ns
+                    if dd.min() < lo_d or dd.max() > hi_d:
+                        continue
                 label[u] = r
                 q.append(u)
         r += 1

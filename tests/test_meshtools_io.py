@@ -240,3 +240,28 @@ def test_missing_file_and_binary_garbage(tmp_path):
 def test_polygon_model_write_unknown_suffix(tmp_path):
     with pytest.raises(InputError, match="cannot write"):
         save_model(tmp_path / "x.ply", PolygonModel(np.eye(3), [[0, 1, 2]]))
+
+
+def test_ply_fast_reader_agrees_with_trimesh(tmp_path):
+    import trimesh
+
+    from mst.meshtools.io import _read_ply_triangles_fast
+
+    V, F = gen.gabled_house(split=3)
+    a = tmp_path / "ours.ply"
+    save_triangles(a, V, F)  # float64, written by us
+    t = trimesh.load(a, process=False)
+    np.testing.assert_array_equal(t.vertices, V)
+    np.testing.assert_array_equal(t.faces, F)
+    b = tmp_path / "trimesh.ply"
+    trimesh.Trimesh(V, F, process=False).export(b)  # float32, written by trimesh
+    Vb, Fb = _read_ply_triangles_fast(b)
+    tb = trimesh.load(b, process=False)
+    np.testing.assert_array_equal(Vb, tb.vertices)
+    np.testing.assert_array_equal(Fb, tb.faces)
+    c = tmp_path / "ascii.ply"
+    trimesh.Trimesh(V, F, process=False).export(c, encoding="ascii")
+    assert _read_ply_triangles_fast(c) is None  # ASCII goes through trimesh
+    Vc, Fc = load_triangles(c)
+    np.testing.assert_allclose(Vc, V, atol=1e-5)
+    np.testing.assert_array_equal(Fc, F)
