@@ -56,7 +56,7 @@ class C2MConfig:
     workers: int = 2
     #: with engine "auto": meshes up to this many triangles use the numpy grid search (0: never; the
     #: Open3D BVH measured faster on every case so far)
-    small_mesh_triangles: int = 0
+    small_mesh_triangles: int = 5000
     #: nearest-triangle engine: "auto", "grid" (numpy float64, no Open3D) or "bvh" (Open3D)
     engine: str = "auto"
 
@@ -191,7 +191,7 @@ class MeshIndex:
 
 
 def prepare_mesh(V: np.ndarray, F: np.ndarray, path: str | os.PathLike | None = None, signed: bool = False,
-                 engine: str = "auto", small_mesh_triangles: int = 0) -> MeshIndex:
+                 engine: str = "auto", small_mesh_triangles: int = 5000) -> MeshIndex:
     """Validate and index a triangle mesh ``V (n, 3)`` metres, ``F (m, 3)`` vertex indices.
 
     Raises :class:`mst.InputError` (naming ``path``) for a mesh without triangles, with non-finite
@@ -251,7 +251,7 @@ def prepare_mesh(V: np.ndarray, F: np.ndarray, path: str | os.PathLike | None = 
         scene.add_triangles(o3d.core.Tensor(Vm.astype(np.float32)), o3d.core.Tensor(Fm.astype(np.uint32)))
         idx._scene = scene
     elif engine == "grid":
-        idx._grid = _TriangleGrid(idx)
+        idx._grid = _DenseGrid(idx)
     else:
         raise ValueError(f"unknown engine {engine!r}")
     return idx
@@ -303,7 +303,7 @@ class _TriangleGrid:
         self.ext = float(np.ptp(idx.V, axis=0).max()) or 1.0
         self.ppc = points_per_cell
 
-    def _candidates(self, key_fine: np.ndarray, org: np.ndarray, h: float, levels: int
+    def _candidates(self, key_fine: np.ndarray, org: np.ndarray, h: float, levels: int, nb=None
                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """CSR candidate lists (ptr, tri) and distance lower bounds for the sorted unique fine cell keys."""
         idx = self.idx
@@ -327,7 +327,10 @@ class _TriangleGrid:
             cell_of = np.repeat(np.arange(len(u)), cand_cnt)
             offs = np.arange(tot) - np.repeat(np.cumsum(cand_cnt) - cand_cnt, cand_cnt)
             ti = tri[np.repeat(parent_start, cand_cnt) + offs]
-            d = np.sqrt(triangle_distances(idx, centres[cell_of], ti)[0])
+            if nb is not None:
+                d = np.sqrt(nb.pairs_d2(centres, cell_of, ti, idx.A, idx.AB, idx.AC, idx.BC, idx.N, idx.G))
+            else:
+                d = np.sqrt(triangle_distances(idx, centres[cell_of], ti)[0])
             dmin = np.minimum.reduceat(d, np.cumsum(cand_cnt) - cand_cnt)
             keep = d <= (dmin + 2 * r + 1e-9 * self.ext)[cell_of]
             ptr = np.zeros(len(u) + 1, np.int64)
@@ -390,6 +393,142 @@ class _TriangleGrid:
         return out_t, out_d, out_f
 
 
+class _DenseGrid:
+    """Nearest-triangle search for small meshes: a dense grid of cells over the mesh box.
+
+    Candidate triangle lists (see :class:`_TriangleGrid` for the conservative rule) are computed
+    lazily, the first time a point falls in a cell, and cached for the following chunks (thread
+    safe). Per point the work is a cell lookup and exact float64 distances to the cell's few
+    candidates: no sorting. Points outside the grid box go to :class:`_TriangleGrid`.
+    """
+
+    def __init__(self, idx: MeshIndex, max_cells: int = 500_000):
+        import threading
+
+        self.idx = idx
+        vmin, vmax = idx.V.min(0), idx.V.max(0)
+        ext = float((vmax - vmin).max()) or 1.0
+        margin = 0.1 * ext
+        self.lo = vmin - margin
+        size = np.maximum(vmax + margin - self.lo, 1e-9 * ext)
+        self.h = float((np.prod(size) / max_cells) ** (1.0 / 3.0))
+        self.h = max(self.h, float(size.max()) / 1_000_000)
+        self.dims = np.minimum(np.ceil(size / self.h).astype(np.int64), 1 << 20)
+        n = int(np.prod(self.dims))
+        # per cell: (start << 16) | count into ``cand`` (-1: not computed yet); one 8-byte word per
+        # cell so that a point costs one cache miss; candidate ids as int32 (meshes < 65536 triangles)
+        self.cell = np.full(n, -1, np.int64)
+        self.lb = np.zeros(n, np.float32)
+        self.cand = np.zeros(0, np.int32)
+        self.levels = max(0, int(np.ceil(np.log2(int(self.dims.max())))) - 2)
+        self._lock = threading.Lock()
+        self._tg = _TriangleGrid(idx)
+        self.ext = ext
+        try:  # compiled kernels when numba is installed (about 10x faster), numpy otherwise
+            from mst.eval import c2m_kernels as nb
+        except ImportError:  # pragma: no cover - numba is a dependency, this is a safety net
+            nb = None
+        self.nb = nb
+
+    def _nearest_numba(self, P: np.ndarray, max_dist: float | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        nb, idx = self.nb, self.idx
+        md = -1.0 if max_dist is None else float(max_dist)
+        lo, inv_h = self.lo.astype(np.float64), 1.0 / self.h
+        args = (idx.A, idx.AB, idx.AC, idx.BC, idx.N, idx.G)
+        order = nb.bucket_order(P, lo, inv_h, self.dims, 3)
+        tri, d2, feat, st = nb.grid_query(P, lo, inv_h, self.dims, self.cell, self.lb, self.cand, md, *args, order)
+        new = np.nonzero(st == 2)[0]
+        if len(new):
+            flat = nb.cells_of(P[new], lo, inv_h, self.dims)
+            self._fill(np.unique(flat))
+            Pn = P[new]
+            t2, e2, f2, s2 = nb.grid_query(Pn, lo, inv_h, self.dims, self.cell, self.lb, self.cand, md, *args,
+                                           nb.bucket_order(Pn, lo, inv_h, self.dims, 3))
+            tri[new], d2[new], feat[new], st[new] = t2, e2, f2, s2
+        out = np.nonzero(st == 1)[0]
+        if len(out):
+            tri[out], d2[out], feat[out] = self._tg.nearest(P[out], max_dist)
+        return tri, d2, feat
+
+    def _fill(self, flat: np.ndarray) -> None:
+        """Compute candidate lists of the (unique, not yet computed) flat cell ids."""
+        with self._lock:
+            flat = flat[self.cell[flat] < 0]
+            if not len(flat):
+                return
+            dy, dz = int(self.dims[1]), int(self.dims[2])
+            ijk = np.stack([flat // (dy * dz), (flat // dz) % dy, flat % dz], axis=1)
+            if self.nb is not None and self.levels >= 3:
+                # parents 3 levels up (8x coarser cells), their lists by the numpy hierarchy, then
+                # the fine cells refined from their parent's list in the compiled kernel
+                pkey = _key(ijk >> 3)
+                upk, pinv = np.unique(pkey, return_inverse=True)
+                pptr, ptri, _ = self._tg._candidates(upk, self.lo, self.h * 8, self.levels - 3, self.nb)
+                centres = self.lo + (ijk + 0.5) * self.h
+                ptr, tri, lb = self.nb.refine_cells(centres, 0.5 * self.h * np.sqrt(3.0), pinv.reshape(-1), pptr, ptri,
+                                                    1e-9 * self.ext, self.idx.A, self.idx.AB, self.idx.AC,
+                                                    self.idx.BC, self.idx.N, self.idx.G)
+                cells = flat
+            else:
+                key = _key(ijk)
+                o = np.argsort(key)
+                ptr, tri, lb = self._tg._candidates(key[o], self.lo, self.h, self.levels, self.nb)
+                cells = flat[o]
+            base = len(self.cand)
+            self.lb[cells] = lb
+            self.cand = np.concatenate([self.cand, tri.astype(np.int32)])
+            self.cell[cells] = ((base + ptr[:-1]) << 16) | np.diff(ptr)  # last: marks the cells as computed
+
+    def nearest(self, P: np.ndarray, max_dist: float | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(tri, d2, feature)`` per point; tri = -1 where provably farther than ``max_dist``."""
+        if self.nb is not None:
+            return self._nearest_numba(np.ascontiguousarray(P, np.float64), max_dist)
+        idx = self.idx
+        n = len(P)
+        ijk = np.floor((P - self.lo) * (1.0 / self.h)).astype(np.int64)
+        inside = ((ijk >= 0) & (ijk < self.dims)).all(1)
+        tri = np.full(n, -1, np.int64)
+        d2 = np.full(n, np.inf)
+        feat = np.zeros(n, np.int8)
+        out = np.nonzero(~inside)[0]
+        if len(out):
+            tri[out], d2[out], feat[out] = self._tg.nearest(P[out], max_dist)
+            ins = np.nonzero(inside)[0]
+            Pi, ijk = P[ins], ijk[ins]
+        else:
+            ins, Pi = None, P
+        flat = (ijk[:, 0] * self.dims[1] + ijk[:, 1]) * self.dims[2] + ijk[:, 2]
+        del ijk
+        word = self.cell[flat]
+        if (word < 0).any():
+            self._fill(np.unique(flat[word < 0]))
+            word = self.cell[flat]
+        cand = self.cand
+        st = word >> 16
+        cnt = (word & 0xFFFF).astype(np.int64)
+        if max_dist is not None:
+            cnt = np.where(self.lb[flat] > max_dist, 0, cnt)
+        bt = np.full(len(Pi), -1, np.int64)
+        bd = np.full(len(Pi), np.inf)
+        bf = np.zeros(len(Pi), np.int8)
+        for j in range(int(cnt.max(initial=0))):
+            sel = np.nonzero(cnt > j)[0]
+            if j == 0 and len(sel) == len(Pi):
+                ti = cand[st]
+                bd, bf, _ = triangle_distances(idx, Pi, ti)
+                bt = ti
+                continue
+            ti = cand[st[sel] + j]
+            e2, f, _ = triangle_distances(idx, Pi[sel], ti)
+            b = e2 < bd[sel]
+            sb = sel[b]
+            bd[sb], bt[sb], bf[sb] = e2[b], ti[b], f[b]
+        if ins is None:
+            return bt, bd, bf
+        tri[ins], d2[ins], feat[ins] = bt, bd, bf
+        return tri, d2, feat
+
+
 _B = 21  # bits per axis in a cell key
 
 
@@ -426,18 +565,20 @@ def point_distances(idx: MeshIndex, P: np.ndarray, signed: bool = False, max_dis
     s = np.full(n, np.nan) if signed else None
     if n == 0:
         return d, s
-    todo = np.arange(n)
+    todo = slice(None)
+    Q = P
     if max_dist is not None:  # outside the mesh box grown by max_dist: farther than max_dist
         lo, hi = idx.V.min(0) - max_dist, idx.V.max(0) + max_dist
-        todo = todo[((P >= lo) & (P <= hi)).all(1)]
+        todo = np.nonzero(((P >= lo) & (P <= hi)).all(1))[0]
         if not len(todo):
             return d, s
-    Q = P[todo]
+        Q = P[todo]
     if idx.engine == "grid":
         tri, d2, feat = idx._grid.nearest(Q, max_dist)
         ok = tri >= 0
         if not ok.all():
-            todo, Q, tri, d2, feat = todo[ok], Q[ok], tri[ok], d2[ok], feat[ok]
+            todo = np.arange(n)[todo][ok]
+            Q, tri, d2, feat = Q[ok], tri[ok], d2[ok], feat[ok]
     else:
         import open3d as o3d
 
@@ -500,20 +641,23 @@ class _Moments:
         self.sumsq = 0.0
         self.min, self.max = np.inf, -np.inf
 
-    def add(self, x: np.ndarray) -> None:
+    def add(self, x: np.ndarray, extremes: bool = True) -> None:
         k = len(x)
         if not k:
             return
-        mu = float(x.mean())
-        m2 = float(((x - mu) ** 2).sum())
+        x = np.asarray(x, np.float64)
+        mu = float(x.sum()) / k
+        sq = float(np.dot(x, x))
+        m2 = max(sq - k * mu * mu, 0.0)  # chunk M2; merged exactly below (Chan et al.)
         delta = mu - self.mean
         tot = self.n + k
         self.mean += delta * k / tot
         self.m2 += m2 + delta * delta * self.n * k / tot
         self.n = tot
-        self.sumsq += float(np.dot(x, x))
-        self.min = min(self.min, float(x.min()))
-        self.max = max(self.max, float(x.max()))
+        self.sumsq += sq
+        if extremes:
+            self.min = min(self.min, float(x.min()))
+            self.max = max(self.max, float(x.max()))
 
     def std(self) -> float:
         return float(np.sqrt(self.m2 / self.n)) if self.n else float("nan")
@@ -579,7 +723,7 @@ def run_c2m(cloud_path: str | os.PathLike, mesh_path: str | os.PathLike, config:
     def work(xyz: np.ndarray):
         ts = time.perf_counter()
         fin = np.isfinite(xyz).all(1)
-        P = xyz[fin] - shift
+        P = xyz - shift if fin.all() else xyz[fin] - shift
         du, ds = point_distances(idx, P, cfg.signed, cfg.max_dist)
         return xyz, fin, du, ds, time.perf_counter() - ts
 
@@ -588,12 +732,13 @@ def run_c2m(cloud_path: str | os.PathLike, mesh_path: str | os.PathLike, config:
         writer = PlyChunkWriter(tmp_out, n_total, fields, src.xyz_dtype if src.xyz_dtype.itemsize == 8 or
                                 np.abs(shift).max() < 1e5 else np.float64) if tmp_out is not None else None
         try:
-            with ThreadPoolExecutor(max_workers=max(1, cfg.workers)) as pool:
+            workers = 1 if getattr(idx._grid, "nb", None) is not None else max(1, cfg.workers)
+            with ThreadPoolExecutor(max_workers=workers) as pool:
                 pending = []
                 chunks = src.chunks(cfg.chunk_points)
                 exhausted = False
                 while pending or not exhausted:
-                    while not exhausted and len(pending) < max(1, cfg.workers) + 1:
+                    while not exhausted and len(pending) < workers + 1:
                         try:
                             pending.append(pool.submit(work, next(chunks)))
                         except StopIteration:
@@ -605,25 +750,31 @@ def run_c2m(cloud_path: str | os.PathLike, mesh_path: str | os.PathLike, config:
                     n_seen += len(xyz)
                     n_nonfinite += int((~fin).sum())
                     valid = ~np.isnan(du)
-                    n_beyond += int((~valid).sum())
-                    dv = du[valid]
+                    nv = int(valid.sum())
+                    n_beyond += len(du) - nv
+                    dv = du if nv == len(du) else du[valid]
                     mo_u.add(dv)
                     for t, mo in zip(thr, th_mo):
-                        mo.add(dv[dv < t])
+                        mo.add(dv[dv < t], extremes=False)
                     store[n_store : n_store + len(dv)] = dv
                     if cfg.signed:
-                        sv = ds[valid]
+                        sv = ds if nv == len(ds) else ds[valid]
                         mo_s.add(sv)
                         store_s[n_store : n_store + len(sv)] = sv
                     n_store += len(dv)
                     if writer is not None:
-                        full_u = np.full(len(xyz), np.nan, np.float32)
-                        full_u[fin] = du
-                        sc = {"C2M_absolute_distances": full_u}
+                        allfin = len(du) == len(xyz)
+
+                        def full(v):
+                            if allfin:
+                                return v
+                            o = np.full(len(xyz), np.nan, np.float32)
+                            o[fin] = v
+                            return o
+
+                        sc = {"C2M_absolute_distances": full(du)}
                         if cfg.signed:
-                            full_s = np.full(len(xyz), np.nan, np.float32)
-                            full_s[fin] = ds
-                            sc["C2M_signed_distances"] = full_s
+                            sc["C2M_signed_distances"] = full(ds)
                         writer.write(xyz, **sc)
                     if progress is not None:
                         progress(len(xyz))

@@ -338,6 +338,14 @@ class PlyChunkWriter:
         self.written = 0
 
     def write(self, xyz: np.ndarray, **scalars: np.ndarray) -> None:
+        if self.dtype[0] == np.dtype("<f4"):  # all float32: a plain (n, 3 + k) array has the same layout
+            arr = np.empty((len(xyz), 3 + len(self.fields)), "<f4")
+            arr[:, :3] = xyz
+            for j, f in enumerate(self.fields):
+                arr[:, 3 + j] = scalars[f]
+            arr.tofile(self._f)
+            self.written += len(xyz)
+            return
         rec = np.empty(len(xyz), self.dtype)
         for j, k in enumerate("xyz"):
             rec[k] = xyz[:, j]

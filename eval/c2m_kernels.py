@@ -1,0 +1,214 @@
+"""Numba kernels of the C2M grid engine (compiled on first use, cached on disk).
+
+Same mathematics as :func:`mst.eval.c2m.triangle_distances` (float64, no fastmath): the projection
+on the triangle's plane decides "interior" (distance = height over the plane), otherwise the nearest
+of the three edge segments. Feature codes: 0 interior, 1/2/3 vertex a/b/c, 4/5/6 edge ab/ac/bc.
+Loops run in parallel over points (``prange``), using every core.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+from numba import njit, prange
+
+# OpenMP first: the TBB found beside some wheels is too old and numba warns on stderr when it tries it
+numba.config.THREADING_LAYER_PRIORITY = ["omp", "workqueue", "tbb"]
+
+
+@njit(cache=True, inline="always")
+def _seg(qx, qy, qz, dx, dy, dz):
+    den = dx * dx + dy * dy + dz * dz
+    t = (qx * dx + qy * dy + qz * dz) / den
+    if t < 0.0:
+        t = 0.0
+    elif t > 1.0:
+        t = 1.0
+    rx, ry, rz = qx - t * dx, qy - t * dy, qz - t * dz
+    return rx * rx + ry * ry + rz * rz, t
+
+
+@njit(cache=True, inline="always")
+def pt_tri(px, py, pz, k, A, AB, AC, BC, N, G):
+    """Squared distance and feature code of point p to triangle k."""
+    apx, apy, apz = px - A[k, 0], py - A[k, 1], pz - A[k, 2]
+    abx, aby, abz = AB[k, 0], AB[k, 1], AB[k, 2]
+    acx, acy, acz = AC[k, 0], AC[k, 1], AC[k, 2]
+    d1 = abx * apx + aby * apy + abz * apz
+    d2 = acx * apx + acy * apy + acz * apz
+    v = G[k, 0] * d1 + G[k, 1] * d2
+    w = G[k, 1] * d1 + G[k, 2] * d2
+    if v >= 0.0 and w >= 0.0 and v + w <= 1.0:
+        h = apx * N[k, 0] + apy * N[k, 1] + apz * N[k, 2]
+        return h * h, 0
+    best, t = _seg(apx, apy, apz, abx, aby, abz)
+    e, bt = 0, t
+    r, t = _seg(apx, apy, apz, acx, acy, acz)
+    if r < best:
+        best, e, bt = r, 1, t
+    r, t = _seg(apx - abx, apy - aby, apz - abz, BC[k, 0], BC[k, 1], BC[k, 2])
+    if r < best:
+        best, e, bt = r, 2, t
+    if bt <= 0.0:
+        f = 1 if e < 2 else 2
+    elif bt >= 1.0:
+        f = 2 if e == 0 else 3
+    else:
+        f = 4 + e
+    return best, f
+
+
+@njit(cache=True, parallel=True)
+def pairs_d2(C, cell_of, ti, A, AB, AC, BC, N, G):
+    """Squared distances of points ``C[cell_of[i]]`` to triangles ``ti[i]``."""
+    n = len(ti)
+    out = np.empty(n)
+    for i in prange(n):
+        c = cell_of[i]
+        out[i] = pt_tri(C[c, 0], C[c, 1], C[c, 2], ti[i], A, AB, AC, BC, N, G)[0]
+    return out
+
+
+@njit(cache=True)
+def bucket_order(P, lo, inv_h, dims, shift):
+    """Permutation grouping points by coarse buckets (grid cells ``>> shift`` per axis), counting sort.
+
+    Visiting points in this order keeps the grid lookups of consecutive points in cache.
+    """
+    n = len(P)
+    bx, by, bz = (dims[0] >> shift) + 1, (dims[1] >> shift) + 1, (dims[2] >> shift) + 1
+    nb = bx * by * bz + 1
+    key = np.empty(n, np.int64)
+    cnt = np.zeros(nb + 1, np.int64)
+    for i in range(n):
+        fx = (P[i, 0] - lo[0]) * inv_h
+        fy = (P[i, 1] - lo[1]) * inv_h
+        fz = (P[i, 2] - lo[2]) * inv_h
+        b = nb - 1
+        if fx >= 0.0 and fy >= 0.0 and fz >= 0.0:
+            ix, iy, iz = int(fx), int(fy), int(fz)
+            if ix < dims[0] and iy < dims[1] and iz < dims[2]:
+                b = ((ix >> shift) * by + (iy >> shift)) * bz + (iz >> shift)
+        key[i] = b
+        cnt[b + 1] += 1
+    for b in range(nb):
+        cnt[b + 1] += cnt[b]
+    order = np.empty(n, np.int64)
+    for i in range(n):
+        b = key[i]
+        order[cnt[b]] = i
+        cnt[b] += 1
+    return order
+
+
+@njit(cache=True, parallel=True)
+def grid_query(P, lo, inv_h, dims, cell, lb, cand, max_dist, A, AB, AC, BC, N, G, order):
+    """Nearest triangle of every point from its grid cell's candidate list.
+
+    ``cell[c]`` packs ``(start << 16) | count`` of cell c's candidates in ``cand`` (-1: not computed).
+    Returns ``(tri, d2, feature, status)``; status 0 done, 1 outside the grid (not evaluated),
+    2 cell not computed yet (not evaluated), 3 farther than ``max_dist`` (tri -1). ``max_dist`` < 0: none.
+    """
+    n = len(P)
+    tri = np.full(n, -1, np.int64)
+    d2 = np.full(n, np.inf)
+    feat = np.zeros(n, np.int8)
+    status = np.zeros(n, np.int8)
+    dy, dz = dims[1], dims[2]
+    for kk in prange(n):
+        i = order[kk]
+        px, py, pz = P[i, 0], P[i, 1], P[i, 2]
+        fx = (px - lo[0]) * inv_h
+        fy = (py - lo[1]) * inv_h
+        fz = (pz - lo[2]) * inv_h
+        if not (fx >= 0.0 and fy >= 0.0 and fz >= 0.0):
+            status[i] = 1
+            continue
+        ix, iy, iz = int(fx), int(fy), int(fz)
+        if ix >= dims[0] or iy >= dy or iz >= dz:
+            status[i] = 1
+            continue
+        c = (ix * dy + iy) * dz + iz
+        word = cell[c]
+        if word < 0:
+            status[i] = 2
+            continue
+        if max_dist >= 0.0 and lb[c] > max_dist:
+            status[i] = 3
+            continue
+        best = np.inf
+        bt = -1
+        bf = 0
+        s = word >> 16
+        for j in range(word & 0xFFFF):
+            k = np.int64(cand[s + j])
+            r, f = pt_tri(px, py, pz, k, A, AB, AC, BC, N, G)
+            if r < best:
+                best, bt, bf = r, k, f
+        tri[i] = bt
+        d2[i] = best
+        feat[i] = bf
+    return tri, d2, feat, status
+
+
+@njit(cache=True)
+def cells_of(P, lo, inv_h, dims):
+    """Flat cell id per point (-1 outside the grid)."""
+    n = len(P)
+    out = np.empty(n, np.int64)
+    for i in range(n):
+        fx = (P[i, 0] - lo[0]) * inv_h
+        fy = (P[i, 1] - lo[1]) * inv_h
+        fz = (P[i, 2] - lo[2]) * inv_h
+        if not (fx >= 0.0 and fy >= 0.0 and fz >= 0.0):
+            out[i] = -1
+            continue
+        ix, iy, iz = int(fx), int(fy), int(fz)
+        if ix >= dims[0] or iy >= dims[1] or iz >= dims[2]:
+            out[i] = -1
+        else:
+            out[i] = (ix * dims[1] + iy) * dims[2] + iz
+    return out
+
+
+@njit(cache=True, parallel=True)
+def refine_cells(centres, r, par, pptr, ptri, tol, A, AB, AC, BC, N, G):
+    """Candidate lists of cells (centres (n, 3), half-diagonal ``r``) from their parents' lists.
+
+    Keeps the parent candidates whose distance to the cell centre is at most ``dmin + 2 r + tol``.
+    Returns ``(ptr (n + 1,), tri, lower_bound (n,) = dmin - r)``.
+    """
+    n = len(centres)
+    dmin = np.empty(n)
+    cnt = np.zeros(n, np.int64)
+    for i in prange(n):
+        p = par[i]
+        best = np.inf
+        for j in range(pptr[p], pptr[p + 1]):
+            d2 = pt_tri(centres[i, 0], centres[i, 1], centres[i, 2], ptri[j], A, AB, AC, BC, N, G)[0]
+            if d2 < best:
+                best = d2
+        dmin[i] = np.sqrt(best)
+        lim = dmin[i] + 2.0 * r + tol
+        lim2 = lim * lim
+        c = 0
+        for j in range(pptr[p], pptr[p + 1]):
+            d2 = pt_tri(centres[i, 0], centres[i, 1], centres[i, 2], ptri[j], A, AB, AC, BC, N, G)[0]
+            if d2 <= lim2:
+                c += 1
+        cnt[i] = c
+    ptr = np.zeros(n + 1, np.int64)
+    for i in range(n):
+        ptr[i + 1] = ptr[i] + cnt[i]
+    tri = np.empty(ptr[n], np.int64)
+    for i in prange(n):
+        p = par[i]
+        lim = dmin[i] + 2.0 * r + tol
+        lim2 = lim * lim
+        k = ptr[i]
+        for j in range(pptr[p], pptr[p + 1]):
+            d2 = pt_tri(centres[i, 0], centres[i, 1], centres[i, 2], ptri[j], A, AB, AC, BC, N, G)[0]
+            if d2 <= lim2:
+                tri[k] = ptri[j]
+                k += 1
+    return ptr, tri, dmin - r
