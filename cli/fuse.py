@@ -53,12 +53,14 @@ def fuse(traj, depth, camera, output, depth_to_color, depth_scale, min_depth, ma
     Each depth frame k is back-projected with the pose of frame k (time t = k, or t * FPS = k
     with --fps) and filtered (depth range, discontinuities, grazing angles). Frames with no pose
     (lost) are skipped and counted. Memory is bounded by the output cloud: points are merged into
-    a voxel grid (--voxel) or a TSDF (--tsdf) frame by frame.
+    a voxel grid (--voxel) or a TSDF (--tsdf) frame by frame. For noisy depth (Kinect-like,
+    about 1 cm at 2.5 m) add --smooth 5 (per-frame bilateral filter) or use --tsdf.
 
     \b
     Examples:
       mst fuse --traj traj.txt --depth seq/depth --camera seq/camera.json --voxel 0.01 -o cloud.ply
       mst fuse --traj seq/gt.txt --fps 30 --depth seq/depth --camera seq/camera.json --tsdf -o surf.ply
+      mst fuse --traj traj.txt --depth seq/depth --camera seq/camera.json --smooth 5 --voxel 0.01 -o cloud.ply
       mst fuse --traj traj.txt --depth cube/ --camera cube/model/cube_depth.xml \\
                --depth-to-color cube/depth_M_color.txt -o cube.ply
       mst fuse --landmarks map.ply -o cloud.ply      # mono: the SLAM map written by
@@ -79,7 +81,8 @@ def fuse(traj, depth, camera, output, depth_to_color, depth_scale, min_depth, ma
     if voxel is None:
         voxel = 0.01 if tsdf else 0.005
     cfg = FuseConfig(depth_scale=depth_scale, min_depth=min_depth, max_depth=max_depth, edge_k=edge_k,
-                     max_angle_deg=max_angle, smooth_px=smooth, smooth_rel=smooth_rel, voxel=voxel, stride=stride, fps=fps, tsdf=tsdf)
+                     max_angle_deg=max_angle, smooth_px=smooth, smooth_rel=smooth_rel, voxel=voxel, stride=stride,
+                     fps=fps, tsdf=tsdf)
     summary = run_fuse(output, cfg, traj_path=traj, depth_dir=depth, camera_path=camera,
                        depth_to_color_path=depth_to_color, color_dir=color, color_camera_path=color_camera,
                        landmarks_path=landmarks, progress=lambda n: progress_bar(n, "fuse", quiet))
