@@ -518,7 +518,8 @@ def fuse(
         raise InputError(None, "nothing to fuse: give depth frames (--depth) or landmarks (--landmarks)")
 
     summary: dict = {"output": str(out_path), "mode": "tsdf" if cfg.tsdf else ("voxel" if cfg.voxel > 0 else "points"),
-                     "config": asdict(cfg), "frames": 0, "poses": 0, "fused_frames": 0, "skipped_no_pose": 0,
+                     "config": {k: (v if not isinstance(v, float) or np.isfinite(v) else None)
+                                for k, v in asdict(cfg).items()}, "frames": 0, "poses": 0, "fused_frames": 0, "skipped_no_pose": 0,
                      "skipped_stride": 0, "empty_frames": 0, "poses_without_frame": 0, "samples": 0,
                      "dropped_range": 0, "dropped_edge": 0, "dropped_grazing": 0, "points_fused": 0,
                      "colored_samples": 0, "landmarks": 0}

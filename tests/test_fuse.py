@@ -295,6 +295,26 @@ def test_landmarks_pass_through(tmp_path):
     np.testing.assert_array_equal(X, L)  # double precision kept exactly
 
 
+def test_landmarks_bad_ply(tmp_path):
+    write_ply(tmp_path / "lm.ply", np.zeros((100, 3)))
+    raw = (tmp_path / "lm.ply").read_bytes()
+    (tmp_path / "cut.ply").write_bytes(raw[:-50])
+    with pytest.raises(InputError, match=r"cut\.ply: PLY is truncated"):
+        fuse(tmp_path / "o.ply", _cfg(), landmarks_path=tmp_path / "cut.ply")
+    (tmp_path / "txt.ply").write_text("hello\n")
+    with pytest.raises(InputError, match="not a PLY"):
+        fuse(tmp_path / "o.ply", _cfg(), landmarks_path=tmp_path / "txt.ply")
+    assert not (tmp_path / "o.ply").exists()
+    # ASCII PLY with colour
+    (tmp_path / "a.ply").write_text("ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty float y\n"
+                                    "property float z\nproperty uchar red\nproperty uchar green\nproperty uchar blue\n"
+                                    "element face 0\nproperty list uchar int vertex_indices\nend_header\n"
+                                    "1 2 3 255 0 0\n4 5 6 0 255 0\n")
+    X, rgb = read_ply_points(tmp_path / "a.ply")
+    np.testing.assert_array_equal(X, [[1, 2, 3], [4, 5, 6]])
+    np.testing.assert_array_equal(rgb, [[255, 0, 0], [0, 255, 0]])
+
+
 def test_cli_json_and_errors(seq, tmp_path, mst):
     r = seq["root"]
     out = tmp_path / "cli.ply"
@@ -313,8 +333,29 @@ def test_cli_json_and_errors(seq, tmp_path, mst):
     p = mst("fuse", "--traj", r / "traj.txt", "--depth", bad, "--camera", r / "camera.json", "-o", out2, check=False)
     assert p.returncode == 1 and not out2.exists()
     assert p.stderr.strip().splitlines()[-1].startswith("mst fuse: error: ") and "000003.npy" in p.stderr
+    # infinite max depth is allowed (no limit) and the JSON stays valid
+    p = mst("fuse", "--traj", r / "traj.txt", "--depth", r / "depth", "--camera", r / "camera.json",
+            "--max-depth", "inf", "-o", tmp_path / "inf.ply", "--json", "-q")
+    assert json.loads(p.stdout)["config"]["max_depth"] is None
     p = mst("fuse", "--help")
     assert "mst fuse --traj traj.txt --depth seq/depth --camera seq/camera.json --voxel 0.01 -o cloud.ply" in p.stdout
+
+
+def test_real_cube_colour_through_extrinsic(shared_data, tmp_path):
+    """Colour frames seen by the colour camera, mapped with depth_M_color (frames 0 and 5)."""
+    cube = shared_data / "visp-cube-rgbd"
+    write_tum(tmp_path / "id.txt", np.array([0.0, 5.0]), np.repeat(np.eye(4)[None], 2, axis=0))
+    s = fuse(tmp_path / "c.ply", FuseConfig(voxel=0.004, max_depth=1.0), tmp_path / "id.txt", cube,
+             cube / "model" / "cube_depth.xml", depth_to_color_path=cube / "depth_M_color.txt", color_dir=cube,
+             color_camera_path=cube / "model" / "cube.xml")
+    X, rgb = read_ply_points(tmp_path / "c.ply")
+    assert s["fused_frames"] == 2 and rgb is not None
+    # the colour camera (f = 615 px) sees a narrower cone than the depth camera (f = 384 px)
+    frac = s["colored_samples"] / s["points_fused"]
+    assert 0.3 < frac < 0.95, frac
+    # the cloud is in the colour camera's frame: the cube (image centre) is straight ahead of it
+    lit = X[rgb.sum(axis=1) > 0]
+    assert np.abs(np.median(lit[:, 0] / lit[:, 2])) < 0.3
 
 
 def test_real_cube_frames(shared_data, tmp_path, mst):
