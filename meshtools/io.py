@@ -24,9 +24,11 @@ weakly-simple polygon: each hole is cut open by a *bridge* (a pair of coincident
 from a vertex of the outer loop, or of an already bridged hole, to the nearest visible vertex of the
 hole). The polygon encloses exactly the face's area, its outline draws every edge of the outer loop
 and holes, and it triangulates correctly with ear clipping. OBJ keeps the same convention so that
-all three writers agree. The bridge edges are not image edges: a tracker sees them as segments
-whose two sides are the same face and so can drop them (they are the only edges used twice by one
-polygon).
+all three writers agree. The bridge edges are not image edges: they are the only edges a polygon
+uses twice (once each way). :func:`load_model` undoes the bridges of such faces
+(:func:`unbridge_faces`), so a model read back from our own file has its holes again and
+``PolygonModel.edges()`` contains no bridge; readers that take the file as is (ViSP) still get a
+correct, weakly-simple polygon.
 
 Every loop is written starting at a strictly convex corner, so the first three points of a polygon
 give its outward normal (ViSP computes visibility from them).
@@ -91,6 +93,8 @@ def load_model(path: str | os.PathLike) -> PolygonModel:
     except (ValueError, IndexError, KeyError, TypeError) as e:
         raise InputError(p, f"corrupt {suf} file: {e}") from None
     _validate(m, p)
+    if suf in (".obj", ".wrl", ".vrml", ".cao", ".off"):
+        m = unbridge_faces(m)
     return m
 
 
@@ -1144,6 +1148,118 @@ def _plane_basis(n: np.ndarray) -> np.ndarray:
     ux, uy, uz = ux / un, uy / un, uz / un
     vx, vy, vz = ny * uz - nz * uy, nz * ux - nx * uz, nx * uy - ny * ux  # n x u
     return np.array([[ux, vx], [uy, vy], [uz, vz]])
+
+
+def unbridge_faces(model: PolygonModel) -> PolygonModel:
+    """Turn weakly-simple faces written by :func:`bridge_holes` back into outer loop + holes.
+
+    For a face loop that visits a vertex twice: edges used in both directions by the loop (bridges)
+    are removed, the remaining edges are chained in loop order and split at repeated vertices. The
+    result is accepted only if it is one loop turning like the face (positive signed area about the
+    face normal) plus loops turning the other way (holes) with the same total vector area;
+    otherwise the face is kept as read. Faces without repeated vertices are untouched.
+    """
+    if not model.faces:
+        return model
+    cand = [i for i, f in enumerate(model.faces) if not model.holes[i] and len(np.unique(f)) < len(f)]
+    if not cand:
+        return model
+    faces = list(model.faces)
+    holes = [list(h) for h in model.holes]
+    normals = model.face_normals()
+    areas = model.face_areas()
+    V = model.vertices
+    for i in cand:
+        seq = faces[i].tolist()
+        k = len(seq)
+        edges = [(seq[j], seq[(j + 1) % k]) for j in range(k)]
+        count: dict[tuple[int, int], int] = {}
+        for e in edges:
+            count[e] = count.get(e, 0) + 1
+        keep = [True] * k
+        used_rev: dict[tuple[int, int], int] = {}
+        for j, (a, b) in enumerate(edges):
+            if a == b:
+                keep[j] = False
+                continue
+            r = (b, a)
+            avail = min(count.get((a, b), 0), count.get(r, 0))
+            if avail and used_rev.get((a, b), 0) < avail:
+                used_rev[(a, b)] = used_rev.get((a, b), 0) + 1
+                keep[j] = False
+        if all(keep):
+            loops = _split_simple(seq)
+        else:
+            rem = [edges[j] for j in range(k) if keep[j]]
+            loops = _chain_in_order(rem)
+            if loops is None:
+                continue
+            loops = [sub for lp in loops for sub in _split_simple(lp)]
+        if len(loops) < 2:
+            continue
+        n = normals[i]
+        sa = []
+        for lp in loops:
+            P = V[lp] - V[lp[0]]
+            sa.append(0.5 * float(np.cross(P, np.roll(P, -1, axis=0)).sum(0) @ n))
+        pos = [j for j, a in enumerate(sa) if a > 0]
+        if len(pos) != 1 or any(a >= 0 for j, a in enumerate(sa) if j != pos[0]):
+            continue
+        if abs(sum(sa) - areas[i]) > 1e-9 * max(abs(areas[i]), 1e-300) + 1e-12:
+            continue
+        faces[i] = np.asarray(loops[pos[0]], np.int64)
+        holes[i] = [np.asarray(lp, np.int64) for j, lp in enumerate(loops) if j != pos[0]]
+    return PolygonModel(model.vertices, faces, holes=holes, names=list(model.names), lines=model.lines,
+                        cylinders=model.cylinders, circles=model.circles)
+
+
+def _split_simple(seq: list[int]) -> list[list[int]]:
+    """Split a closed vertex sequence at repeated vertices into simple closed loops (>= 3 vertices)."""
+    out: list[list[int]] = []
+    path: list[int] = []
+    pos: dict[int, int] = {}
+    for x in seq:
+        if x in pos:
+            p = pos[x]
+            out.append(path[p:])
+            for y in path[p + 1:]:
+                del pos[y]
+            path = path[: p + 1]
+        else:
+            pos[x] = len(path)
+            path.append(x)
+    out.append(path)
+    return [lp for lp in out if len(lp) >= 3]
+
+
+def _chain_in_order(edges: list[tuple[int, int]]) -> list[list[int]] | None:
+    """Chain directed edges into closed vertex loops, taking at each vertex the first unused edge
+    that follows in the given (cyclic) order. None if they do not close."""
+    m = len(edges)
+    out_at: dict[int, list[int]] = {}
+    for j, (a, _) in enumerate(edges):
+        out_at.setdefault(a, []).append(j)
+    used = [False] * m
+    loops = []
+    for s in range(m):
+        if used[s]:
+            continue
+        start = edges[s][0]
+        lp: list[int] = []
+        j = s
+        while True:
+            used[j] = True
+            a, b = edges[j]
+            lp.append(a)
+            if b == start:
+                break
+            cands = [c for c in out_at.get(b, []) if not used[c]]
+            if not cands:
+                return None
+            after = [c for c in cands if c > j]
+            j = after[0] if after else cands[0]
+        loops.append(lp)
+    return loops
 
 
 def bridge_holes(V: np.ndarray, outer: np.ndarray, holes: list[np.ndarray], n: np.ndarray) -> np.ndarray:

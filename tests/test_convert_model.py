@@ -11,7 +11,7 @@ import pytest
 from mst import InputError
 from mst.meshtools import generate as gen
 from mst.meshtools.convert import ConvertConfig, tin_to_polygons
-from mst.meshtools.io import load_model, save_model, save_triangles
+from mst.meshtools.io import load_model, read_cao, read_obj, read_vrml, save_model, save_triangles
 from mst.meshtools.model import PolygonModel
 
 
@@ -284,7 +284,7 @@ def test_cli_wrl_cao_obj_and_json(tmp_path, mst):
         assert s["triangles_in"] == len(F) and s["polygons_out"] == 10 and s["holes"] == 2
         assert "polygons out 10" in r.stderr
         m = load_model(out)
-        assert m.n_faces == 10 and m.n_holes == 0  # holes bridged
+        assert m.n_faces == 10 and m.n_holes == 2  # bridged in the file, restored on reading
         Vo, Fo = m.triangulate()
         assert tri_area(Vo, Fo) == pytest.approx(tri_area(V, F), rel=1e-12)
         assert signed_volume(Vo, Fo) == pytest.approx(signed_volume(V, F), rel=1e-12)
@@ -366,12 +366,15 @@ def test_holes_touching_outer_boundary_and_each_other(tmp_path):
     assert xy_area(Vo, Fo) == pytest.approx(36 - 5, rel=1e-12)
     # written with holes spliced/bridged: no zero-length edge, same area, all triangles up
     save_model(tmp_path / "p.cao", model)
-    m = load_model(tmp_path / "p.cao")
-    for f in m.faces:
+    raw = read_cao(tmp_path / "p.cao")
+    for f in raw.faces:
         assert (f != np.roll(f, -1)).all()
-    Vo, Fo = m.triangulate()
+    Vo, Fo = raw.triangulate()
     assert xy_area(Vo, Fo) == pytest.approx(36 - 5, rel=1e-12)
     assert xy_area(Vo, Fo, signed=False) == pytest.approx(36 - 5, rel=1e-12)
+    back = load_model(tmp_path / "p.cao")
+    assert (back.n_faces, back.n_holes) == (model.n_faces, model.n_holes)
+    np.testing.assert_allclose(back.face_areas(), model.face_areas(), rtol=1e-12)
 
 
 def test_many_holes_bridged_for_writers(tmp_path):
@@ -389,8 +392,12 @@ def test_many_holes_bridged_for_writers(tmp_path):
     assert model.n_faces == 1 and model.n_holes == 5
     for suf in (".wrl", ".cao", ".obj"):
         save_model(tmp_path / f"p{suf}", model)
+        raw = {".cao": read_cao, ".wrl": read_vrml, ".obj": read_obj}[suf](tmp_path / f"p{suf}")
+        assert raw.n_faces == 1 and len(raw.faces[0]) == 4 + 5 * 4 + 2 * 5  # one bridged loop
+        Vr, Fr = raw.triangulate()
+        assert xy_area(Vr, Fr, signed=False) == pytest.approx(81 - 5, rel=1e-12)
         m = load_model(tmp_path / f"p{suf}")
-        assert m.n_faces == 1 and len(m.faces[0]) == 4 + 5 * 4 + 2 * 5
+        assert m.n_faces == 1 and m.n_holes == 5 and len(m.faces[0]) == 4
         Vo, Fo = m.triangulate()
         assert tri_area(Vo, Fo) == pytest.approx(81 - 5, rel=1e-12)
         assert xy_area(Vo, Fo) == pytest.approx(81 - 5, rel=1e-12)  # all triangles face up

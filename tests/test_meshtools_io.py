@@ -9,7 +9,7 @@ import pytest
 
 from mst import InputError
 from mst.meshtools import generate as gen
-from mst.meshtools.io import load_model, load_triangles, save_model, save_triangles
+from mst.meshtools.io import load_model, load_triangles, read_cao, read_obj, read_vrml, save_model, save_triangles
 from mst.meshtools.model import PolygonModel
 
 
@@ -144,8 +144,12 @@ def test_round_trip_exact(tmp_path, suffix):
     save_model(c, m2)
     assert c.read_bytes() == b.read_bytes()
     np.testing.assert_array_equal(m1.vertices, src.vertices)  # shortest repr reads back exactly
-    # holes became bridged single loops of the same area and orientation
-    assert m1.n_holes == 0 and m1.n_faces == src.n_faces
+    # in the file every face is one loop (holes bridged); reading restores outer loop + holes
+    raw = {".cao": read_cao, ".wrl": read_vrml, ".obj": read_obj}[suffix](a)
+    assert raw.n_faces == src.n_faces and raw.n_holes == 0
+    assert sorted(len(f) for f in raw.faces)[-2:] == [10, 10]  # 4 + 4 + 2 bridge ends
+    np.testing.assert_allclose(raw.face_areas(), src.face_areas(), rtol=1e-12)
+    assert m1.n_holes == src.n_holes == 2 and m1.n_faces == src.n_faces
     np.testing.assert_allclose(m1.face_areas(), src.face_areas(), rtol=1e-12)
     np.testing.assert_allclose(m1.face_normals(), src.face_normals(), atol=1e-12)
     V1, F1 = m1.triangulate()

@@ -187,7 +187,7 @@ def test_teabox_klt_hybrid(shared_data, mst, tmp_path):
 def test_synth_orbit_textured_scene(tmp_path, mst):
     """`mst synth` orbit (textured ground and walls, 640x480, clicks noisy by 2 px), L-building.
 
-    Every frame is tracked. Measured: mean 0.5 % of the 26 m distance and 0.25 deg; the tile
+    Every frame is tracked. Measured: mean 0.36 % of the 26 m distance and 0.17 deg; the tile
     grout lines of the ground run parallel to the wall bottoms and 1-2 px from them (the wall/
     ground contrast is below the edge threshold), which biases those edges: the 0.1 % / 0.15 deg
     target is met on the cleaner scene of `test_orbit_accuracy`, not here (see the issue report).
@@ -210,4 +210,4 @@ def test_synth_orbit_textured_scene(tmp_path, mst):
     assert np.allclose(t, tg)
     dt, dr = pose_error(T_est, T_gt)
     dist = s["distance_m"]
-    assert dt.mean() <= 0.008 * dist and dr.mean() <= 0.4, (dt / dist, dr)
+    assert dt.mean() <= 0.006 * dist and dr.mean() <= 0.3, (dt / dist, dr)
