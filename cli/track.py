@@ -20,6 +20,7 @@ from mst.cli.common import emit_json, info, json_option, progress_bar, quiet_opt
 @click.option("--range", "search_range", type=int, default=None, help="Moving-edge search range, px each side (overrides settings).")
 @click.option("--step", "sample_step", type=float, default=None, help="Sample step along edges, px (overrides settings).")
 @click.option("--pyramid", "pyramid_levels", type=int, default=None, help="Coarse-to-fine levels (1 = none, 2 = half resolution first).")
+@click.option("--constant-velocity", is_flag=True, help="Predict each pose by repeating the last motion (no SLAM aid).")
 @click.option("--klt/--no-klt", default=False, show_default=True, help="Add KLT points inside visible faces (ViSP hybrid tracker).")
 @click.option("--overlay", default=None, type=click.Path(), help="Write an overlay video (.mp4) or a folder of PNGs.")
 @click.option("--slam", type=click.Choice(["auto", "mono", "rgbd", "off"]), default="off", show_default=True,
@@ -30,7 +31,7 @@ from mst.cli.common import emit_json, info, json_option, progress_bar, quiet_opt
 @json_option
 @quiet_option
 def track(frames_src, model_path, camera_path, init_path, out, settings_path, frame_range, scale, fps, search_range,
-          sample_step, pyramid_levels, klt, overlay, slam, depth_dir, depth_camera, depth_to_color, as_json, quiet):
+          sample_step, pyramid_levels, constant_velocity, klt, overlay, slam, depth_dir, depth_camera, depth_to_color, as_json, quiet):
     """Track MODEL through FRAMES (video, image folder, glob or printf pattern) from an initial pose.
 
     Per frame: visible model edges are sampled, moving edges searched along their normals (ViSP's
@@ -58,7 +59,8 @@ def track(frames_src, model_path, camera_path, init_path, out, settings_path, fr
         cfg = read_tracker_xml(settings_path)
     elif Path(camera_path).is_file() and "<ecm>" in Path(camera_path).read_text(errors="replace"):
         cfg = read_tracker_xml(camera_path)
-    cfg = cfg.updated(search_range=search_range, sample_step=sample_step, pyramid_levels=pyramid_levels, use_klt=klt or None)
+    cfg = cfg.updated(search_range=search_range, sample_step=sample_step, pyramid_levels=pyramid_levels, use_klt=klt or None,
+                      constant_velocity=constant_velocity or None)
     notes: list[str] = []
     summary = run_track(frames_src, model_path, camera_path, init_path, out, cfg, frames=frame_range, scale=scale,
                         fps=fps, overlay=overlay, slam=slam, depth_dir=depth_dir, depth_camera_path=depth_camera,

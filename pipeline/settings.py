@@ -44,7 +44,8 @@ class TrackerConfig:
     Health: ``max_proj_error_deg`` (mean angle between gradient and model normal above which a
     frame is lost; computed at samples whose gradient is strong), ``min_support`` (fraction of samples
     on a strong gradient), ``min_inlier_ratio``, ``min_samples``.
-    Coarse-to-fine: ``pyramid_levels`` (1 = none; 2 = a half-resolution pass first); ``passes``
+    Prediction: ``constant_velocity`` (the next pose repeats the last inter-frame motion; used
+    when no SLAM aid predicts). Coarse-to-fine: ``pyramid_levels`` (1 = none; 2 = a half-resolution pass first); ``passes``
     (search + VVS rounds per frame; the first frame and recoveries use 3 with shrinking ranges).
     KLT (``use_klt``): ViSP ``<klt>`` values.
     """
@@ -74,6 +75,7 @@ class TrackerConfig:
     pyramid_levels: int = 1
     passes: int = 1
     recover_range_factor: float = 2.0
+    constant_velocity: bool = False
     max_samples: int = 600
     use_klt: bool = False
     klt_max_features: int = 300

@@ -415,6 +415,7 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
     rows, times, poses = [], [], []
     ov = OverlayWriter(Path(overlay), src.fps or 30.0) if overlay else None
     T_prev = T0
+    T_prev2 = None
     lost_streak = 0
     first = True
     t_frames = []
@@ -427,6 +428,8 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
                 gray = cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY)
                 t0 = time.perf_counter()
                 T_pred = aid.predict(idx, gray, T_prev) if aid is not None else None
+                if T_pred is None and cfg.constant_velocity and T_prev2 is not None and lost_streak == 0:
+                    T_pred = (T_prev @ inv_T(T_prev2)) @ T_prev  # constant velocity (camera-frame motion)
                 T_start = T_pred if T_pred is not None else T_prev
                 fr = tracker.track(gray, T_start, recover=lost_streak > 0, first=first)
                 if aid is not None:
@@ -435,6 +438,7 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
                     T_out, status = (fr.T_cam_model, "model") if fr.healthy else (None, "lost")
                 if T_out is not None and status != "lost":
                     tracker.accept(gray, T_out)
+                    T_prev2 = T_prev if lost_streak == 0 and not first else None
                     T_prev = T_out
                     lost_streak = 0
                 else:

@@ -43,6 +43,7 @@ def se3_exp(xi: np.ndarray) -> np.ndarray:
     return T
 
 TUKEY_C = 4.6851
+SPREAD_K = 4.0
 
 
 @dataclass
@@ -117,7 +118,8 @@ def _line_jacobian(nx, ny, x, y, iz, fx, fy) -> np.ndarray:
 def solve_pose(T0: np.ndarray, K: np.ndarray, X_model: np.ndarray, edge: np.ndarray, A_model: np.ndarray,
                B_model: np.ndarray, cand_uv: np.ndarray, *, iters: int = 30, lm_mu: float = 0.01,
                min_mad_px: float = 1.0, tukey_c: float = TUKEY_C, klt_X_model: np.ndarray | None = None,
-               klt_uv: np.ndarray | None = None, klt_weight: float = 1.0, stop_px: float = 0.05) -> VVSResult:
+               klt_uv: np.ndarray | None = None, klt_weight: float = 1.0, stop_px: float = 0.05,
+               edge_spread_weight: bool = True) -> VVSResult:
     """Robust VVS from ``T0``. ``cand_uv`` (N, C, 2) candidate pixels per sample (NaN = none).
 
     Each iteration: residuals at the current pose, candidate choice, Tukey weights, a damped
@@ -171,6 +173,7 @@ def solve_pose(T0: np.ndarray, K: np.ndarray, X_model: np.ndarray, edge: np.ndar
     prev = None  # (T, cost, ch, w, wk, H, g) of the last accepted linearisation
     it = 0
     w = np.zeros(len(X))
+    w_tukey = w
     wk = np.zeros(2 * nk)
     sigma = min_mad_px
     H = np.zeros((6, 6))
@@ -196,6 +199,14 @@ def solve_pose(T0: np.ndarray, K: np.ndarray, X_model: np.ndarray, edge: np.ndar
         ch = np.argmin(np.abs(r_all), axis=1)
         r = r_all[rows, ch]
         w, sigma = tukey_weights(r, min_mad_px, tukey_c)
+        w_tukey = w
+        if edge_spread_weight and len(r):
+            # heteroscedastic edge weights: an edge whose inlier residuals scatter (clutter next to
+            # it, a bad model edge) counts less than an edge whose samples agree
+            sw_e = np.bincount(e, weights=w, minlength=nE) + 1e-9
+            m_e = np.bincount(e, weights=w * r, minlength=nE) / sw_e
+            v_e = np.bincount(e, weights=w * (r - m_e[e]) ** 2, minlength=nE) / sw_e
+            w = w / (1.0 + SPREAD_K * v_e[e] / (sigma * sigma))
         J = _line_jacobian(nx, ny, x, y, iz, fx, fy)
         wJ = w[:, None] * J
         H = J.T @ wJ
@@ -235,6 +246,8 @@ def solve_pose(T0: np.ndarray, K: np.ndarray, X_model: np.ndarray, edge: np.ndar
         cov = np.full((6, 6), np.inf)
     W_full = np.zeros(len(X_model))
     W_full[has] = w
+    Wt_full = np.zeros(len(X_model))
+    Wt_full[has] = w_tukey
     R_full = np.full(len(X_model), np.nan)
     R_full[has] = r
-    return VVSResult(T, H, cov, W_full, R_full, W_full > 0.5, sigma, rms, it, klt_in)
+    return VVSResult(T, H, cov, W_full, R_full, Wt_full > 0.5, sigma, rms, it, klt_in)
