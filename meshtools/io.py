@@ -1161,7 +1161,11 @@ def unbridge_faces(model: PolygonModel) -> PolygonModel:
     """
     if not model.faces:
         return model
-    cand = [i for i, f in enumerate(model.faces) if not model.holes[i] and len(np.unique(f)) < len(f)]
+    lens = np.array([len(f) for f in model.faces], np.int64)
+    fid = np.repeat(np.arange(len(lens)), lens)
+    key = np.sort(fid * (len(model.vertices) + 1) + np.concatenate(model.faces))
+    dup_faces = np.unique(key[1:][key[1:] == key[:-1]] // (len(model.vertices) + 1))
+    cand = [int(i) for i in dup_faces if not model.holes[i]]
     if not cand:
         return model
     faces = list(model.faces)
