@@ -312,3 +312,42 @@ def city_block(n_triangles: int = 1_000_000, buildings: int = 64, seed: int = 0,
             off += len(Vb)
             made += 1
     return np.concatenate(Vs), np.concatenate(Fs)
+
+
+# ====================================================================== command line
+SHAPES = ("box", "l_shape", "courtyard", "gabled_house", "cylinder", "terrain", "city_block")
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m mst.meshtools.generate SHAPE -o tin.ply [--split N] [--triangles N]``: write a
+    procedural TIN (.obj/.ply/.stl/.off) or its ground-truth polygon model (.wrl/.cao with --polygons)."""
+    import argparse
+
+    from mst.meshtools.io import save_model, save_triangles
+
+    ap = argparse.ArgumentParser(prog="python -m mst.meshtools.generate", description=main.__doc__)
+    ap.add_argument("shape", choices=SHAPES)
+    ap.add_argument("-o", "--output", required=True)
+    ap.add_argument("--split", type=int, default=4, help="cut each triangle into split^2 (default 4)")
+    ap.add_argument("--triangles", type=int, default=1_000_000, help="city_block size (default 1e6)")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--polygons", action="store_true", help="write the ground-truth polygon model instead")
+    a = ap.parse_args(argv)
+    if a.polygons:
+        if a.shape in ("terrain", "city_block"):
+            ap.error("--polygons exists for the single buildings only")
+        save_model(a.output, globals()[f"{a.shape}_model"]())
+        return 0
+    if a.shape == "city_block":
+        V, F = city_block(a.triangles, seed=a.seed)
+    elif a.shape == "terrain":
+        V, F, _ = terrain(cells=max(2, a.split * 25), seed=a.seed)
+    else:
+        V, F = globals()[a.shape](split=a.split)
+    save_triangles(a.output, V, F)
+    print(f"{a.output}: {len(V)} vertices, {len(F)} triangles")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -269,3 +269,12 @@ def test_ply_fast_reader_agrees_with_trimesh(tmp_path):
     Vc, Fc = load_triangles(c)
     np.testing.assert_allclose(Vc, V, atol=1e-5)
     np.testing.assert_array_equal(Fc, F)
+
+
+def test_generate_command_line(tmp_path):
+    assert gen.main(["l_shape", "-o", str(tmp_path / "l.obj"), "--split", "2"]) == 0
+    V, F = load_triangles(tmp_path / "l.obj")
+    assert len(F) == 20 * 4 and signed_volume(V, F) == pytest.approx(384.0)
+    assert gen.main(["courtyard", "--polygons", "-o", str(tmp_path / "c.cao")]) == 0
+    m = load_model(tmp_path / "c.cao")
+    assert (m.n_faces, m.n_holes) == (10, 2)
