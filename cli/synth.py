@@ -33,6 +33,8 @@ SCENARIOS = ("orbit", "corridor", "flyover", "fast")
 @click.option("--noise", "rgb_noise", type=float, default=2.0, show_default=True, help="Colour noise sigma, 8-bit levels.")
 @click.option("--motion-blur", type=int, default=1, show_default=True, help="Sub-frames averaged per frame (1 = off).")
 @click.option("--model-texture", is_flag=True, help="Texture the model (default: flat, per-face shading).")
+@click.option("--floor", type=click.Choice(["concrete", "tiles"]), default="concrete", show_default=True,
+              help="Floor texture of orbit/corridor (flyover: terrain).")
 @click.option("--no-environment", "no_env", is_flag=True, help="Model alone in front of the sky (no ground or walls).")
 @click.option("--click-noise", type=float, default=0.0, show_default=True, help="Gaussian pixel noise on the clicks.")
 @click.option("--clicks", "n_clicks", type=int, default=6, show_default=True, help="Model corners in clicks.txt (>= 4).")

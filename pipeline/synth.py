@@ -87,6 +87,7 @@ class SynthConfig:
     motion_blur: int = 1               # sub-frame renders averaged per frame (1 = none)
     shutter: float = 0.5               # exposure as a fraction of the frame interval (motion blur)
     model_texture: bool = False        # texture the model too (default: flat, per-face shading)
+    floor: str = "concrete"            # orbit/corridor floor texture: "concrete" | "tiles" (flyover: terrain)
     environment: bool = True           # ground/walls around the model
     click_noise: float = 0.0           # Gaussian noise (pixels) added to the clicks' u, v
     n_clicks: int = 6                  # clicked corners (at least 4)
@@ -512,7 +513,7 @@ def _build_scene(scenario: str, cfg: SynthConfig, V: np.ndarray, F: np.ndarray):
     texel = scene.params["texture_distance"] / (1.5 * f)
     size = int(cfg.texture_size)
     seed = int(cfg.seed)
-    floor_kind = "terrain" if scene.scenario == "flyover" else "tiles"
+    floor_kind = "terrain" if scene.scenario == "flyover" else cfg.floor
     recipes = {  # material -> (texture kind, texel size, seed); generated only when the scene uses it
         FLOOR: (floor_kind, texel, seed),
         WALL: ("brick", texel, seed + 1),
@@ -557,6 +558,8 @@ def _check_config(scenario: str, cfg: SynthConfig) -> None:
         bad.append("distance must be > 0")
     if cfg.speed is not None and not (cfg.speed >= 0 and math.isfinite(cfg.speed)):
         bad.append("speed must be >= 0")
+    if cfg.floor not in ("concrete", "tiles"):
+        bad.append("floor must be 'concrete' or 'tiles'")
     if cfg.depth_noise not in ("none", "kinect"):
         bad.append("depth noise must be 'none' or 'kinect'")
     if cfg.rgb_noise < 0 or cfg.click_noise < 0:

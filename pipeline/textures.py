@@ -156,6 +156,15 @@ def plaster_texture(size: int, rng: np.random.Generator) -> np.ndarray:
     return col * _speckle(size, rng, 0.008, 0.5)[..., None]
 
 
+def concrete_texture(size: int, rng: np.random.Generator) -> np.ndarray:
+    """Mid-grey concrete floor: multi-octave blotches, fine grain and speckles, no long straight lines
+    (KLT/ORB find corners, a model's silhouette against it stays clean). float32 (size, size, 3)."""
+    n = fbm(size, 16, 7, rng, 0.65)[..., None]
+    blot = fbm(size, 4, 3, rng)[..., None]
+    col = np.array([0.50, 0.49, 0.47], np.float32) * (0.55 + 0.8 * n) * (0.75 + 0.45 * blot)
+    return col * _speckle(size, rng, 0.012, 0.6)[..., None]
+
+
 def modulation_texture(size: int, rng: np.random.Generator) -> np.ndarray:
     """Low-frequency brightness modulation (mean 1), applied at a different scale and rotation
     to break the periodicity of the tiled textures. float32 (size, size, 3)."""
@@ -168,8 +177,13 @@ GENERATORS = {
     "tiles": tile_texture,
     "terrain": terrain_texture,
     "plaster": plaster_texture,
+    "concrete": concrete_texture,
     "modulation": modulation_texture,
 }
+
+
+#: fixed random-stream number per texture kind (adding a kind never changes the others)
+_STREAM = {"brick": 0, "modulation": 1, "plaster": 2, "terrain": 3, "tiles": 4, "concrete": 5}
 
 
 # ---------------------------------------------------------------------------- lookup
@@ -219,7 +233,7 @@ class Texture:
     @classmethod
     def generate(cls, kind: str, size: int, texel_m: float, seed: int) -> Texture:
         """Generate texture ``kind`` (one of :data:`GENERATORS`) from ``seed``."""
-        rng = np.random.default_rng([int(seed), sorted(GENERATORS).index(kind)])
+        rng = np.random.default_rng([int(seed), _STREAM[kind]])
         return cls.from_image(GENERATORS[kind](size, rng), texel_m)
 
     def sample(self, u: np.ndarray, v: np.ndarray, footprint_texels: np.ndarray) -> np.ndarray:
