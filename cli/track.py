@@ -68,7 +68,8 @@ def track(frames_src, model_path, camera_path, init_path, out, settings_path, fr
                         progress=lambda total: progress_bar(total, "tracking", quiet))
     for nt in notes:
         info(f"note: {nt}", quiet)
+    res = summary["mean_residual_px"]
     info(f"tracked {summary['tracked']}/{summary['frames']} frames ({summary['lost']} lost), median "
-         f"{summary['median_ms']:.1f} ms/frame, mean residual {summary['mean_residual_px']:.2f} px -> {out}", quiet)
+         f"{summary['median_ms']:.1f} ms/frame, mean residual {'-' if res is None else f'{res:.2f}'} px -> {out}", quiet)
     if as_json:
         emit_json(summary)

@@ -351,6 +351,13 @@ def check_pose_in_view(model, T_cam_model: np.ndarray, cam, path, near: float = 
 
 
 # ---------------------------------------------------------------------------- the stage
+def _mean_or_none(vals: list[float]) -> float | None:
+    """Mean of the finite values (None when there is none: JSON has no NaN)."""
+    a = np.asarray(vals, float)
+    a = a[np.isfinite(a)]
+    return float(a.mean()) if len(a) else None
+
+
 def _make_aid(mode: str, cam, config: TrackerConfig, depth_dir, depth_camera, T_depth_color, notes: list[str]):
     if mode == "off":
         return None, "off"
@@ -416,6 +423,7 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
     ov = OverlayWriter(Path(overlay), src.fps or 30.0) if overlay else None
     T_prev = T0
     T_prev2 = None
+    first_reason = ""
     lost_streak = 0
     first = True
     t_frames = []
@@ -444,6 +452,8 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
                 else:
                     lost_streak += 1
                     T_out, status = None, "lost"
+                if first:
+                    first_reason = fr.reason
                 first = False
                 ms = (time.perf_counter() - t0) * 1000.0
                 t_frames.append(ms)
@@ -465,13 +475,18 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
             aid.close()
     n = len(rows)
     n_tr = len(poses)
+    if n_tr == 0:
+        if ov is not None:
+            ov.close(commit=False)
+        raise InputError(init_pose_path, f"no frame could be tracked from this initial pose (frame {rows[0][0]}: "
+                                         f"{first_reason or 'lost'}); check the pose, the camera and the model units")
     statuses = [r[2] for r in rows]
     summary = {
         "frames": n, "tracked": n_tr, "lost": statuses.count("lost"), "model": statuses.count("model"),
         "slam": statuses.count("slam"), "first_lost_frame": next((r[0] for r in rows if r[2] == "lost"), None),
         "median_ms": float(np.median(t_frames)) if t_frames else None,
         "p95_ms": float(np.percentile(t_frames, 95)) if t_frames else None,
-        "mean_residual_px": float(np.nanmean([float(r[5]) for r in rows])) if rows else None,
+        "mean_residual_px": _mean_or_none([float(r[5]) for r in rows]),
         "mean_proj_error_deg": float(np.mean([float(r[6]) for r in rows])) if rows else None,
         "aid": aid_mode, "traj": str(out_traj), "csv": str(csv_path), "notes": notes,
         "camera": cam.to_dict(), "config": config_to_dict(cfg),
