@@ -219,3 +219,46 @@ def test_synth_orbit_textured_scene(tmp_path, mst):
     dt, dr = pose_error(T_est, T_gt)
     dist = s["distance_m"]
     assert dt.mean() <= 0.006 * dist and dr.mean() <= 0.3, (dt / dist, dr)
+
+
+def test_slam_aid_hook_contract(shared_data, tmp_path, monkeypatch):
+    """The tracker calls the aid as in the cross-helper contract and writes its poses/statuses."""
+    from mst.pipeline import slam as slam_mod
+    from mst.pipeline.tracker import run_track
+
+    calls = []
+
+    class FakeAid:
+        def predict(self, k, gray, T_prev):
+            calls.append(("predict", k, gray.shape, T_prev.shape))
+            return None if k % 2 else T_prev
+
+        def update(self, k, gray, T_edges, W, healthy):
+            calls.append(("update", k, W.shape, bool(np.allclose(W, W.T)), float(np.linalg.eigvalsh(W).min()), healthy))
+            return T_edges, ("slam" if k == 3 else "model")
+
+        def close(self):
+            calls.append(("close",))
+
+    made = {}
+
+    def fake_make_aid(mode, camera, config, depth_dir, depth_camera, T_depth_color):
+        made.update(mode=mode, w=camera.width, cfg=isinstance(config, dict), depth_dir=depth_dir)
+        return FakeAid()
+
+    monkeypatch.setattr(slam_mod, "make_aid", fake_make_aid)
+    t = shared_data / "visp-teabox"
+    from mst.pipeline.camera import read_camera
+    from mst.pipeline.init_pose import init_from_clicks, read_clicks
+
+    X, uv = read_clicks(t / "teabox.clicks", t / "teabox.init")
+    write_pose_file(tmp_path / "p0.txt", init_from_clicks(X, uv, read_camera(t / "teabox.xml").K).T_cam_model)
+    out = tmp_path / "traj.txt"
+    s = run_track(t / "teabox.mp4", t / "teabox.cao", t / "teabox.xml", tmp_path / "p0.txt", out, frames="0:6", slam="auto")
+    assert made == {"mode": "mono", "w": 640, "cfg": True, "depth_dir": None}  # auto without --depth = mono
+    assert s["tracked"] == 6 and s["slam"] == 1 and s["aid"] == "mono"
+    ups = [c for c in calls if c[0] == "update"]
+    assert [c[1] for c in ups] == list(range(6)) and all(c[2] == (6, 6) and c[3] and c[4] > 0 and c[5] for c in ups)
+    assert calls[-1] == ("close",)
+    rows = list(csv.DictReader(open(out.with_suffix(".csv"))))
+    assert [r["status"] for r in rows] == ["model", "model", "model", "slam", "model", "model"]
