@@ -140,3 +140,24 @@ def test_face_ids_one_shot_helpers():
     np.testing.assert_allclose(d[front], 1.7, atol=1e-4)
     with pytest.raises(ValueError):
         Renderer(V, np.zeros((0, 3), int))
+
+
+def test_coarse_to_fine_primary_hits_equal_full_cast():
+    """The stride-2 + analytic-plane shortcut gives the same depth/planes as casting every pixel."""
+    V, F = box_mesh()
+    g = np.array([[-4, -4, 0], [4, -4, 0], [4, 4, 0], [-4, 4, 0], [-4, 4, 3], [4, 4, 3]], float)
+    Vs = np.concatenate([V, g])
+    Fs = np.concatenate([F, np.array([[0, 1, 2], [0, 2, 3], [3, 2, 5], [3, 5, 4]]) + 8])
+    mats = {0: Material(albedo=(0.9, 0.9, 0.9)), 1: Material(texture=Texture.generate("concrete", 64, 0.02, 0))}
+    r = ShadedRenderer(Vs, Fs, np.r_[np.zeros(12, int), np.ones(4, int)], mats)
+    full = Renderer(Vs, Fs)
+    cam = Camera(150.0, 150.0, 80.2, 59.7, 161, 121)  # odd sizes: the last row/column closes the grid
+    for eye in ([1.2, -1.5, 1.1], [-2.0, -0.5, 0.6], [0.3, -3.0, 2.5]):
+        T = inv_T(look_at(np.array(eye), np.array([0.0, 0.0, 0.2])))
+        out = r.render(cam, T, aa_samples=0)
+        d_ref, ids_ref = full.render_depth_ids(cam, T)
+        assert np.array_equal(out["depth"] > 0, d_ref > 0)
+        np.testing.assert_allclose(out["depth"], d_ref, atol=1e-4)
+        pid = r._plane_id
+        assert np.array_equal(pid[np.where(out["ids"] < 0, len(Fs), out["ids"])],
+                              pid[np.where(ids_ref < 0, len(Fs), ids_ref)])
