@@ -59,27 +59,29 @@ class SlamConfig:
     min_distance_px: float = 10.0    #: minimum distance between corners
     corner_quality: float = 0.005    #: goodFeaturesToTrack quality level
     replenish_ratio: float = 0.8     #: detect new corners when fewer than this x max_points are tracked
-    klt_win: int = 15                #: KLT window (pixels)
+    klt_win: int = 11                #: KLT window (pixels)
     klt_levels: int = 3              #: KLT pyramid levels above the base
     fb_max_px: float = 1.0           #: forward-backward error bound (pixels)
     pnp_reproj_px: float = 3.0       #: RANSAC inlier bound (pixels)
     pnp_min_inliers: int = 12        #: fewer inliers: no SLAM pose
     tri_min_angle_deg: float = 1.0   #: mono: parallax needed to triangulate
     tri_max_reproj_px: float = 2.0   #: mono: reprojection bound of a new landmark
+    tri_refine_deg: float = 8.0      #: mono: re-triangulate a landmark while its parallax grows, up to this
     depth_min_m: float = 0.05
     depth_max_m: float = 50.0
     depth_edge_rel: float = 0.03     #: rgbd: reject pixels whose 3x3 depth spread exceeds this x depth
     kf_min_frames: int = 3           #: frames between keyframes, at least
     kf_max_frames: int = 15          #: a keyframe at least every this many frames
     kf_angle_deg: float = 4.0        #: keyframe when the view rotated this much since the last one
-    kf_translation_rel: float = 0.05 #: ... or moved this fraction of the median scene depth
+    kf_translation_rel: float = 0.1  #: ... or moved this fraction of the median scene depth
     kf_track_ratio: float = 0.6      #: ... or fewer than this fraction of its landmarks are still tracked
     ba: bool | None = None           #: local bundle adjustment at keyframes (None: mono only)
     rgbd_reset_on_model: bool = True #: rgbd: re-lift all landmarks from depth under each model pose
     fuse_output: bool = True         #: model frames output the information-weighted fusion of edge and SLAM poses
     min_info_ratio: float = 0.5      #: with a working SLAM, an edge pose needs trace(W) >= this x its running mean
     ba_window: int = 6               #: keyframes in the local BA
-    ba_max_points: int = 600         #: landmarks in one local BA (most observed first)
+    ba_max_points: int = 250         #: landmarks in one local BA (most observed first)
+    ba_iterations: int = 10          #: Levenberg-Marquardt iterations per BA solve
     ba_guard_ratio: float = 1.1      #: Lhuillier bound: constrained RMSE <= ratio * e0 + px
     ba_guard_px: float = 0.1
     ba_loss_px: float = 2.0          #: Cauchy loss scale of the reprojection terms
@@ -275,11 +277,12 @@ class ModelAidedSlam:
         self.T_depth_color = np.eye(4) if T_depth_color is None else np.asarray(T_depth_color, float)
         self._orb = cv2.ORB_create(nfeatures=self.cfg.reloc_features)
         self._lk = dict(winSize=(self.cfg.klt_win, self.cfg.klt_win), maxLevel=self.cfg.klt_levels,
-                        criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.001))
+                        criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 10, 0.01))
         # tracks (current frame): pixels, landmark/track ids, first observation (mono)
         self.pts = np.zeros((0, 2), np.float32)
         self.tid = np.zeros(0, np.int64)
         self.first_xn = np.zeros((0, 2))          # normalised coordinates at the first observation
+        self.tri_deg = np.zeros(0)                # mono: parallax (deg) of the track's triangulation, 0 = none
         self.first_P = np.zeros((0, 3, 4))        # [R|t] of that frame (model -> camera)
         self._next_tid = 0
         # landmarks: id -> model point, and whether it was anchored under a model (edge) pose
@@ -455,6 +458,7 @@ class ModelAidedSlam:
         self.pts = self.pts[keep]
         self.tid = self.tid[keep]
         self.first_xn = self.first_xn[keep]
+        self.tri_deg = self.tri_deg[keep]
         self.first_P = self.first_P[keep]
 
     def _pnp(self, T_guess: np.ndarray | None) -> tuple[np.ndarray | None, np.ndarray | None, int]:
@@ -643,6 +647,7 @@ class ModelAidedSlam:
         self.tid = np.r_[self.tid, np.arange(self._next_tid, self._next_tid + m)]
         self._next_tid += m
         self.first_xn = np.r_[self.first_xn, self._normalised(new)]
+        self.tri_deg = np.r_[self.tri_deg, np.zeros(m)]
         self.first_P = np.r_[self.first_P, np.broadcast_to(T[:3], (m, 3, 4))]
 
     def _lift_depth(self, k: int, T: np.ndarray, model_pose: bool, only_new: int | None = None) -> None:
@@ -718,12 +723,15 @@ class ModelAidedSlam:
         return X
 
     def _triangulate(self, T: np.ndarray, model_pose: bool) -> None:
-        """mono: triangulate tracks without a landmark whose parallax since their first view is enough."""
+        """mono: triangulate tracks from their first view and this one once the parallax is enough,
+        and re-triangulate young landmarks while their parallax keeps growing (depth error ~ pose
+        error / baseline: a landmark from a 1 deg baseline is refined at 1.5, 2.25, ... deg)."""
         cfg = self.cfg
         if not len(self.tid):
             return
         has = np.array([int(t) in self.lm for t in self.tid], bool)
-        cand = np.flatnonzero(~has)
+        self.tri_deg[~has] = 0.0
+        cand = np.flatnonzero(self.tri_deg < cfg.tri_refine_deg)
         if len(cand) == 0:
             return
         x1 = self.first_xn[cand]
@@ -733,10 +741,11 @@ class ModelAidedSlam:
         r1 = np.einsum("nji,nj->ni", P1[:, :, :3], np.c_[x1, np.ones(len(x1))])
         r2 = np.c_[x2, np.ones(len(x2))] @ T[:3, :3]
         cosang = np.sum(r1 * r2, 1) / (np.linalg.norm(r1, axis=1) * np.linalg.norm(r2, axis=1))
-        ok = cosang < math.cos(math.radians(cfg.tri_min_angle_deg))
+        ang = np.degrees(np.arccos(np.clip(cosang, -1.0, 1.0)))
+        ok = (ang > cfg.tri_min_angle_deg) & (ang > 1.5 * self.tri_deg[cand])
         if not ok.any():
             return
-        cand, x1, P1, x2 = cand[ok], x1[ok], P1[ok], x2[ok]
+        cand, x1, P1, x2, ang = cand[ok], x1[ok], P1[ok], x2[ok], ang[ok]
         X = triangulate_two_view(P1, T[:3], x1, x2)
         # checks: finite, in front of both cameras, reprojection in both views
         X1c = np.einsum("nij,nj->ni", P1[:, :, :3], X) + P1[:, :, 3]
@@ -747,6 +756,7 @@ class ModelAidedSlam:
             e2 = np.linalg.norm(X2c[:, :2] / X2c[:, 2:3] - x2, axis=1) * f
         good = (np.isfinite(X).all(1) & (X1c[:, 2] > cfg.depth_min_m) & (X2c[:, 2] > cfg.depth_min_m)
                 & (X2c[:, 2] < cfg.depth_max_m) & (e1 < cfg.tri_max_reproj_px) & (e2 < cfg.tri_max_reproj_px))
+        self.tri_deg[cand[good]] = ang[good]
         for t, x in zip(self.tid[cand[good]], X[good]):
             self.lm[int(t)] = x
             self.lm_model[int(t)] = model_pose
@@ -773,7 +783,8 @@ class ModelAidedSlam:
                 Xk = np.full((len(uv), 3), np.nan)
                 has = np.flatnonzero(np.isfinite(X[:, 0]))
                 if len(has):
-                    d2 = ((uv[:, None, :] - self.pts[has][None, :, :].astype(np.float64)) ** 2).sum(-1)
+                    q = self.pts[has].astype(np.float64)
+                    d2 = (uv**2).sum(1)[:, None] + (q**2).sum(1)[None, :] - 2.0 * uv @ q.T
                     j = np.argmin(d2, axis=1)
                     near = d2[np.arange(len(uv)), j] < 9.0
                     Xk[near] = X[has[j[near]]]
@@ -875,7 +886,7 @@ class ModelAidedSlam:
             bo.print_summary = False
             bo.ceres.loss_function_type = pycolmap.LossFunctionType.CAUCHY
             bo.ceres.loss_function_scale = cfg.ba_loss_px
-            bo.ceres.solver_options.max_num_iterations = 20
+            bo.ceres.solver_options.max_num_iterations = cfg.ba_iterations
             bo.ceres.solver_options.num_threads = 1
             return bo
 
@@ -903,7 +914,8 @@ class ModelAidedSlam:
             pyceres.solve(bo.ceres.create_solver_options(bc, prob), prob, summ)
 
         # 1) unconstrained BA, gauge fixed by the two oldest keyframes (scale too, for mono)
-        rec0, pid_of = build()
+        rec_init, pid_of = build()
+        rec0 = pycolmap.Reconstruction(rec_init)
         solve(rec0, [], [0, 1])
         e0 = rmse(rec0)
         # 2) constrained BA with the model priors
@@ -916,7 +928,7 @@ class ModelAidedSlam:
             fixed = [] if len(priors) >= 2 else [0]
             bound = cfg.ba_guard_ratio * e0 + cfg.ba_guard_px
             for scale, key in ((1.0, "ba_prior_accepted"), (100.0, "ba_prior_downweighted")):
-                rec1, _ = build()
+                rec1 = pycolmap.Reconstruction(rec_init)
                 solve(rec1, [(i, c * scale, Tp) for i, c, Tp in priors], fixed)
                 if rmse(rec1) <= bound:
                     result = rec1
@@ -978,6 +990,7 @@ class ModelAidedSlam:
             self.pts = np.r_[self.pts, uv[inl].astype(np.float32)].astype(np.float32)
             self.tid = np.r_[self.tid, new_t]
             self.first_xn = np.r_[self.first_xn, self._normalised(uv[inl])]
+            self.tri_deg = np.r_[self.tri_deg, np.full(m_, 90.0)]
             self.first_P = np.r_[self.first_P, np.broadcast_to(T[:3], (m_, 3, 4))]
             self.stats["relocalisations"] += 1
             return T
