@@ -40,7 +40,7 @@ from __future__ import annotations
 import time
 from collections import deque
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -505,6 +505,8 @@ def outlines(X, F, region, n_regions, cr, E: _Edges, col_tol: float, diag: float
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
+    from mst.meshtools.io import _split_simple
+
     R = n_regions
     # region normals (area-weighted) for planar coordinates
     nsum = np.stack([np.bincount(region, weights=cr[:, k], minlength=R) for k in range(3)], 1)
@@ -624,7 +626,7 @@ def outlines(X, F, region, n_regions, cr, E: _Edges, col_tol: float, diag: float
         if not repeated[li]:
             loops.append((r, float(area_by_loop[li]), seq))
             continue
-        for sub in _split_at_repeats(seq.tolist()):
+        for sub in _split_simple(seq.tolist()):
             P = X[sub]
             a = 0.5 * float(np.cross(P, np.roll(P, -1, axis=0)).sum(0) @ nR[r])
             loops.append((r, a, np.asarray(sub, np.int64)))
@@ -657,30 +659,11 @@ def outlines(X, F, region, n_regions, cr, E: _Edges, col_tol: float, diag: float
     return faces, holes, stats
 
 
-def _split_at_repeats(seq: list[int]) -> list[list[int]]:
-    """Split a closed vertex sequence that visits some vertex twice into simple closed loops."""
-    out: list[list[int]] = []
-    path: list[int] = []
-    pos: dict[int, int] = {}
-    for x in seq:
-        if x in pos:
-            p = pos[x]
-            out.append(path[p:])
-            for y in path[p + 1:]:
-                del pos[y]
-            path = path[: p + 1]
-        else:
-            pos[x] = len(path)
-            path.append(x)
-    out.append(path)
-    return [lp for lp in out if len(lp) >= 3]
-
-
 def _resolve_pinches(X, bu, bv, br, nR, o, lo, hi, multi, succ):
     """At vertices with several outgoing boundary half-edges of one region, pair each incoming
     half-edge with the first outgoing one met turning clockwise from the reversed incoming
     direction (the region's wedges close locally). Loops that still pass a vertex twice are split
-    there afterwards (:func:`_split_at_repeats`), so every output loop is simple; holes may touch
+    there afterwards (``io._split_simple``), so every output loop is simple; holes may touch
     the outer loop or each other at single vertices (as OGC simple features allow)."""
     from mst.meshtools.io import _plane_basis
 
@@ -721,4 +704,4 @@ def summary_lines(s: dict) -> list[str]:
     ]
 
 
-__all__ = ["ConvertConfig", "convert_model", "tin_to_polygons", "summary_lines", "asdict"]
+__all__ = ["ConvertConfig", "convert_model", "tin_to_polygons", "summary_lines"]

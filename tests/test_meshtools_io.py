@@ -278,3 +278,43 @@ def test_generate_command_line(tmp_path):
     assert gen.main(["courtyard", "--polygons", "-o", str(tmp_path / "c.cao")]) == 0
     m = load_model(tmp_path / "c.cao")
     assert (m.n_faces, m.n_holes) == (10, 2)
+
+
+def test_cityjson_holes_lods_templates(tmp_path):
+    """Synthetic CityJSON 2.0: a wall with a window hole (MultiSurface), a LoD1 and a LoD2 solid of
+    one building (only LoD2 read), a template instance; integer vertices with a transform."""
+    cube = [[[[0, 1, 2, 3]], [[4, 7, 6, 5]], [[0, 4, 5, 1]], [[1, 5, 6, 2]], [[2, 6, 7, 3]], [[3, 7, 4, 0]]]]
+    verts = [[0, 0, 0], [0, 1000, 0], [1000, 1000, 0], [1000, 0, 0],
+             [0, 0, 1000], [0, 1000, 1000], [1000, 1000, 1000], [1000, 0, 1000]]
+    base = len(verts)
+    verts += [[5000, 0, 0], [9000, 0, 0], [9000, 0, 4000], [5000, 0, 4000],  # wall, y=0
+              [6000, 0, 1000], [6000, 0, 2000], [7000, 0, 2000], [7000, 0, 1000]]  # window (reversed)
+    wall = [[[base, base + 1, base + 2, base + 3], [base + 4, base + 5, base + 6, base + 7]]]
+    d = {
+        "type": "CityJSON", "version": "2.0",
+        "transform": {"scale": [0.001, 0.001, 0.001], "translate": [100000.0, 400000.0, 5.0]},
+        "vertices": verts,
+        "CityObjects": {
+            "bldg": {"type": "Building", "geometry": [
+                {"type": "Solid", "lod": "1", "boundaries": cube},
+                {"type": "Solid", "lod": "2.2", "boundaries": cube}]},
+            "wall": {"type": "GenericCityObject", "geometry": [{"type": "MultiSurface", "lod": "2", "boundaries": wall}]},
+            "tree": {"type": "SolitaryVegetationObject", "geometry": [{
+                "type": "GeometryInstance", "template": 0, "boundaries": [0],
+                "transformationMatrix": [2, 0, 0, 10, 0, 2, 0, 20, 0, 0, 2, 0, 0, 0, 0, 1]}]},
+        },
+        "geometry-templates": {"templates": [{"type": "MultiSurface", "lod": "1", "boundaries": [[[0, 1, 2]]]}],
+                               "vertices-templates": [[0, 0, 0], [1, 0, 0], [0, 1, 0]]},
+    }
+    p = tmp_path / "t.city.json"
+    p.write_text(json.dumps(d))
+    m = load_model(p)
+    assert m.names.count("bldg") == 6 and m.names.count("wall") == 1 and m.names.count("tree") == 1
+    wi = m.names.index("wall")
+    assert len(m.holes[wi]) == 1
+    assert m.face_areas()[wi] == pytest.approx(4 * 4 - 1 * 1)
+    np.testing.assert_allclose(m.vertices[m.faces[wi][0]], [100005.0, 400000.0, 5.0])
+    ti = m.names.index("tree")
+    np.testing.assert_allclose(m.vertices[m.faces[ti]], [[100010, 400020, 5], [100012, 400020, 5], [100010, 400022, 5]])
+    V, F = m.triangulate()
+    assert tri_area(V, F) == pytest.approx(6 * 1 + 15 + 2, rel=1e-9)
