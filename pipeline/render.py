@@ -19,8 +19,14 @@ Reusable pieces for other stages::
 
 :class:`ShadedRenderer` adds materials (flat albedo or a procedural :class:`~mst.pipeline.textures.Texture`
 looked up from the 3D hit point), Lambertian lighting with ambient, a sky, and anti-aliasing by
-supersampling only the pixels on a silhouette or crease (where the hit triangle's plane or material
-differs from a neighbour's).
+supersampling only the pixels on a silhouette or crease (where the hit plane or material differs
+from a neighbour's), 16 sub-pixel rays each by default. Its primary visibility casts a stride-2
+grid and fills 2x2 cells whose corners see one plane with the exact ray-plane depth
+(:meth:`ShadedRenderer.primary_hits`), which halves the ray count on planar scenes.
+
+Speed (``mst.eval.bench_synth``, 640x480 orbit of the sample house, colour + depth, 16-sample edge
+AA): about 75 ms of CPU per frame on one thread of this project's shared 2-core machine (ray
+casting ~15 ms, shading and texture lookups the rest).
 """
 
 from __future__ import annotations
