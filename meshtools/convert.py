@@ -83,6 +83,10 @@ def convert_model(input_path: str | Path, output_path: str | Path, config: Conve
     out = Path(output_path)
     if _suffix(out) not in WRITE_SUFFIXES:
         raise InputError(out, f"unknown output format {out.suffix!r} (use .wrl, .cao or .obj)")
+    if not out.parent.is_dir():
+        raise InputError(out, "output folder does not exist")
+    if out.exists() and Path(input_path).exists() and out.resolve() == Path(input_path).resolve():
+        raise InputError(out, "the output would overwrite the input")
     t0 = time.perf_counter()
     step = progress or (lambda name: None)
     V, F = load_triangles(input_path)

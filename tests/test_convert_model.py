@@ -301,7 +301,7 @@ def test_cli_cityjson_input(shared_data, tmp_path, mst):
     assert s["polygons_out"] < s["triangles_in"] and out.exists() and r.stderr == ""
 
 
-@pytest.mark.parametrize("case", ["missing", "nan", "empty", "garbage", "degenerate", "bad_suffix"])
+@pytest.mark.parametrize("case", ["missing", "nan", "empty", "garbage", "degenerate", "bad_suffix", "no_folder"])
 def test_cli_bad_input(tmp_path, mst, case):
     src = tmp_path / "in.obj"
     out = tmp_path / "out.wrl"
@@ -317,12 +317,24 @@ def test_cli_bad_input(tmp_path, mst, case):
     elif case == "bad_suffix":
         src.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
         out = tmp_path / "out.stl"
+    elif case == "no_folder":
+        src.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+        out = tmp_path / "nope" / "out.wrl"
     r = mst("convert-model", src, "-o", out, check=False)
     assert r.returncode == 1, r.stderr
     lines = r.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("mst convert-model: error: "), r.stderr
     assert not out.exists()
     assert not list(tmp_path.glob(".out*"))  # no temporary left behind
+
+
+def test_refuses_to_overwrite_input(tmp_path, mst):
+    src = tmp_path / "m.obj"
+    save_triangles(src, *gen.box())
+    before = src.read_bytes()
+    r = mst("convert-model", src, "-o", src, check=False)
+    assert r.returncode == 1 and "overwrite the input" in r.stderr
+    assert src.read_bytes() == before
 
 
 def test_stage_rejects_nan_arrays():
