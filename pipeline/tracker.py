@@ -262,7 +262,7 @@ class EdgeTracker:
                 T = res.T_cam_model
         # first frame / after a loss: several passes, tolerant (wide robust scale) first, then tighter
         passes = 3 if (first or recover) else c.passes
-        res = S = None
+        res = S = S_p = None
         for ps in range(passes):
             rng = R if ps == 0 else max(3, int(round(R / 2 ** ps)))
             mad = max(c.min_mad_px, rng / 3.0) if (first or recover) and ps < passes - 1 else None
@@ -275,7 +275,7 @@ class EdgeTracker:
             res, S = res_p, S_p
             T = res.T_cam_model
         if res is None:
-            return FrameResult(None, False, 0 if S is None else len(S), 0, float("nan"), 90.0, None, None,
+            return FrameResult(None, False, 0 if S_p is None else len(S_p), 0, float("nan"), 90.0, None, None,
                                reason="too few visible edge samples")
         # health: projection error (gradient vs model normal) at the final pose, inlier ratio
         Xc = S.X_model @ T[:3, :3].T + T[:3, 3]
@@ -299,10 +299,13 @@ class EdgeTracker:
         n_s = len(S)
         n_in = int(res.inlier.sum())
         ratio = n_in / max(n_s, 1)
-        healthy = bool(n_s >= c.min_samples and ratio >= c.min_inlier_ratio and proj_err <= c.max_proj_error_deg
+        # a recovery (after a loss) must be convincing: stricter projection error and inlier ratio
+        max_pe = c.max_proj_error_deg * (0.6 if recover else 1.0)
+        min_ratio = max(c.min_inlier_ratio, 0.5) if recover else c.min_inlier_ratio
+        healthy = bool(n_s >= c.min_samples and ratio >= min_ratio and proj_err <= max_pe
                        and support >= c.min_support and np.isfinite(T).all() and ok_z.all())
         reason = "" if healthy else (f"samples {n_s}" if n_s < c.min_samples else f"inliers {ratio:.0%}"
-                                     if ratio < c.min_inlier_ratio else f"gradient support {support:.0%}"
+                                     if ratio < min_ratio else f"gradient support {support:.0%}"
                                      if support < c.min_support else f"projection error {proj_err:.1f} deg")
         if klt is not None and res.klt_inlier is not None:
             self._klt_next = (klt[0][res.klt_inlier], klt[1][res.klt_inlier])

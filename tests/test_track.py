@@ -262,3 +262,30 @@ def test_slam_aid_hook_contract(shared_data, tmp_path, monkeypatch):
     assert calls[-1] == ("close",)
     rows = list(csv.DictReader(open(out.with_suffix(".csv"))))
     assert [r["status"] for r in rows] == ["model", "model", "model", "slam", "model", "model"]
+
+
+def test_loss_and_recovery(tmp_path, mst):
+    """Two blank frames (camera covered): marked lost, not written; tracking resumes afterwards
+    from the last good pose with a widened search, as accurate as before."""
+    import cv2
+
+    from mst.meshtools.generate import l_shape_model
+
+    m = l_shape_model()
+    cam = Camera(300, 300, 159.5, 119.5, 320, 240)
+    poses = orbit_poses(m.vertices.mean(0), 22.0, 8, 12, 1.0)
+    d = _write_sequence(tmp_path / "seq", m, cam, poses, [0, 1], 0.0)
+    rng = np.random.default_rng(0)
+    for k in (5, 6):
+        cv2.imwrite(str(d / "rgb" / f"{k:06d}.png"), rng.normal(128, 2, (240, 320, 3)).clip(0, 255).astype(np.uint8))
+    write_pose_file(d / "pose0.txt", poses[0])
+    out = tmp_path / "traj.txt"
+    mst("track", d / "rgb", "--model", d / "model.obj", "--camera", d / "camera.json", "--init", d / "pose0.txt", "-o", out)
+    rows = list(csv.DictReader(open(out.with_suffix(".csv"))))
+    status = [r["status"] for r in rows]
+    # recovered within two frames of the camera being uncovered (a recovery must be convincing)
+    assert status[:7] == ["model"] * 5 + ["lost"] * 2 and status[9:] == ["model"] * 3
+    t, T_est = read_tum(out)
+    assert list(t) == [int(r["frame"]) for r in rows if r["status"] == "model"]
+    dt, dr = pose_error(T_est, inv_T(np.array(poses)[t.astype(int)]))
+    assert dt.max() < 0.05 and dr.max() < 0.15  # only good poses were written
