@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+
 from mst import InputError, atomic_outputs
 from mst.pipeline.overlay import OverlayWriter, draw_overlay
 from mst.pipeline.settings import TrackerConfig, config_to_dict
@@ -388,6 +389,7 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
     anything is written.
     """
     import cv2
+
     from mst.pipeline.camera import read_camera
     from mst.pipeline.frames import check_camera_size, open_frames
     from mst.pipeline.poses import inv_T, read_pose_file

@@ -8,10 +8,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from synth_helpers import look_at, orbit_poses, render_views
+
 from mst.pipeline.camera import Camera, write_camera
 from mst.pipeline.init_pose import project
 from mst.pipeline.poses import inv_T, pose_error, read_tum, write_pose_file
-from synth_helpers import look_at, orbit_poses, render_views
 
 
 @pytest.fixture(scope="module")
@@ -48,6 +49,7 @@ def test_teabox_all_frames_tracked(teabox_run):
 def test_teabox_last_frame_edges_supported(teabox_run):
     """The tracked box's visible edges lie on strong image gradients in the last frame."""
     import cv2
+
     from mst.pipeline.frames import open_frames
     from mst.pipeline.tracker import load_polygon_model
     from mst.pipeline.visibility import ModelGeometry, visible_samples
@@ -73,6 +75,7 @@ def test_teabox_last_frame_edges_supported(teabox_run):
 
 def _write_sequence(d: Path, model, cam: Camera, poses, click_ids, click_noise_px: float, seed: int = 0):
     import cv2
+
     from mst.meshtools.io import save_model
 
     d.mkdir()
