@@ -247,9 +247,8 @@ class Texture:
         if n == 0:
             return np.zeros((0, 3), np.float32)
         nlev = len(self.levels)
-        size0 = np.float32(self.size)
-        uw = np.mod(np.asarray(u, np.float32), size0)
-        vw = np.mod(np.asarray(v, np.float32), size0)
+        uw = _wrap(u, self.size)
+        vw = _wrap(v, self.size)
         lod = np.clip(np.log2(np.maximum(np.asarray(footprint_texels, np.float32), np.float32(1.0))), 0, nlev - 1.001)
         lvl = lod.astype(np.int64)
         # "brilinear" filtering: blend two levels only in the middle half of each level interval
@@ -287,10 +286,18 @@ class Texture:
 
     def sample_level0(self, u: np.ndarray, v: np.ndarray) -> np.ndarray:
         """Plain bilinear lookup in level 0 (for smooth, low-frequency textures): (N, 3) float32 in [0, 1]."""
-        size0 = np.float32(self.size)
-        uw = np.mod(np.asarray(u, np.float32), size0)
-        vw = np.mod(np.asarray(v, np.float32), size0)
+        uw = _wrap(u, self.size)
+        vw = _wrap(v, self.size)
         return self._lookup(np.zeros(len(uw), np.int64), uw, vw) * np.float32(1.0 / 255.0)
+
+
+def _wrap(a: np.ndarray, size: int) -> np.ndarray:
+    """``a`` modulo ``size`` as float32 in [0, size] (faster than ``np.mod``; ``size`` itself can occur
+    by rounding, which the atlas' wrapped border covers)."""
+    a = np.asarray(a, np.float32)
+    w = np.floor(a * np.float32(1.0 / size))
+    w *= np.float32(size)
+    return a - w
 
 
 _LEVEL_SCALE = (2.0 ** -np.arange(32)).astype(np.float32)
