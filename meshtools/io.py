@@ -314,13 +314,23 @@ def _fmt_num(x: float) -> str:
 
 
 def _fmt_rows(tag: str, A: np.ndarray) -> str:
-    """Rows of numbers as ``tag a b c`` lines (vectorised enough for millions of rows)."""
-    if len(A) == 0:
+    """Rows of numbers as ``tag a b c`` lines; floats as :func:`_fmt_num` (shortest round-trip
+    text, integral values without ``.0``). Vectorised enough for millions of rows."""
+    A = np.asarray(A)
+    if A.size == 0:
         return ""
+    A = A.reshape(len(A), -1)
+    k = A.shape[1]
+    flat = A.ravel()
+    vals = flat.tolist()
     if A.dtype.kind in "iu":
-        lines = [" ".join(map(str, r)) for r in A.tolist()]
+        strs = list(map(str, vals))
     else:
-        lines = [" ".join(map(_fmt_num, r)) for r in A.tolist()]
+        strs = list(map(repr, vals))
+        integral = np.flatnonzero((flat == np.trunc(flat)) & (np.abs(flat) < 1e15))
+        for i in integral.tolist():
+            strs[i] = str(int(vals[i]))
+    lines = map(" ".join, zip(*[strs[j::k] for j in range(k)]))
     pre = f"{tag} " if tag else ""
     return pre + ("\n" + pre).join(lines) + "\n"
 
