@@ -448,3 +448,15 @@ def test_mobius_strip_does_not_crash():
         F += [[a, c, b], [b, c, d]]
     model, stats = convert(V, np.array(F), angle_tol_deg=1.0, dist_tol=0.01)
     assert model.n_faces > 10 and stats["components"] == 1
+
+
+@pytest.mark.slow
+def test_city_block_1m():
+    """The benchmark's ~1,000,000-triangle city block (terrain of planar patches + 64 buildings):
+    every property checked (the timing is in eval/bench_convert.py)."""
+    V, F = gen.city_block(n_triangles=1_000_000, buildings=64, seed=0)
+    model, stats = convert(V, F)
+    # 16 each of box (6), L (8), courtyard (10, 2 holes), gabled (7) + at most 7 x 7 terrain patches
+    assert stats["components"] == 65 and stats["closed_components"] == 64
+    assert 496 < model.n_faces <= 496 + 49 and model.n_holes == 32
+    check_conversion(V, F, model, stats, 1.0, rel_area_tol=1e-9)
