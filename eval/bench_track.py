@@ -56,8 +56,43 @@ def _rows(name: str, model, cam, cfg, grays, T0) -> list[dict]:
     return out
 
 
+def _visp_anchor_rows(tb: Path, workdir: Path) -> list[dict]:
+    """ViSP's own tracker on the same frames, when its runner is built (../shared/tools/visp-anchor,
+    ``$VISP_ANCHOR`` or /tmp/visp_build/visp_mbt_anchor): its median time, and how far the mst and
+    ViSP trajectories are apart (camera position mm, rotation deg)."""
+    import os
+    import subprocess
+
+    from mst.eval.bench import mst_cmd
+    from mst.pipeline.poses import inv_T, pose_error, read_tum
+
+    exe = Path(os.environ.get("VISP_ANCHOR", "/tmp/visp_build/visp_mbt_anchor"))
+    if not exe.is_file():
+        print("[bench track] ViSP anchor not built: no side-by-side rows", file=sys.stderr)
+        return []
+    out = []
+    for mode, flag in (("edge", "--no-klt"), ("hybrid", "--klt")):
+        vf = workdir / f"visp_{mode}.txt"
+        subprocess.run([str(exe), "--mode", mode, "--model", str(tb / "teabox.cao"), "--input", str(tb / "teabox.mp4"),
+                        "--cam", "839.21470", "839.44555", "325.66776", "243.69727", "--init-clicks", str(tb / "teabox.clicks"),
+                        "--init-points", str(tb / "teabox.init"), "--out", str(vf)], check=True, capture_output=True)
+        a = np.loadtxt(vf, comments="#")
+        T = np.tile(np.eye(4), (len(a), 1, 1))
+        T[:, :3, :] = a[:, 1:13].reshape(-1, 3, 4)
+        mf = workdir / f"mst_{mode}.txt"
+        subprocess.run(mst_cmd("track", tb / "teabox.mp4", "--model", tb / "teabox.cao", "--camera", tb / "teabox.xml",
+                               "--init", workdir / "pose0.txt", "-o", mf, "-q", flag), check=True)
+        _, T_mst = read_tum(mf)
+        dt, dr = pose_error(T_mst, inv_T(T)[: len(T_mst)])
+        out.append({"bench": f"ViSP 3.5 {mode} on teabox (same machine, now)", "median_ms": float(np.median(a[:, 14])),
+                    "mst_vs_visp_median_mm": float(np.median(dt) * 1e3), "mst_vs_visp_max_mm": float(dt.max() * 1e3),
+                    "mst_vs_visp_median_deg": float(np.median(dr)), "mst_vs_visp_max_deg": float(dr.max())})
+    return out
+
+
 def run(workdir: Path) -> list[dict]:
     import cv2
+
     from mst.eval.bench import mst_cmd, timed_command
     from mst.pipeline.camera import Camera, read_camera
     from mst.pipeline.init_pose import init_from_clicks, read_clicks
@@ -89,13 +124,15 @@ def run(workdir: Path) -> list[dict]:
                                   "--init", workdir / "pose0.txt", "-o", workdir / "traj.txt", "-q"))
         rows.append({"bench": "mst track teabox.mp4 (whole command, 39 frames)", "wall_s": r["wall_s"],
                      "peak_rss_mib": r["peak_rss_mib"]})
+        rows += _visp_anchor_rows(tb, workdir)
     else:
         print(f"[bench track] shared data absent ({tb}): teabox skipped", file=sys.stderr)
 
     # rendered orbit around an L-shaped building, 640x480
     sys.path.insert(0, str(ROOT / "tests"))
-    from mst.meshtools.generate import l_shape_model
     from synth_helpers import orbit_poses, render_views
+
+    from mst.meshtools.generate import l_shape_model
 
     m = l_shape_model()
     cam = Camera(600, 600, 319.5, 239.5, 640, 480)
