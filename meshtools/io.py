@@ -9,7 +9,8 @@ suffix                    read    write   notes
                                           ``o``/``g`` names; negative indices and ``v/vt/vn`` accepted
 ``.wrl`` ``.vrml``        yes     yes     VRML 2.0 ``IndexedFaceSet`` polygons, several ``Shape``\\ s,
                                           ``Transform``/``Group`` nesting (translation, rotation, scale,
-                                          center, scaleOrientation), ``DEF``/``USE``
+                                          center, scaleOrientation), ``DEF``/``USE``; ``Switch``: the
+                                          chosen child, ``LOD``: the first level; Inline not followed
 ``.cao``                  yes     yes     ViSP model V1: points, lines, faces from lines, faces from
                                           points, cylinders, circles, ``load("sub.cao", t=[..], tu=[..])``
 ``.off``                  yes     no      polygon faces kept
@@ -631,17 +632,20 @@ class _VrmlParser:
     def _group(self, ntype: str, defname: str | None) -> list[tuple]:
         T = {"translation": np.zeros(3), "rotation": np.array([0, 0, 1, 0.0]), "scale": np.ones(3),
              "center": np.zeros(3), "scaleOrientation": np.array([0, 0, 1, 0.0])}
-        kids: list[tuple] = []
+        per_child: list[list[tuple]] = []
+        which = 0
         while self.peek() != "}":
             f = self.next()
             if f in ("children", "level", "choice"):
                 if self.peek() == "[":
                     self.expect("[")
                     while self.peek() != "]":
-                        kids.extend(self.node())
+                        per_child.append(self.node())
                     self.expect("]")
                 else:
-                    kids.extend(self.node())
+                    per_child.append(self.node())
+            elif f == "whichChoice" and ntype == "Switch":
+                which = int(float(self.next()))
             elif f in ("translation", "scale", "center") and ntype == "Transform":
                 T[f] = np.array(self.numbers(3))
             elif f in ("rotation", "scaleOrientation") and ntype == "Transform":
@@ -649,8 +653,11 @@ class _VrmlParser:
             else:
                 self.skip_value()
         self.expect("}")
-        if ntype == "Switch":
-            kids = kids[:1]
+        if ntype == "Switch":  # the chosen child (whichChoice; -1 = none shown -> the first one)
+            per_child = per_child[which:which + 1] if 0 <= which < len(per_child) else per_child[:1]
+        elif ntype == "LOD":  # the most detailed level
+            per_child = per_child[:1]
+        kids = [k for c in per_child for k in c]
         if ntype != "Transform":
             return kids
         M = _vrml_transform(T)

@@ -318,3 +318,14 @@ def test_cityjson_holes_lods_templates(tmp_path):
     np.testing.assert_allclose(m.vertices[m.faces[ti]], [[100010, 400020, 5], [100012, 400020, 5], [100010, 400022, 5]])
     V, F = m.triangulate()
     assert tri_area(V, F) == pytest.approx(6 * 1 + 15 + 2, rel=1e-9)
+
+
+def test_vrml_switch_and_lod(tmp_path):
+    p = tmp_path / "s.wrl"
+    tri = "Shape {{ geometry IndexedFaceSet {{ coord Coordinate {{ point [ {0} 0 0, {0} 1 0, {0} 0 1 ] }} coordIndex [ 0 1 2 -1 ] }} }}"
+    p.write_text("#VRML V2.0 utf8\n"
+                 f"Switch {{ whichChoice 1 choice [ {tri.format(1)} {tri.format(2)} {tri.format(3)} ] }}\n"
+                 f"LOD {{ range [ 10 ] level [ {tri.format(4)} {tri.format(5)} ] }}\n")
+    m = load_model(p)
+    assert m.n_faces == 2
+    assert sorted(m.vertices[:, 0].tolist()) == [2, 2, 2, 4, 4, 4]
