@@ -9,7 +9,15 @@ import pytest
 
 from mst import InputError
 from mst.meshtools import generate as gen
-from mst.meshtools.io import load_model, load_triangles, read_cao, read_obj, read_vrml, save_model, save_triangles
+from mst.meshtools.io import (
+    load_model,
+    load_triangles,
+    read_cao,
+    read_obj,
+    read_vrml,
+    save_model,
+    save_triangles,
+)
 from mst.meshtools.model import PolygonModel
 
 
