@@ -106,7 +106,18 @@ def run(workdir: Path) -> list[dict]:
     from mst.eval.bench import mst_cmd, timed_command
 
     rows = []
-    for name, (cloud, mesh) in _ensure(Path(workdir)).items():
+    cases = _ensure(Path(workdir))
+    # warm-up (untimed): the first run on a machine compiles the numba kernels into their on-disk
+    # cache (10-30 s, once); the timed runs below measure the steady state a user sees
+    from mst.eval.cloud_io import write_cloud
+
+    warm = Path(workdir) / "warmup.xyz"
+    bV, bF = building_mesh()
+    write_cloud(warm, sample_surface(bV, bF, 2000, 0.05, 0.02, 0).astype(np.float64))
+    for mesh in {m for _, m in cases.values()}:
+        timed_command(mst_cmd("c2m", warm, mesh, "-q", "--signed", "--max-dist", "1"))
+        timed_command(mst_cmd("c2m", warm, mesh, "-q"))
+    for name, (cloud, mesh) in cases.items():
         out = Path(workdir) / f"{name}_out.ply"
         r = timed_command(mst_cmd("c2m", cloud, mesh, "-o", out, "--json", "-q"))
         s = json.loads(r["stdout"])

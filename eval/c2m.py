@@ -429,6 +429,8 @@ class _DenseGrid:
         except ImportError:  # pragma: no cover - numba is a dependency, this is a safety net
             nb = None
         self.nb = nb
+        corners = np.stack([idx.A, idx.A + idx.AB, idx.A + idx.AC])
+        self.BB = np.concatenate([corners.min(0), corners.max(0)], axis=1)  # (m, 6) triangle boxes
 
     def _nearest_numba(self, P: np.ndarray, max_dist: float | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         nb, idx = self.nb, self.idx
@@ -436,14 +438,15 @@ class _DenseGrid:
         lo, inv_h = self.lo.astype(np.float64), 1.0 / self.h
         args = (idx.A, idx.AB, idx.AC, idx.BC, idx.N, idx.G)
         order = nb.bucket_order(P, lo, inv_h, self.dims, 3)
-        tri, d2, feat, st = nb.grid_query(P, lo, inv_h, self.dims, self.cell, self.lb, self.cand, md, *args, order)
+        tri, d2, feat, st = nb.grid_query(P, lo, inv_h, self.dims, self.cell, self.lb, self.cand, md, *args, order,
+                                          self.BB)
         new = np.nonzero(st == 2)[0]
         if len(new):
             flat = nb.cells_of(P[new], lo, inv_h, self.dims)
             self._fill(np.unique(flat))
             Pn = P[new]
             t2, e2, f2, s2 = nb.grid_query(Pn, lo, inv_h, self.dims, self.cell, self.lb, self.cand, md, *args,
-                                           nb.bucket_order(Pn, lo, inv_h, self.dims, 3))
+                                           nb.bucket_order(Pn, lo, inv_h, self.dims, 3), self.BB)
             tri[new], d2[new], feat[new], st[new] = t2, e2, f2, s2
         out = np.nonzero(st == 1)[0]
         if len(out):
@@ -467,7 +470,7 @@ class _DenseGrid:
                 centres = self.lo + (ijk + 0.5) * self.h
                 ptr, tri, lb = self.nb.refine_cells(centres, 0.5 * self.h * np.sqrt(3.0), pinv.reshape(-1), pptr, ptri,
                                                     1e-9 * self.ext, self.idx.A, self.idx.AB, self.idx.AC,
-                                                    self.idx.BC, self.idx.N, self.idx.G)
+                                                    self.idx.BC, self.idx.N, self.idx.G, self.BB)
                 cells = flat
             else:
                 key = _key(ijk)
@@ -659,6 +662,21 @@ class _Moments:
             self.min = min(self.min, float(x.min()))
             self.max = max(self.max, float(x.max()))
 
+    def add_sums(self, k: int, s1: float, s2: float, lo: float = np.inf, hi: float = -np.inf) -> None:
+        """Merge a block given its count, sum and sum of squares (and optional min/max)."""
+        if not k:
+            return
+        mu = s1 / k
+        m2 = max(s2 - k * mu * mu, 0.0)
+        delta = mu - self.mean
+        tot = self.n + k
+        self.mean += delta * k / tot
+        self.m2 += m2 + delta * delta * self.n * k / tot
+        self.n = tot
+        self.sumsq += s2
+        self.min = min(self.min, lo)
+        self.max = max(self.max, hi)
+
     def std(self) -> float:
         return float(np.sqrt(self.m2 / self.n)) if self.n else float("nan")
 
@@ -720,10 +738,17 @@ def run_c2m(cloud_path: str | os.PathLike, mesh_path: str | os.PathLike, config:
     shift = idx.shift
     fields = ["C2M_absolute_distances"] + (["C2M_signed_distances"] if cfg.signed else [])
 
+    nb = getattr(idx._grid, "nb", None)  # compiled helpers when the grid engine has them
+
     def work(xyz: np.ndarray):
         ts = time.perf_counter()
-        fin = np.isfinite(xyz).all(1)
-        P = xyz - shift if fin.all() else xyz[fin] - shift
+        if nb is not None:
+            P, fin = nb.shift_points(np.ascontiguousarray(xyz, np.float64), shift)
+            if not fin.all():
+                P = P[fin]
+        else:
+            fin = np.isfinite(xyz).all(1)
+            P = xyz - shift if fin.all() else xyz[fin] - shift
         du, ds = point_distances(idx, P, cfg.signed, cfg.max_dist)
         return xyz, fin, du, ds, time.perf_counter() - ts
 
@@ -753,9 +778,15 @@ def run_c2m(cloud_path: str | os.PathLike, mesh_path: str | os.PathLike, config:
                     nv = int(valid.sum())
                     n_beyond += len(du) - nv
                     dv = du if nv == len(du) else du[valid]
-                    mo_u.add(dv)
-                    for t, mo in zip(thr, th_mo):
-                        mo.add(dv[dv < t], extremes=False)
+                    if nb is not None:
+                        cnt, s1, s2, lo, hi = nb.threshold_sums(dv, thr)
+                        mo_u.add_sums(int(cnt[-1]), float(s1[-1]), float(s2[-1]), float(lo), float(hi))
+                        for j, mo in enumerate(th_mo):
+                            mo.add_sums(int(cnt[j]), float(s1[j]), float(s2[j]))
+                    else:
+                        mo_u.add(dv)
+                        for t, mo in zip(thr, th_mo):
+                            mo.add(dv[dv < t], extremes=False)
                     store[n_store : n_store + len(dv)] = dv
                     if cfg.signed:
                         sv = ds if nv == len(ds) else ds[valid]

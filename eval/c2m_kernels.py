@@ -58,6 +58,15 @@ def pt_tri(px, py, pz, k, A, AB, AC, BC, N, G):
     return best, f
 
 
+@njit(cache=True, inline="always")
+def _box_d2(px, py, pz, k, BB):
+    """Squared distance from p to the bounding box of triangle k (a lower bound of its distance)."""
+    ex = max(BB[k, 0] - px, 0.0, px - BB[k, 3])
+    ey = max(BB[k, 1] - py, 0.0, py - BB[k, 4])
+    ez = max(BB[k, 2] - pz, 0.0, pz - BB[k, 5])
+    return ex * ex + ey * ey + ez * ez
+
+
 @njit(cache=True, parallel=True)
 def pairs_d2(C, cell_of, ti, A, AB, AC, BC, N, G):
     """Squared distances of points ``C[cell_of[i]]`` to triangles ``ti[i]``."""
@@ -102,10 +111,11 @@ def bucket_order(P, lo, inv_h, dims, shift):
 
 
 @njit(cache=True, parallel=True)
-def grid_query(P, lo, inv_h, dims, cell, lb, cand, max_dist, A, AB, AC, BC, N, G, order):
+def grid_query(P, lo, inv_h, dims, cell, lb, cand, max_dist, A, AB, AC, BC, N, G, order, BB):
     """Nearest triangle of every point from its grid cell's candidate list.
 
     ``cell[c]`` packs ``(start << 16) | count`` of cell c's candidates in ``cand`` (-1: not computed).
+    ``BB`` (m, 6): triangle bounding boxes (min xyz, max xyz) used to skip candidates cheaply.
     Returns ``(tri, d2, feature, status)``; status 0 done, 1 outside the grid (not evaluated),
     2 cell not computed yet (not evaluated), 3 farther than ``max_dist`` (tri -1). ``max_dist`` < 0: none.
     """
@@ -142,6 +152,8 @@ def grid_query(P, lo, inv_h, dims, cell, lb, cand, max_dist, A, AB, AC, BC, N, G
         s = word >> 16
         for j in range(word & 0xFFFF):
             k = np.int64(cand[s + j])
+            if j > 0 and _box_d2(px, py, pz, k, BB) >= best:  # box already farther than the best
+                continue
             r, f = pt_tri(px, py, pz, k, A, AB, AC, BC, N, G)
             if r < best:
                 best, bt, bf = r, k, f
@@ -172,7 +184,7 @@ def cells_of(P, lo, inv_h, dims):
 
 
 @njit(cache=True, parallel=True)
-def refine_cells(centres, r, par, pptr, ptri, tol, A, AB, AC, BC, N, G):
+def refine_cells(centres, r, par, pptr, ptri, tol, A, AB, AC, BC, N, G, BB):
     """Candidate lists of cells (centres (n, 3), half-diagonal ``r``) from their parents' lists.
 
     Keeps the parent candidates whose distance to the cell centre is at most ``dmin + 2 r + tol``.
@@ -185,6 +197,8 @@ def refine_cells(centres, r, par, pptr, ptri, tol, A, AB, AC, BC, N, G):
         p = par[i]
         best = np.inf
         for j in range(pptr[p], pptr[p + 1]):
+            if _box_d2(centres[i, 0], centres[i, 1], centres[i, 2], ptri[j], BB) >= best:
+                continue
             d2 = pt_tri(centres[i, 0], centres[i, 1], centres[i, 2], ptri[j], A, AB, AC, BC, N, G)[0]
             if d2 < best:
                 best = d2
@@ -193,6 +207,8 @@ def refine_cells(centres, r, par, pptr, ptri, tol, A, AB, AC, BC, N, G):
         lim2 = lim * lim
         c = 0
         for j in range(pptr[p], pptr[p + 1]):
+            if _box_d2(centres[i, 0], centres[i, 1], centres[i, 2], ptri[j], BB) > lim2:
+                continue
             d2 = pt_tri(centres[i, 0], centres[i, 1], centres[i, 2], ptri[j], A, AB, AC, BC, N, G)[0]
             if d2 <= lim2:
                 c += 1
@@ -201,14 +217,65 @@ def refine_cells(centres, r, par, pptr, ptri, tol, A, AB, AC, BC, N, G):
     for i in range(n):
         ptr[i + 1] = ptr[i] + cnt[i]
     tri = np.empty(ptr[n], np.int64)
+    key = np.empty(ptr[n])
     for i in prange(n):
         p = par[i]
         lim = dmin[i] + 2.0 * r + tol
         lim2 = lim * lim
         k = ptr[i]
         for j in range(pptr[p], pptr[p + 1]):
+            if _box_d2(centres[i, 0], centres[i, 1], centres[i, 2], ptri[j], BB) > lim2:
+                continue
             d2 = pt_tri(centres[i, 0], centres[i, 1], centres[i, 2], ptri[j], A, AB, AC, BC, N, G)[0]
             if d2 <= lim2:
-                tri[k] = ptri[j]
+                # insertion by distance to the centre (lists are short)
+                q = k
+                while q > ptr[i] and key[q - 1] > d2:
+                    tri[q] = tri[q - 1]
+                    key[q] = key[q - 1]
+                    q -= 1
+                tri[q] = ptri[j]
+                key[q] = d2
                 k += 1
     return ptr, tri, dmin - r
+
+
+@njit(cache=True, parallel=True)
+def shift_points(xyz, shift):
+    """``(xyz - shift, finite mask)`` in one pass (float64)."""
+    n = len(xyz)
+    P = np.empty((n, 3))
+    fin = np.empty(n, np.bool_)
+    for i in prange(n):
+        x, y, z = xyz[i, 0], xyz[i, 1], xyz[i, 2]
+        fin[i] = np.isfinite(x) and np.isfinite(y) and np.isfinite(z)
+        P[i, 0], P[i, 1], P[i, 2] = x - shift[0], y - shift[1], z - shift[2]
+    return P, fin
+
+
+@njit(cache=True)
+def threshold_sums(d, thresholds):
+    """Per threshold t: count, sum and sum of squares of the finite ``d < t``; plus overall
+    count, sum, sum of squares, min, max of the finite values (one pass)."""
+    k = len(thresholds)
+    cnt = np.zeros(k + 1, np.int64)
+    s1 = np.zeros(k + 1)
+    s2 = np.zeros(k + 1)
+    lo, hi = np.inf, -np.inf
+    for i in range(len(d)):
+        x = d[i]
+        if not np.isfinite(x):
+            continue
+        cnt[k] += 1
+        s1[k] += x
+        s2[k] += x * x
+        if x < lo:
+            lo = x
+        if x > hi:
+            hi = x
+        for j in range(k):
+            if x < thresholds[j]:
+                cnt[j] += 1
+                s1[j] += x
+                s2[j] += x * x
+    return cnt, s1, s2, lo, hi
