@@ -82,6 +82,7 @@ class SlamConfig:
     ba_window: int = 6               #: keyframes in the local BA
     ba_max_points: int = 250         #: landmarks in one local BA (most observed first)
     ba_iterations: int = 10          #: Levenberg-Marquardt iterations per BA solve
+    ba_min_observations: int = 20    #: a keyframe with fewer landmarks in the BA keeps its pose
     ba_guard_ratio: float = 1.1      #: Lhuillier bound: constrained RMSE <= ratio * e0 + px
     ba_guard_px: float = 0.1
     ba_loss_px: float = 2.0          #: Cauchy loss scale of the reprojection terms
@@ -903,7 +904,7 @@ class ModelAidedSlam:
             for i in range(len(kfs)):
                 bc.add_image(i + 1)
             bc.set_constant_cam_intrinsics(1)
-            for i in fixed:
+            for i in sorted(set(fixed) | weak):
                 bc.set_constant_rig_from_world_pose(i + 1)
             ba = pycolmap.create_default_ceres_bundle_adjuster(bo, bc, rec)
             prob = ba.problem
@@ -913,6 +914,9 @@ class ModelAidedSlam:
             summ = pyceres.SolverSummary()
             pyceres.solve(bo.ceres.create_solver_options(bc, prob), prob, summ)
 
+        # keyframes with few observations in this BA are held (a free, weakly observed pose wanders)
+        n_obs = [int(np.isin(kf.tids, u).sum()) for kf in kfs]
+        weak = {i for i, n in enumerate(n_obs) if n < cfg.ba_min_observations}
         # 1) unconstrained BA, gauge fixed by the two oldest keyframes (scale too, for mono)
         rec_init, pid_of = build()
         rec0 = pycolmap.Reconstruction(rec_init)

@@ -1,0 +1,82 @@
+"""``mst track --slam rgbd|mono`` end to end on ``mst synth`` sequences (320x240 to stay fast).
+
+The same checks at 640x480 with the issue's bounds (error < 0.2 % within 5 frames of the model's
+return, fast x8/x10 mean <= 1 %) are in ``eval/bench_slam.py``: at 320x240 the edge tracker's own
+noise is ~0.3-0.5 % of the distance, so the bounds here are looser.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from mst.eval.bench_slam import SAMPLE_MODEL, out_of_view, recovery_frames, trajectory_errors
+
+
+def _synth(tmp_path_factory, name, scenario, **kw):
+    from mst.pipeline.synth import SynthConfig, synthesize
+
+    out = tmp_path_factory.mktemp("slam_track") / name
+    synthesize(scenario, SAMPLE_MODEL, out, SynthConfig(width=320, height=240, **kw))
+    return out
+
+
+def _track(seq, mode, out):
+    from mst.pipeline.tracker import run_track
+
+    s = run_track(seq / "rgb", seq / "model.obj", seq / "camera.json", seq / "cMo" / "000000.txt", out,
+                  slam=mode, depth_dir=seq / "depth" if mode == "rgbd" else None, fps=30.0)
+    return s, trajectory_errors(seq, out)
+
+
+@pytest.fixture(scope="module")
+def corridor(tmp_path_factory):
+    if not SAMPLE_MODEL.exists():
+        pytest.skip("samples/building_tin.obj missing")
+    return _synth(tmp_path_factory, "corridor", "corridor", frames=90)
+
+
+@pytest.fixture(scope="module")
+def fast(tmp_path_factory):
+    if not SAMPLE_MODEL.exists():
+        pytest.skip("samples/building_tin.obj missing")
+    return {d: _synth(tmp_path_factory, f"fast{d}", "fast", base="orbit", drop=d, frames=40) for d in (8, 10)}
+
+
+def test_corridor_rgbd_carries_the_pose_while_the_model_is_away(corridor, tmp_path):
+    hidden = out_of_view(corridor)
+    assert hidden.sum() >= 30
+    summ, e = _track(corridor, "rgbd", tmp_path / "rgbd.txt")
+    _, e_off = _track(corridor, "off", tmp_path / "off.txt")
+    st = e["status"]
+    assert summ["aid"] == "rgbd"
+    assert not (st == "lost").any()
+    assert (st[hidden] == "slam").all()
+    # the model pose takes over again after the return; no re-initialisation was needed
+    ret = np.flatnonzero(hidden)[-1] + 1
+    assert (st[ret + 5:] == "model").mean() > 0.8
+    assert np.nanmax(e["rel"][hidden]) < 0.01          # drift while away: < 1 % of the distance
+    assert np.nanmax(e["rel"][ret + 5:]) < 0.008       # 320x240 edge-tracker noise level
+    assert recovery_frames(e["rel"], hidden, bound=0.008) <= 5
+    # the edge tracker alone does far worse on the same frames
+    assert (e_off["status"] == "lost").sum() + np.nansum(e_off["rel"] > 0.05) > 10
+    assert np.nanmean(e["rel"]) < 0.2 * np.nanmean(e_off["rel"])
+
+
+@pytest.mark.parametrize("drop", [8, 10])
+@pytest.mark.parametrize("mode", ["rgbd", "mono"])
+def test_fast_orbit_every_frame_tracked(fast, tmp_path, drop, mode):
+    seq = fast[drop]
+    summ, e = _track(seq, mode, tmp_path / f"{mode}.txt")
+    assert summ["lost"] == 0 and summ["tracked"] == summ["frames"] == 40
+    assert np.nanmean(e["rel"]) <= 0.01
+    assert np.nanmax(e["rel"]) <= 0.02
+
+
+def test_fast_orbit_edge_only_is_worse(fast, tmp_path):
+    """Reference: the edge tracker alone on the x10 sequence (reported, and worse than with SLAM)."""
+    _, e_off = _track(fast[10], "off", tmp_path / "off.txt")
+    _, e_slam = _track(fast[10], "rgbd", tmp_path / "rgbd.txt")
+    bad_off = (e_off["status"] == "lost").sum() + np.nansum(e_off["rel"] > 0.01)
+    bad_slam = (e_slam["status"] == "lost").sum() + np.nansum(e_slam["rel"] > 0.01)
+    assert bad_slam < bad_off
