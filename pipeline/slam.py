@@ -43,6 +43,7 @@ from dataclasses import dataclass, fields
 from pathlib import Path
 
 import numpy as np
+
 from mst import InputError
 from mst.pipeline.camera import Camera
 from mst.pipeline.poses import inv_T, se3_exp, se3_log
