@@ -118,7 +118,7 @@ def _line_jacobian(nx, ny, x, y, iz, fx, fy) -> np.ndarray:
 def solve_pose(T0: np.ndarray, K: np.ndarray, X_model: np.ndarray, edge: np.ndarray, A_model: np.ndarray,
                B_model: np.ndarray, cand_uv: np.ndarray, *, iters: int = 30, lm_mu: float = 0.01,
                min_mad_px: float = 1.0, tukey_c: float = TUKEY_C, klt_X_model: np.ndarray | None = None,
-               klt_uv: np.ndarray | None = None, klt_weight: float = 1.0, stop_px: float = 0.05,
+               klt_uv: np.ndarray | None = None, klt_weight: float = 1.0, stop_px: float = 0.1,
                edge_spread_weight: bool = True) -> VVSResult:
     """Robust VVS from ``T0``. ``cand_uv`` (N, C, 2) candidate pixels per sample (NaN = none).
 
