@@ -585,9 +585,15 @@ def point_distances(idx: MeshIndex, P: np.ndarray, signed: bool = False, max_dis
     else:
         import open3d as o3d
 
-        ans = idx._scene.compute_closest_points(o3d.core.Tensor(Q.astype(np.float32)))
+        # query in spatially coherent order (coarse cell key): halves the BVH time on shuffled clouds
+        h = max(float(np.ptp(idx.V, axis=0).max()) / 256.0, 1e-9)
+        ijk = np.clip(np.floor((Q - idx.V.min(0)) * (1.0 / h)), 0, (1 << 21) - 1).astype(np.int64)
+        order = np.argsort((ijk[:, 0] << 42) | (ijk[:, 1] << 21) | ijk[:, 2])
+        del ijk
+        Qs = Q[order]
+        ans = idx._scene.compute_closest_points(o3d.core.Tensor(Qs.astype(np.float32)))
         tri = ans["primitive_ids"].numpy().astype(np.int64)
-        d2, feat, _ = triangle_distances(idx, Q, tri)
+        d2, feat, _ = triangle_distances(idx, Qs, tri)  # exact, in the same cache-friendly order
         # near-tie safety for float32 BVH answers: closest point on an edge/vertex -> try the one-ring
         bnd = np.nonzero(feat != 0)[0]
         if len(bnd):
@@ -596,7 +602,7 @@ def point_distances(idx: MeshIndex, P: np.ndarray, signed: bool = False, max_dis
             pi = np.repeat(bnd, lens)
             offs = np.arange(lens.sum()) - np.repeat(np.cumsum(lens) - lens, lens)
             ti = idx.ring_idx[np.repeat(idx.ring_ptr[t0], lens) + offs]
-            e2, f2, _ = triangle_distances(idx, Q[pi], ti)
+            e2, f2, _ = triangle_distances(idx, Qs[pi], ti)
             better = e2 < d2[pi]
             if better.any():
                 bi = np.nonzero(better)[0]
@@ -606,6 +612,9 @@ def point_distances(idx: MeshIndex, P: np.ndarray, signed: bool = False, max_dis
                 sel = bi[firsts]
                 pts = pi[sel]
                 d2[pts], tri[pts], feat[pts] = e2[sel], ti[sel], f2[sel]
+        inv = np.empty_like(order)
+        inv[order] = np.arange(len(order))
+        d2, tri, feat = d2[inv], tri[inv], feat[inv]
     dist = np.sqrt(d2)
     if max_dist is not None:
         dist[dist > max_dist] = np.nan
@@ -689,6 +698,15 @@ def _summary(mo: _Moments, values: np.ndarray) -> dict:
 
 
 # ------------------------------------------------------------------------------------ the stage
+def _expand(v: np.ndarray, fin: np.ndarray, n: int) -> np.ndarray:
+    """Values of the finite rows back at their rows of the chunk (NaN for non-finite rows)."""
+    if len(v) == n:
+        return v
+    o = np.full(n, np.nan, np.float32)
+    o[fin] = v
+    return o
+
+
 def load_mesh_triangles(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
     """Triangles of a mesh or polygon model file (OBJ PLY STL OFF WRL CAO CityJSON, polygons
     triangulated): ``(V (n, 3) float64 metres, F (m, 3) int64)``."""
@@ -794,18 +812,9 @@ def run_c2m(cloud_path: str | os.PathLike, mesh_path: str | os.PathLike, config:
                         store_s[n_store : n_store + len(sv)] = sv
                     n_store += len(dv)
                     if writer is not None:
-                        allfin = len(du) == len(xyz)
-
-                        def full(v):
-                            if allfin:
-                                return v
-                            o = np.full(len(xyz), np.nan, np.float32)
-                            o[fin] = v
-                            return o
-
-                        sc = {"C2M_absolute_distances": full(du)}
+                        sc = {"C2M_absolute_distances": _expand(du, fin, len(xyz))}
                         if cfg.signed:
-                            sc["C2M_signed_distances"] = full(ds)
+                            sc["C2M_signed_distances"] = _expand(ds, fin, len(xyz))
                         writer.write(xyz, **sc)
                     if progress is not None:
                         progress(len(xyz))

@@ -9,7 +9,7 @@ import pytest
 
 from mst import InputError
 from mst.eval import c2m
-from mst.eval.cloud_io import read_cloud, write_cloud
+from mst.eval.cloud_io import write_cloud
 from mst.meshtools.generate import box
 from mst.meshtools.io import save_triangles
 

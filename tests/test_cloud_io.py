@@ -14,7 +14,7 @@ P = np.round(P, 3)
 
 
 def _ply(path, fmt, P, dtype="double", extra_elements=False):
-    hdr = [f"ply", f"format {fmt} 1.0"]
+    hdr = ["ply", f"format {fmt} 1.0"]
     if extra_elements:
         hdr += ["element camera 1", "property float k"]
     hdr += [f"element vertex {len(P)}", f"property {dtype} x", f"property {dtype} y", f"property {dtype} z",
