@@ -10,13 +10,11 @@ mkdir -p "$OUT"
 
 step() { printf '\n\033[1m== %s\033[0m\n' "$*" >&2; }
 
-if [ ! -f "$SEQ/scene.json" ]; then
-  step "synth: 60-frame RGB-D orbit of the sample building (ground truth included)"
-  mst synth orbit --model "$HERE/building_tin.obj" -o "$SEQ" --frames 60 --depth --depth-noise --click-noise 2 --seed 7
-fi
+step "synth: 60-frame RGB-D orbit of the sample house, ground truth included (skipped when present)"
+bash "$HERE/make_sample.sh" "$SEQ"
 
 step "convert-model: TIN -> polygon model"
-mst convert-model "$SEQ/model.obj" -o "$OUT/building.wrl"
+mst convert-model "$HERE/building_tin.obj" -o "$OUT/building.wrl"
 
 step "init: first pose from the frame-0 clicks"
 mst init --model "$OUT/building.wrl" --camera "$SEQ/camera.json" --clicks "$SEQ/clicks.txt" -o "$OUT/pose0.txt"
@@ -26,12 +24,12 @@ mst track "$SEQ/rgb" --fps 30 --model "$OUT/building.wrl" --camera "$SEQ/camera.
   --depth "$SEQ/depth" -o "$OUT/traj.txt"
 
 step "fuse: depth frames -> cloud in model coordinates"
-mst fuse --traj "$OUT/traj.txt" --fps 30 --depth "$SEQ/depth" --camera "$SEQ/camera.json" --voxel 0.01 -o "$OUT/cloud.ply"
+mst fuse --traj "$OUT/traj.txt" --fps 30 --depth "$SEQ/depth" --camera "$SEQ/camera.json" --voxel 0.02 -o "$OUT/cloud.ply"
 
 step "c2m: fused cloud vs the rendered scene (Table 1)"
-mst c2m "$OUT/cloud.ply" "$SEQ/scene.ply" --thresholds 0.01,0.02,0.05,0.1 --markdown "$OUT/c2m.md"
+mst c2m "$OUT/cloud.ply" "$SEQ/scene.ply" --thresholds 0.01,0.02,0.05,0.1 --markdown "$OUT/c2m.md" --json > "$OUT/c2m.json"
 
 step "eval traj: tracked trajectory vs ground truth"
-mst eval traj "$OUT/traj.txt" "$SEQ/gt.txt" --align none
+mst eval traj "$OUT/traj.txt" "$SEQ/gt.txt" --align none --json > "$OUT/eval.json"
 
 printf '\nDemo outputs in %s/\n' "$OUT" >&2
