@@ -19,31 +19,41 @@ with ``xi = (v, w)``, v in metres and w in radians, in the camera frame. ``W = J
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
+
 from mst.pipeline.poses import se3_exp as _se3_exp_batch
 
 
 def se3_exp(xi: np.ndarray) -> np.ndarray:
     """Fast exact SE(3) exponential of one twist ``(v, w)`` (same as :func:`mst.pipeline.poses.se3_exp`)."""
-    v, w = xi[:3], xi[3:]
-    th2 = float(w @ w)
+    v0, v1, v2, w0, w1, w2 = np.asarray(xi, float).tolist()
+    th2 = w0 * w0 + w1 * w1 + w2 * w2
     if th2 < 1e-16:
-        return _se3_exp_batch(xi)
-    th = np.sqrt(th2)
-    Kw = np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
-    K2 = Kw @ Kw
-    a = np.sin(th) / th
-    b = (1.0 - np.cos(th)) / th2
-    c = (th - np.sin(th)) / (th2 * th)
-    T = np.eye(4)
-    T[:3, :3] += a * Kw + b * K2
-    T[:3, 3] = v + b * (Kw @ v) + c * (K2 @ v)
-    return T
+        return _se3_exp_batch(np.asarray(xi, float))
+    th = math.sqrt(th2)
+    s, c = math.sin(th), math.cos(th)
+    a = s / th
+    b = (1.0 - c) / th2
+    cc = (th - s) / (th2 * th)
+    # R = I + a [w]x + b [w]x^2 ;  V = I + b [w]x + cc [w]x^2 ;  [w]x^2 = w w^T - th2 I
+    x00, x11, x22 = w0 * w0 - th2, w1 * w1 - th2, w2 * w2 - th2
+    x01, x02, x12 = w0 * w1, w0 * w2, w1 * w2
+    r00, r11, r22 = 1.0 + b * x00, 1.0 + b * x11, 1.0 + b * x22
+    V00, V11, V22 = 1.0 + cc * x00, 1.0 + cc * x11, 1.0 + cc * x22
+    t0 = V00 * v0 + (cc * x01 - b * w2) * v1 + (cc * x02 + b * w1) * v2
+    t1 = (cc * x01 + b * w2) * v0 + V11 * v1 + (cc * x12 - b * w0) * v2
+    t2 = (cc * x02 - b * w1) * v0 + (cc * x12 + b * w0) * v1 + V22 * v2
+    return np.array([[r00, b * x01 - a * w2, b * x02 + a * w1, t0],
+                     [b * x01 + a * w2, r11, b * x12 - a * w0, t1],
+                     [b * x02 - a * w1, b * x12 + a * w0, r22, t2],
+                     [0.0, 0.0, 0.0, 1.0]])
+
 
 TUKEY_C = 4.6851
-SPREAD_K = 4.0
+SPREAD_K = 4.0  # heteroscedastic edge weight: w / (1 + SPREAD_K * var_edge / sigma^2)
 
 
 @dataclass
