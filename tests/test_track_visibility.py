@@ -3,11 +3,10 @@
 from __future__ import annotations
 
 import numpy as np
+from synth_helpers import look_at
 
 from mst.pipeline.camera import Camera
 from mst.pipeline.visibility import ModelGeometry, visible_samples
-
-from synth_helpers import look_at
 
 
 def _check_against_raycast(model, cam, T, min_agree=0.97):
