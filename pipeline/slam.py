@@ -97,6 +97,10 @@ class SlamConfig:
     gate_chi2: float = 22.46         #: chi-square (6 dof, 99.9 %) bound of the edge/SLAM disagreement
     gate_min_inliers: int = 40       #: the SLAM pose gates the edges only with this many PnP inliers
     gate_max_rejects: int = 10       #: after this many rejected healthy edge poses in a row, trust edges
+    consensus_window: int = 8        #: recent healthy edge poses compared on the SLAM's offset
+    consensus_min: int = 3           #: rejected edges are accepted when this many recent ones agree
+    consensus_rel: float = 0.005     #: agreement: offsets within this x scene depth ...
+    consensus_deg: float = 0.5       #: ... and this many degrees
     reloc_keyframes: int = 40        #: keyframes kept for relocalisation
     reloc_min_inliers: int = 20
     reloc_features: int = 800        #: ORB features on a frame being relocalised
@@ -301,10 +305,11 @@ class ModelAidedSlam:
         self.n_rejects = 0
         self.info_ref: float | None = None
         self.P: np.ndarray | None = None       # 6x6 anchoring covariance (v, w) of the SLAM pose
+        self._recent_offsets: deque[np.ndarray] = deque(maxlen=max(1, self.cfg.consensus_window))
         self.scene_depth = 1.0
         self._cur: _FrameState | None = None
         self.stats = {"keyframes": 0, "ba_runs": 0, "ba_prior_accepted": 0, "ba_prior_downweighted": 0,
-                      "ba_prior_dropped": 0, "gate_rejects": 0, "relocalisations": 0, "reloc_attempts": 0}
+                      "ba_prior_dropped": 0, "gate_rejects": 0, "consensus_resets": 0, "relocalisations": 0, "reloc_attempts": 0}
         self.timing_ms = {"predict": 0.0, "update": 0.0, "ba": 0.0}
 
     # ------------------------------------------------------------------ public interface
@@ -345,16 +350,26 @@ class ModelAidedSlam:
         W = np.asarray(W, float) if W_ok else None
         if self.P is not None:
             self.P = self.P + self._process_noise()
-        if edge_ok and slam_ok and not (self._strong_enough(W) and self._gate(T_cam_model_edges, W, st)):
-            edge_ok = False
+        reset = False
+        if edge_ok and slam_ok:
+            agree = self._consensus(np.asarray(T_cam_model_edges, float), st.T)
+            if not (self._strong_enough(W) and self._gate(T_cam_model_edges, W, st)):
+                edge_ok = False
+                if agree >= self.cfg.consensus_min:
+                    # several recent edge poses agree with this one on the SLAM's offset: the SLAM
+                    # (anchored on an early wrong edge pose, or drifted) is the one that is off
+                    edge_ok = reset = True
+                    self.P = None
+                    self._recent_offsets.clear()
+                    self.stats["consensus_resets"] += 1
         if edge_ok:
             T_out, status = np.asarray(T_cam_model_edges, float).copy(), STATUS_MODEL
             if W is not None:
                 T_fused = self._fuse(T_out, W, st if slam_ok else _FrameState(k))
                 if self.cfg.fuse_output:
                     T_out = T_fused
-            if slam_ok and self.frames_since_fix > 0:
-                self._reanchor(T_out, st.T)  # back from a SLAM-only stretch: reset the map to the model
+            if slam_ok and (self.frames_since_fix > 0 or reset):
+                self._reanchor(T_out, st.T, everything=reset)  # reset the map to the model
             self.frames_since_fix = 0
             if W is not None:
                 tr = float(np.trace(W))
@@ -526,6 +541,20 @@ class ModelAidedSlam:
         self.P = _reg((I6 - K) @ S @ (I6 - K).T + K @ Se @ K.T)  # Joseph form
         return se3_exp(K @ delta) @ st.T
 
+    def _consensus(self, T_edges: np.ndarray, T_slam: np.ndarray) -> int:
+        """How many of the recent healthy edge poses saw the same SLAM offset ``C = T_e^-1 T_slam``
+        (model frame) as this one; records this offset."""
+        cfg = self.cfg
+        C = inv_T(T_edges) @ T_slam
+        n = 0
+        for C_i in self._recent_offsets:
+            D = inv_T(C_i) @ C
+            if (np.linalg.norm(D[:3, 3]) < cfg.consensus_rel * self.scene_depth
+                    and np.degrees(np.linalg.norm(se3_log(D)[3:])) < cfg.consensus_deg):
+                n += 1
+        self._recent_offsets.append(C)
+        return n
+
     def _strong_enough(self, W: np.ndarray | None) -> bool:
         """Edge information (trace of W) against its running mean over accepted frames: a model
         half out of the view (entering or leaving) gives biased poses; the SLAM carries instead."""
@@ -552,17 +581,20 @@ class ModelAidedSlam:
         self.stats["gate_rejects"] += 1
         return False
 
-    def _reanchor(self, T_model_fix: np.ndarray, T_slam: np.ndarray) -> None:
+    def _reanchor(self, T_model_fix: np.ndarray, T_slam: np.ndarray, everything: bool = False) -> None:
         """Move the map built since the last model fix rigidly so that the current SLAM pose
         becomes the model pose: ``X' = C X`` with ``C = T_fix^-1 T_slam`` for landmarks not anchored
         under a model pose, ``T' = T C^-1`` for keyframes without a model prior and for the tracks'
-        first views. The next local BA (with the priors) refines the rest."""
+        first views. The next local BA (with the priors) refines the rest. ``everything``: move all
+        landmarks and keyframes and forget the keyframes' model priors (a consensus reset)."""
         C = inv_T(T_model_fix) @ T_slam
         Ci = inv_T(C)
         for t, x in self.lm.items():
-            if not self.lm_model.get(t, False):
+            if everything or not self.lm_model.get(t, False):
                 self.lm[t] = C[:3, :3] @ x + C[:3, 3]
         for kf in self.kfs:
+            if everything:
+                kf.prior_W = kf.prior_T_cam_model = None
             if kf.prior_W is None:
                 kf.T_cam_model = kf.T_cam_model @ Ci
         if len(self.first_P):
