@@ -570,7 +570,8 @@ def point_distances(idx: MeshIndex, P: np.ndarray, signed: bool = False, max_dis
         return d, s
     todo = slice(None)
     Q = P
-    if max_dist is not None:  # outside the mesh box grown by max_dist: farther than max_dist
+    if max_dist is not None and idx.engine != "grid":  # outside the mesh box grown by max_dist (the
+        # grid engine skips far cells itself, from their distance lower bound)
         lo, hi = idx.V.min(0) - max_dist, idx.V.max(0) + max_dist
         todo = np.nonzero(((P >= lo) & (P <= hi)).all(1))[0]
         if not len(todo):
