@@ -81,7 +81,9 @@ def c2m(cloud, mesh, thresholds, signed, max_dist, output, as_csv, markdown, plo
         from mst.eval.plots import c2m_histogram
 
         with atomic_output(plot) as tmp:
-            c2m_histogram(tmp, dist, thresholds, title=f"C2M {Path(cloud).name} vs {Path(mesh).name}")
+            c2m_histogram(tmp, dist, [r["max_dist"] for r in summary["thresholds"]],
+                          title=f"C2M {Path(cloud).name} vs {Path(mesh).name}",
+                          percents=[r["percent"] for r in summary["thresholds"]])
     if markdown is not None:
         with atomic_output(markdown) as tmp:
             Path(tmp).write_text(markdown_report(summary))

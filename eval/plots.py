@@ -21,10 +21,12 @@ def _plt():
 
 
 def c2m_histogram(path: str | os.PathLike, distances_m: np.ndarray, thresholds_m: Sequence[float],
-                  title: str = "Cloud-to-mesh distances", signed_m: np.ndarray | None = None) -> None:
+                  title: str = "Cloud-to-mesh distances", signed_m: np.ndarray | None = None,
+                  percents: Sequence[float] | None = None) -> None:
     """Histogram of unsigned C2M distances (metres) with the Table-1 thresholds as vertical lines,
-    and the percentage of points under each threshold in the legend; a second panel with the
-    signed distances when ``signed_m`` is given."""
+    and the percentage of points under each threshold in the legend (``percents``, e.g. Table 1's,
+    else computed from ``distances_m``); a second panel with the signed distances when ``signed_m``
+    is given."""
     plt = _plt()
     d = np.asarray(distances_m, np.float64)
     panels = 2 if signed_m is not None else 1
@@ -32,8 +34,8 @@ def c2m_histogram(path: str | os.PathLike, distances_m: np.ndarray, thresholds_m
     ax = axes[0, 0]
     hi = max(float(max(thresholds_m)) * 1.2, float(np.percentile(d, 99.5)) if len(d) else 1.0)
     ax.hist(np.clip(d, 0, hi), bins=200, range=(0, hi), color="#4477aa")
-    for t, c in zip(thresholds_m, ["#cc3311", "#ee7733", "#009988", "#aa3377", "#555555"] * 4):
-        pct = 100.0 * np.count_nonzero(d < t) / max(len(d), 1)
+    for k, (t, c) in enumerate(zip(thresholds_m, ["#cc3311", "#ee7733", "#009988", "#aa3377", "#555555"] * 4)):
+        pct = percents[k] if percents is not None else 100.0 * np.count_nonzero(d < t) / max(len(d), 1)
         ax.axvline(t, color=c, ls="--", label=f"< {t:g} m: {pct:.1f} %")
     ax.set_xlabel("unsigned distance [m] (last bin: at or beyond the axis end)")
     ax.set_ylabel("points")
@@ -57,6 +59,16 @@ def trajectory_figure(path: str | os.PathLike, t_ref_s: np.ndarray, xyz_ref_m: n
     """Top-down view (X-Y, model frame) of reference and (aligned) estimate, and per-axis differences
     dX dY dZ (metres) and d-yaw (degrees) over time, with the tracking gaps shaded."""
     plt = _plt()
+    # break the estimate's lines where tracking was lost (no line drawn across a gap)
+    t_est_s = np.asarray(t_est_s, np.float64)
+    if len(t_est_s) > 2:
+        step = np.median(np.diff(t_est_s))
+        cut = np.nonzero(np.diff(t_est_s) > 1.5 * step)[0] + 1
+        t_est_s = np.insert(t_est_s, cut, np.nan)
+        xyz_est_m = np.insert(np.asarray(xyz_est_m, np.float64), cut, np.nan, axis=0)
+        diff_xyz_m = np.insert(np.asarray(diff_xyz_m, np.float64), cut, np.nan, axis=0)
+        if diff_yaw_deg is not None:
+            diff_yaw_deg = np.insert(np.asarray(diff_yaw_deg, np.float64), cut, np.nan)
     fig = plt.figure(figsize=(13, 6))
     ax = fig.add_subplot(1, 2, 1)
     ax.plot(xyz_ref_m[:, 0], xyz_ref_m[:, 1], "-", color="#999999", lw=2, label="reference")
