@@ -251,6 +251,8 @@ def prepare_mesh(V: np.ndarray, F: np.ndarray, path: str | os.PathLike | None = 
         scene.add_triangles(o3d.core.Tensor(Vm.astype(np.float32)), o3d.core.Tensor(Fm.astype(np.uint32)))
         idx._scene = scene
     elif engine == "grid":
+        if m > 0xFFFF:
+            raise InputError(path, f"{m} triangles: the grid engine handles up to 65535 (use the bvh engine)")
         idx._grid = _DenseGrid(idx)
     else:
         raise ValueError(f"unknown engine {engine!r}")
