@@ -418,8 +418,13 @@ class ShadedRenderer(Renderer):
         # cell of each pixel: rows ys[k] <= i <= ys[k+1] (k = i // 2, the last odd row in the last cell)
         ki = np.minimum(np.arange(H) // 2, len(ys) - 2)
         kj = np.minimum(np.arange(W) // 2, len(xs) - 2)
-        uni = same[ki][:, kj].ravel()
-        rep = pcst.reshape(len(ys), len(xs))[ki][:, kj].ravel()  # the cell's top-left sample
+        rep2 = pcst.reshape(len(ys), len(xs))[:-1, :-1]      # each cell's top-left sample
+        if H % 2 == 0 and W % 2 == 0:                         # cells of 2x2 pixels: plain repeats
+            uni = np.repeat(np.repeat(same, 2, axis=0), 2, axis=1).ravel()
+            rep = np.repeat(np.repeat(rep2, 2, axis=0), 2, axis=1).ravel()
+        else:
+            uni = same[ki][:, kj].ravel()
+            rep = rep2[ki][:, kj].ravel()
         t = np.empty(H * W, np.float32)
         prim = np.empty(H * W, np.uint32)
         # uniform cells: analytic depth on the plane of the representative triangle
