@@ -19,6 +19,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+
 from mst.eval.bench import mst_cmd, timed_command
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -27,6 +28,7 @@ SAMPLE = ROOT / "samples" / "building_tin.obj"
 
 def _render_rows() -> list[dict]:
     import cv2
+
     from mst.pipeline.poses import inv_T
     from mst.pipeline.synth import SynthConfig, _build_scene, load_model_triangles
 

@@ -34,6 +34,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+
 from mst.pipeline.camera import Camera
 
 INVALID = np.uint32(0xFFFFFFFF)

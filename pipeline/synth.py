@@ -50,6 +50,7 @@ from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 
 import numpy as np
+
 from mst import InputError, MstError, __version__
 from mst.pipeline.camera import Camera, write_camera
 from mst.pipeline.poses import format_tum, inv_T, make_T

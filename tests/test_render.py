@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+
 from mst.pipeline.camera import Camera
 from mst.pipeline.poses import inv_T
 from mst.pipeline.render import Material, Renderer, ShadedRenderer, aa_pattern

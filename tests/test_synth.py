@@ -8,6 +8,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+
 from mst.meshtools.generate import box, gabled_house
 from mst.meshtools.io import save_triangles
 from mst.pipeline.camera import read_camera
