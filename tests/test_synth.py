@@ -231,3 +231,41 @@ def test_cli_writes_sequence_and_json(mst, house: Path, tmp_path: Path):
     while cap.read()[0]:
         n += 1
     assert n == 2
+
+
+def test_kinect_depth_noise_model():
+    """Structured-light model: sigma(z) = 0.0012 + 0.0019 (z - 0.4)^2 plus 1/8 px disparity steps; holes."""
+    from mst.pipeline.synth import kinect_depth
+
+    rng = np.random.default_rng(0)
+    z = np.full((200, 200), 2.0, np.float32)
+    z[:, 150:] = 4.0                                   # a step: holes along the discontinuity
+    cos = np.ones_like(z)
+    cos[:20] = 0.1                                     # grazing rows: holes
+    zn = kinect_depth(z, cos, 525.0, rng)
+    assert (zn[:20] == 0).all()
+    assert (zn[:, 148:152] == 0).all()                 # the jump, grown by one pixel
+    near = zn[20:, :140]
+    near = near[near > 0]
+    sig = 0.0012 + 0.0019 * 1.6**2
+    q = 2.0**2 / (525.0 * 0.075 * 8)                   # disparity step in metres at 2 m
+    expected = np.sqrt(sig**2 + q**2 / 12)
+    assert abs(near.std() - expected) < 0.25 * expected
+    assert abs(near.mean() - 2.0) < 0.003
+    far = zn[20:, 160:]
+    assert far[far > 0].std() > 2.5 * near.std()       # noise grows with z
+    assert 0.0005 < (zn[20:, :140] == 0).mean() < 0.01  # sparse random dropouts
+
+
+def test_motion_blur_smooths_moving_frames(house: Path, tmp_path: Path):
+    a, b = tmp_path / "sharp", tmp_path / "blur"
+    kw = dict(frames=2, width=128, height=96, texture_size=64, depth=False, rgb_noise=0.0, drop=4)
+    synthesize("fast", house, a, SynthConfig(**kw))
+    synthesize("fast", house, b, SynthConfig(motion_blur=4, **kw))
+    ia = cv2.imread(str(a / "rgb" / "000001.png")).astype(float)
+    ib = cv2.imread(str(b / "rgb" / "000001.png")).astype(float)
+    assert np.abs(ia - ib).mean() > 1.0
+    # blur removes high-frequency energy
+    assert np.abs(cv2.Laplacian(ib, cv2.CV_64F)).mean() < 0.9 * np.abs(cv2.Laplacian(ia, cv2.CV_64F)).mean()
+    # ground truth is the pose at the end of the exposure: identical files
+    assert (a / "gt.txt").read_bytes() == (b / "gt.txt").read_bytes()
