@@ -701,6 +701,27 @@ def _summary(mo: _Moments, values: np.ndarray) -> dict:
 
 
 # ------------------------------------------------------------------------------------ the stage
+def _likely_large_mesh(path: str | os.PathLike, small_mesh_triangles: int) -> bool:
+    """Guess from the file size (about 100 bytes per triangle or more) whether the BVH will be used."""
+    try:
+        return Path(path).stat().st_size > 100 * small_mesh_triangles
+    except OSError:
+        return False
+
+
+def _prefetch_open3d():
+    """Start importing Open3D in a thread; returns the thread (None when already imported)."""
+    import importlib
+    import sys
+    import threading
+
+    if "open3d" in sys.modules:
+        return None
+    th = threading.Thread(target=importlib.import_module, args=("open3d",), daemon=True)
+    th.start()
+    return th
+
+
 def _expand(v: np.ndarray, fin: np.ndarray, n: int) -> np.ndarray:
     """Values of the finite rows back at their rows of the chunk (NaN for non-finite rows)."""
     if len(v) == n:
@@ -742,9 +763,17 @@ def run_c2m(cloud_path: str | os.PathLike, mesh_path: str | os.PathLike, config:
     src = open_cloud(cloud_path)
     if src.count == 0:
         raise InputError(cloud_path, "cloud has no points")
-    V, F = load_mesh_triangles(mesh_path)
-    idx = prepare_mesh(V, F, mesh_path, signed=cfg.signed, engine=cfg.engine,
-                       small_mesh_triangles=cfg.small_mesh_triangles)
+    pre = None
+    if cfg.engine == "bvh" or (cfg.engine == "auto" and _likely_large_mesh(mesh_path, cfg.small_mesh_triangles)):
+        pre = _prefetch_open3d()  # overlap the ~1 s Open3D import with reading the mesh
+    try:
+        V, F = load_mesh_triangles(mesh_path)
+        idx = prepare_mesh(V, F, mesh_path, signed=cfg.signed, engine=cfg.engine,
+                           small_mesh_triangles=cfg.small_mesh_triangles)
+    except BaseException:
+        if pre is not None:  # never leave an import running in a thread at interpreter exit
+            pre.join()
+        raise
     t_mesh = time.perf_counter() - t0
 
     n_total = src.count
