@@ -38,7 +38,7 @@ SCENARIOS = ("orbit", "corridor", "flyover", "fast")
               help="Floor texture of orbit/corridor (flyover: terrain).")
 @click.option("--no-environment", "no_env", is_flag=True, help="Model alone in front of the sky (no ground or walls).")
 @click.option("--click-noise", type=float, default=0.0, show_default=True, help="Gaussian pixel noise on the clicks.")
-@click.option("--clicks", "n_clicks", type=int, default=6, show_default=True, help="Model corners in clicks.txt (>= 4).")
+@click.option("--n-clicks", "n_clicks", type=int, default=6, show_default=True, help="Model corners in clicks.txt (>= 4).")
 @click.option("--up", type=click.Choice(["z", "-z", "y", "-y", "x", "-x"]), default="z", show_default=True,
               help="The model's up axis.")
 @click.option("--video", is_flag=True, help="Also write video.mp4 (mp4v).")

@@ -8,7 +8,8 @@ one-thread row is the steadier single-core figure.
 * ``render_640x480_1thread``: in-process :class:`~mst.pipeline.render.ShadedRenderer` on the orbit
   scene of the bundled sample house, one ray-casting thread: ms per colour+depth frame (edge
   anti-aliasing on), split into ray casting and the rest; target <= 50 ms per frame on one core.
-* ``render_640x480_all_threads``: the same with all cores.
+* ``render_640x480_1thread_aa8``: the same with 8 sub-pixel rays per edge pixel (``--aa 8``).
+* ``render_640x480_all_threads``: the same (16 rays) with all cores.
 * ``synth_orbit_60``: the whole command ``mst synth orbit --frames 60 --depth`` on the sample
   (PNG/NPY writing, texture generation included): frames per second and peak RSS.
 """
@@ -35,7 +36,8 @@ def _render_rows() -> list[dict]:
     V, F = load_model_triangles(SAMPLE)
     rows = []
     n_cv = cv2.getNumThreads()
-    for nthreads, name in ((1, "render_640x480_1thread"), (0, "render_640x480_all_threads")):
+    for nthreads, aa, name in ((1, 16, "render_640x480_1thread"), (1, 8, "render_640x480_1thread_aa8"),
+                               (0, 16, "render_640x480_all_threads")):
         cv2.setNumThreads(1 if nthreads == 1 else n_cv)  # OpenCV's remap is multi-threaded too
         cfg = SynthConfig(nthreads=nthreads)
         cam, R_cm, scene, renderer, _ = _build_scene("orbit", cfg, V, F)
@@ -44,7 +46,7 @@ def _render_rows() -> list[dict]:
         t_tot, t_cpu, t_cast, edge_px = [], [], [], []
         for T in poses:
             t0, c0 = time.perf_counter(), time.process_time()
-            out = renderer.render(cam, T, aa_samples=16)
+            out = renderer.render(cam, T, aa_samples=aa)
             t_tot.append(time.perf_counter() - t0)
             t_cpu.append(time.process_time() - c0)
             edge_px.append(out["n_edge_px"])
@@ -56,7 +58,7 @@ def _render_rows() -> list[dict]:
         ms = 1000 * float(np.median(t_tot))
         row = {"bench": name, "ms_per_frame": ms, "fps": 1000.0 / ms, "cpu_ms_per_frame": 1000 * float(np.median(t_cpu)),
                "cast_ms": 1000 * float(np.median(t_cast)), "edge_px": int(np.median(edge_px))}
-        if nthreads == 1:
+        if nthreads == 1 and aa == 16:
             row.update(target="<= 50 ms per 640x480 colour+depth frame on one core", ok=ms <= 50.0)
         rows.append(row)
     cv2.setNumThreads(n_cv)
