@@ -10,7 +10,7 @@ SCENARIOS = ("orbit", "corridor", "flyover", "fast")
 
 
 @click.command("synth")
-@click.argument("scenario", required=False, type=click.Choice(SCENARIOS))
+@click.argument("scenario", required=False, metavar="SCENARIO", type=click.Choice(SCENARIOS))
 @click.option("--model", "model", type=click.Path(dir_okay=False), help="Model file (.obj .wrl .cao .off .ply .stl, CityJSON).")
 @click.option("-o", "--out", "out_dir", required=True, type=click.Path(file_okay=False), help="Output sequence folder.")
 @click.option("--from-scene", "from_scene", type=click.Path(dir_okay=False),
