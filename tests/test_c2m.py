@@ -321,3 +321,27 @@ def test_grid_compiled_and_numpy_paths_agree():
     dm, _ = _dist(a, P, max_dist=0.5)
     np.testing.assert_array_equal(np.isnan(dm), da > 0.5)
     np.testing.assert_allclose(dm[da <= 0.5], da[da <= 0.5])
+
+
+def test_polygon_models_cao_and_wrl_give_the_same_distances(tmp_path, mst, shared_data):
+    """The real teabox model as ViSP .cao and as VRML: triangulated on load, identical C2M results."""
+    from mst.meshtools.io import load_triangles
+
+    cao, wrl = shared_data / "visp-teabox" / "teabox.cao", shared_data / "visp-teabox" / "teabox.wrl"
+    V, F = load_triangles(cao)
+    lo, hi = V.min(0), V.max(0)
+    rng = np.random.default_rng(4)
+    P = rng.uniform(lo - 0.02, hi + 0.02, (3000, 3))
+    cloud = tmp_path / "c.xyz"
+    write_cloud(cloud, P)
+    a = json.loads(mst("c2m", cloud, cao, "--json", "-q", "--signed").stdout)
+    b = json.loads(mst("c2m", cloud, wrl, "--json", "-q", "--signed").stdout)
+    assert a["mesh_triangles"] == b["mesh_triangles"] == 12
+    for k in ("mean", "median", "std", "max"):
+        assert a["unsigned"][k] == pytest.approx(b["unsigned"][k], abs=1e-12)
+        assert a["signed"][k] == pytest.approx(b["signed"][k], abs=1e-12)
+    # signs agree with the winding number of the closed model
+    idx = c2m.prepare_mesh(V, F, signed=True)
+    _, s = _dist(idx, P)
+    inside = _winding_number(P, V, F) > 0.5
+    assert inside.sum() > 100 and ((s < 0) == inside).all()
