@@ -98,8 +98,8 @@ class SlamConfig:
     gate_min_inliers: int = 40       #: the SLAM pose gates the edges only with this many PnP inliers
     gate_max_rejects: int = 10       #: after this many rejected healthy edge poses in a row, trust edges
     consensus_window: int = 8        #: recent healthy edge poses compared on the SLAM's offset
-    consensus_min: int = 3           #: rejected edges are accepted when this many recent ones agree
-    consensus_rel: float = 0.005     #: agreement: offsets within this x scene depth ...
+    consensus_min: int = 4           #: rejected edges are accepted when this many recent ones agree
+    consensus_rel: float = 0.003     #: agreement: offsets within this x scene depth ...
     consensus_deg: float = 0.5       #: ... and this many degrees
     reloc_keyframes: int = 40        #: keyframes kept for relocalisation
     reloc_min_inliers: int = 20
@@ -305,7 +305,7 @@ class ModelAidedSlam:
         self.n_rejects = 0
         self.info_ref: float | None = None
         self.P: np.ndarray | None = None       # 6x6 anchoring covariance (v, w) of the SLAM pose
-        self._recent_offsets: deque[np.ndarray] = deque(maxlen=max(1, self.cfg.consensus_window))
+        self._recent_offsets: deque[tuple[np.ndarray, bool]] = deque(maxlen=max(1, self.cfg.consensus_window))
         self.scene_depth = 1.0
         self._cur: _FrameState | None = None
         self.stats = {"keyframes": 0, "ba_runs": 0, "ba_prior_accepted": 0, "ba_prior_downweighted": 0,
@@ -352,8 +352,9 @@ class ModelAidedSlam:
             self.P = self.P + self._process_noise()
         reset = False
         if edge_ok and slam_ok:
-            agree = self._consensus(np.asarray(T_cam_model_edges, float), st.T)
-            if not (self._strong_enough(W) and self._gate(T_cam_model_edges, W, st)):
+            passed = self._strong_enough(W) and self._gate(T_cam_model_edges, W, st)
+            agree = self._consensus(np.asarray(T_cam_model_edges, float), st.T, rejected=not passed)
+            if not passed:
                 edge_ok = False
                 if agree >= self.cfg.consensus_min:
                     # several recent edge poses agree with this one on the SLAM's offset: the SLAM
@@ -541,18 +542,20 @@ class ModelAidedSlam:
         self.P = _reg((I6 - K) @ S @ (I6 - K).T + K @ Se @ K.T)  # Joseph form
         return se3_exp(K @ delta) @ st.T
 
-    def _consensus(self, T_edges: np.ndarray, T_slam: np.ndarray) -> int:
-        """How many of the recent healthy edge poses saw the same SLAM offset ``C = T_e^-1 T_slam``
-        (model frame) as this one; records this offset."""
+    def _consensus(self, T_edges: np.ndarray, T_slam: np.ndarray, rejected: bool) -> int:
+        """How many of the recent healthy but rejected edge poses saw the same SLAM offset
+        ``C = T_e^-1 T_slam`` (model frame) as this one; records this offset."""
         cfg = self.cfg
         C = inv_T(T_edges) @ T_slam
         n = 0
-        for C_i in self._recent_offsets:
+        for C_i, rej in self._recent_offsets:
+            if not rej:
+                continue
             D = inv_T(C_i) @ C
             if (np.linalg.norm(D[:3, 3]) < cfg.consensus_rel * self.scene_depth
                     and np.degrees(np.linalg.norm(se3_log(D)[3:])) < cfg.consensus_deg):
                 n += 1
-        self._recent_offsets.append(C)
+        self._recent_offsets.append((C, rejected))
         return n
 
     def _strong_enough(self, W: np.ndarray | None) -> bool:
