@@ -401,7 +401,7 @@ class ShadedRenderer(Renderer):
         see the same plane (plane id: normal, offset, material), the other pixels see that plane too:
         their depth is the exact ray-plane intersection and their triangle id a triangle of that
         plane. Cells whose corners all miss are sky. Every other pixel is cast. (A feature thinner than
-        two pixels lying entirely between the coarse samples can be lost; model edges never are.)
+        two pixels lying entirely between the coarse samples can be lost; larger ones are exact.)
         Returns ``t`` (H*W,) float32 (inf on miss) and triangle ids (H*W,) uint32.
         """
         H, W = cam.height, cam.width
