@@ -25,8 +25,8 @@ grid and fills 2x2 cells whose corners see one plane with the exact ray-plane de
 (:meth:`ShadedRenderer.primary_hits`), which halves the ray count on planar scenes.
 
 Speed (``mst.eval.bench_synth``, 640x480 orbit of the sample house, colour + depth, 16-sample edge
-AA): about 75 ms of CPU per frame on one thread of this project's shared 2-core machine (ray
-casting ~15 ms, shading and texture lookups the rest).
+AA): 60-70 ms of CPU per frame on one thread of this project's shared, loaded 2-core machine
+(59 ms with 8 edge samples; ray casting ~15 ms of it, shading and texture lookups most of the rest).
 """
 
 from __future__ import annotations
