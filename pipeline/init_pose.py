@@ -202,12 +202,23 @@ def diagnose(X: np.ndarray, uv: np.ndarray, K: np.ndarray, residual_px: np.ndarr
 
 def init_from_clicks(X: np.ndarray, uv: np.ndarray, K: np.ndarray, dist: np.ndarray | None = None,
                      max_rms_px: float = 4.0) -> InitResult:
-    """PnP + refinement; ``diagnosis`` is set when the RMS residual exceeds ``max_rms_px``."""
+    """PnP + refinement; ``diagnosis`` is set when the RMS residual exceeds ``max_rms_px``.
+
+    With distortion coefficients ``dist`` (OpenCV order) the clicks are undistorted first; the
+    residuals are then in undistorted pixels.
+    """
     if len(X) < 4:
         raise ValueError(f"{len(X)} points, need at least 4")
     if np.linalg.matrix_rank(X - X.mean(0), tol=1e-9 * max(1.0, np.abs(X).max())) < 2:
         raise ValueError("the model points are collinear: PnP needs them spread out")
-    T = solve_pnp(X, uv, K, dist)
+    if dist is not None and len(dist) and np.any(dist != 0):
+        # undistort the clicks once: PnP, refinement and diagnosis then use the pinhole model
+        import cv2
+
+        d = np.zeros(5)
+        d[: min(5, len(dist))] = np.asarray(dist, float)[:5]
+        uv = cv2.undistortPoints(uv.reshape(-1, 1, 2).astype(np.float64), K, d, P=K).reshape(-1, 2)
+    T = solve_pnp(X, uv, K)
     r = np.linalg.norm(project(T, K, X) - uv, axis=1)
     rms = float(np.sqrt(np.mean(r**2)))
     diag = diagnose(X, uv, K, r, max_rms_px) if rms > max_rms_px else ""

@@ -29,7 +29,10 @@ from mst import InputError
 
 @dataclass
 class TrackerConfig:
-    """All tracker parameters (defaults are ViSP's tracker defaults / teabox.xml values).
+    """All tracker parameters (defaults are ViSP's tracker defaults / teabox.xml values, except the
+    face angles: 80/85 deg instead of teabox.xml's 70/80, so that obliquely seen faces still
+    constrain the pose; without them a nearly fronto-parallel wall leaves the pose weakly
+    observable, e.g. rotation about the object vs. sideways translation).
 
     Moving edges (ViSP ``vpMe``): ``mask_size`` (px, odd), ``n_masks`` (orientations over 180 deg),
     ``search_range`` (px each side of the projected edge, along its normal), ``edge_threshold``
@@ -58,8 +61,8 @@ class TrackerConfig:
     mu2: float = 0.5
     sample_step: float = 4.0
     n_candidates: int = 2
-    angle_appear: float = 70.0
-    angle_disappear: float = 80.0
+    angle_appear: float = 80.0
+    angle_disappear: float = 85.0
     near_clip: float = 0.1
     far_clip: float = 100.0
     hidden_lines: bool = True

@@ -402,8 +402,13 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
     cam0 = read_camera(camera_path)
     src = open_frames(frames_spec, frames, scale, fps)
     cam = check_camera_size(src, cam0, camera_path)
+    undistort_maps = None
     if cam.has_distortion:
-        notes.append("camera distortion is ignored by the edge tracker (undistorted pinhole model used)")
+        # frames are undistorted once (remap tables), then tracked with the pinhole model K
+        d = np.zeros(5)
+        d[: min(5, len(cam.dist))] = cam.dist[:5]
+        undistort_maps = cv2.initUndistortRectifyMap(cam.K, d, None, cam.K, (cam.width, cam.height), cv2.CV_16SC2)
+        notes.append("frames undistorted with the camera's distortion coefficients before tracking")
     T0 = read_pose_file(init_pose_path)
     if scale != 1.0:
         pass  # poses are metric; only the intrinsics scale
@@ -438,6 +443,8 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
     try:
         with bar as advance:
             for idx, t_s, bgr in src:
+                if undistort_maps is not None:
+                    bgr = cv2.remap(bgr, *undistort_maps, cv2.INTER_LINEAR)
                 gray = cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY)
                 t0 = time.perf_counter()
                 T_pred = aid.predict(idx, gray, T_prev) if aid is not None else None
