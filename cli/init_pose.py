@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import click
+
 from mst.cli.common import emit_json, info, json_option, print_table, quiet_option
 
 

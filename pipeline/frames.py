@@ -21,6 +21,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+
 from mst import InputError
 
 # FFmpeg prints its own errors ("moov atom not found") on stderr; mst reports one clean line instead

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+
 from mst import InputError
 
 
@@ -262,6 +263,7 @@ def draw_model(bgr: np.ndarray, model, T_cam_model: np.ndarray, K: np.ndarray, n
                color=(0, 255, 0), points: np.ndarray | None = None, numbers: bool = False, clicks: np.ndarray | None = None) -> np.ndarray:
     """Draw the model's edges (clipped at the near plane) and optional numbered points."""
     import cv2
+
     from mst.pipeline.visibility import _clip_near_far
 
     out = bgr.copy()
@@ -328,6 +330,7 @@ def run_init(model_path, camera_path, out, *, clicks_path=None, points_path=None
     Raises :class:`mst.InputError` for bad input or a failed, diagnosed initialisation.
     """
     import cv2
+
     from mst import atomic_output, atomic_outputs
     from mst.pipeline.camera import read_camera
     from mst.pipeline.poses import write_pose_file

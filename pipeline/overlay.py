@@ -12,6 +12,7 @@ import os
 from pathlib import Path
 
 import numpy as np
+
 from mst import InputError
 
 

@@ -27,6 +27,7 @@ def look_at(eye, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:
 def render_views(model, cam, poses, seed: int = 0, ground: float | None = 0.0, noise: float = 2.0) -> list[np.ndarray]:
     """Render ``model`` (PolygonModel) from each ``T_cam_model`` in ``poses`` -> list of BGR uint8."""
     import cv2
+
     from mst.pipeline.camera import Camera
     from mst.pipeline.render import Renderer
 
