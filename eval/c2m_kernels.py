@@ -94,7 +94,7 @@ def bucket_order(P, lo, inv_h, dims, shift):
         fy = (P[i, 1] - lo[1]) * inv_h
         fz = (P[i, 2] - lo[2]) * inv_h
         b = nb - 1
-        if fx >= 0.0 and fy >= 0.0 and fz >= 0.0:
+        if 0.0 <= fx < dims[0] and 0.0 <= fy < dims[1] and 0.0 <= fz < dims[2]:
             ix, iy, iz = int(fx), int(fy), int(fz)
             if ix < dims[0] and iy < dims[1] and iz < dims[2]:
                 b = ((ix >> shift) * by + (iy >> shift)) * bz + (iz >> shift)
@@ -131,7 +131,7 @@ def grid_query(P, lo, inv_h, dims, cell, lb, cand, max_dist, A, AB, AC, BC, N, G
         fx = (px - lo[0]) * inv_h
         fy = (py - lo[1]) * inv_h
         fz = (pz - lo[2]) * inv_h
-        if not (fx >= 0.0 and fy >= 0.0 and fz >= 0.0):
+        if not (0.0 <= fx < dims[0] and 0.0 <= fy < dims[1] and 0.0 <= fz < dims[2]):
             status[i] = 1
             continue
         ix, iy, iz = int(fx), int(fy), int(fz)
@@ -172,7 +172,7 @@ def cells_of(P, lo, inv_h, dims):
         fx = (P[i, 0] - lo[0]) * inv_h
         fy = (P[i, 1] - lo[1]) * inv_h
         fz = (P[i, 2] - lo[2]) * inv_h
-        if not (fx >= 0.0 and fy >= 0.0 and fz >= 0.0):
+        if not (0.0 <= fx < dims[0] and 0.0 <= fy < dims[1] and 0.0 <= fz < dims[2]):
             out[i] = -1
             continue
         ix, iy, iz = int(fx), int(fy), int(fz)
