@@ -423,6 +423,10 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
         T_depth_color[: vals.size // 4] = vals.reshape(-1, 4)
     if depth_dir is not None and not Path(depth_dir).is_dir():
         raise InputError(depth_dir, "depth folder does not exist")
+    if slam == "rgbd" and depth_dir is None:
+        raise InputError(None, "--slam rgbd needs --depth DIR")
+    if slam in ("off", "mono") and depth_dir is not None:
+        notes.append(f"--depth is not used with --slam {slam}")
     aid, aid_mode = _make_aid(slam, cam, cfg, Path(depth_dir) if depth_dir else None, depth_camera, T_depth_color, notes)
 
     tracker = EdgeTracker(model, cam, cfg)
@@ -494,7 +498,7 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
                                          f"{first_reason or 'lost'}); check the pose, the camera and the model units")
     statuses = [r[2] for r in rows]
     summary = {
-        "frames": n, "tracked": n_tr, "lost": statuses.count("lost"), "model": statuses.count("model"),
+        "frames": n, "tracked": n_tr, "frames_tracked": n_tr, "lost": statuses.count("lost"), "model": statuses.count("model"),
         "slam": statuses.count("slam"), "first_lost_frame": next((r[0] for r in rows if r[2] == "lost"), None),
         "median_ms": float(np.median(t_frames)) if t_frames else None,
         "p95_ms": float(np.percentile(t_frames, 95)) if t_frames else None,
