@@ -9,7 +9,9 @@ triangle of the mesh, like CloudCompare's C2M. How it is computed:
    shifted coordinates), or with ``engine="grid"`` by a numpy grid search in float64 (no Open3D).
 3. The distance to that triangle is recomputed exactly in float64 (Ericson's closest point on a
    triangle, vectorised), and when the closest point lies on an edge or vertex the triangles around
-   that vertex are checked too, so a float32 near-tie cannot pick a farther triangle.
+   that vertex are checked too, so a float32 near-tie cannot pick a farther triangle. Points
+   farther than 100 mesh extents (where float32 picks degrade) are searched again exactly. The
+   grid engine is exact float64 throughout.
 
 Sign (``signed=True``): positive on the side the triangle normals point to (outside of a closed
 mesh wound counter-clockwise seen from outside), negative inside. The normal used is the
@@ -184,6 +186,7 @@ class MeshIndex:
     engine: str = "bvh"
     _scene: object = field(default=None, repr=False)
     _grid: object = field(default=None, repr=False)
+    _exact: object = field(default=None, repr=False)
 
     @property
     def n_triangles(self) -> int:
@@ -618,6 +621,14 @@ def point_distances(idx: MeshIndex, P: np.ndarray, signed: bool = False, max_dis
         inv = np.empty_like(order)
         inv[order] = np.arange(len(order))
         d2, tri, feat = d2[inv], tri[inv], feat[inv]
+        # points farther than 100 mesh extents: the float32 pick degrades (~1e-7 of the distance, the
+        # size of the mesh at 1e7 extents), so they are searched again exactly in float64
+        ext = float(np.ptp(idx.V, axis=0).max())
+        far = np.nonzero(d2 > (100.0 * ext) ** 2)[0]
+        if len(far):
+            if idx._exact is None:
+                idx._exact = _TriangleGrid(idx)
+            tri[far], d2[far], feat[far] = idx._exact.nearest(Q[far], None)
     dist = np.sqrt(d2)
     if max_dist is not None:
         dist[dist > max_dist] = np.nan
