@@ -2,8 +2,8 @@
 
 Formats (picked by suffix):
 
-* ``.ply``: binary (little/big endian, read with a numpy structured dtype straight from the file,
-  memory-mapped) or ascii; the ``vertex`` element with ``x y z`` properties of any numeric type.
+* ``.ply``: binary (little/big endian, read chunk by chunk with a numpy structured dtype straight
+  from the file) or ascii; the ``vertex`` element with ``x y z`` properties of any numeric type.
 * ``.pcd``: PCL point clouds, ``DATA ascii`` or ``binary`` (``binary_compressed`` is refused).
 * ``.xyz``, ``.txt``, ``.csv``, ``.asc``, ``.pts``: text, the first three numeric columns are x y z;
   separators space, tab, comma or semicolon; ``#``/``//`` comment lines and a non-numeric header line
@@ -167,16 +167,15 @@ def _open_ply(p: Path) -> CloudSource:
         raise InputError(p, f"file is truncated: {p.stat().st_size} bytes, header needs {need}")
 
     def reader(size: int) -> Iterator[np.ndarray]:
-        if n == 0:
-            return
-        mm = np.memmap(p, dtype=dt, mode="r", offset=offset, shape=(n,))
-        for s in range(0, n, size):
-            blk = mm[s : s + size]
-            out = np.empty((len(blk), 3), np.float64)
-            for j, k in enumerate("xyz"):
-                out[:, j] = blk[k]
-            yield out
-        del mm
+        # plain reads (not a memory map): file pages would otherwise stay in the resident set
+        with open(p, "rb") as f:
+            f.seek(offset)
+            for s in range(0, n, size):
+                blk = np.fromfile(f, dtype=dt, count=min(size, n - s))
+                out = np.empty((len(blk), 3), np.float64)
+                for j, k in enumerate("xyz"):
+                    out[:, j] = blk[k]
+                yield out
 
     return CloudSource(p, n, xyz_dtype, reader)
 
@@ -242,13 +241,11 @@ def _open_pcd(p: Path) -> CloudSource:
         raise InputError(p, "file is truncated")
 
     def reader(size: int) -> Iterator[np.ndarray]:
-        if n == 0:
-            return
-        mm = np.memmap(p, dtype=dt, mode="r", offset=pos, shape=(n,))
-        for s in range(0, n, size):
-            blk = mm[s : s + size]
-            yield np.stack([blk[k].astype(np.float64) for k in "xyz"], axis=1)
-        del mm
+        with open(p, "rb") as f:
+            f.seek(pos)
+            for s in range(0, n, size):
+                blk = np.fromfile(f, dtype=dt, count=min(size, n - s))
+                yield np.stack([blk[k].astype(np.float64) for k in "xyz"], axis=1)
 
     return CloudSource(p, n, xyz_dtype, reader)
 
