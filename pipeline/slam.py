@@ -10,11 +10,20 @@ match); the SLAM gives a high-rate pose that drifts. This module fuses them like
   known poses (``mono``, parallax and reprojection checks). The camera pose of frame k is found by
   PnP + RANSAC on the 2D-3D tracks (:meth:`ModelAidedSlam.predict`), which tells the edge tracker
   where to project the model.
-* **fusion** (:meth:`ModelAidedSlam.update`): a healthy edge pose resets the SLAM state (status
-  ``model``) unless it disagrees with a confident SLAM pose by more than a chi-square bound on the
-  Mahalanobis distance (covariances ``sigma^2 W^-1`` of both poses, SLAM inflated with the frames
-  since the last model fix); otherwise the SLAM pose is output (``slam``); ``lost`` only when
-  neither works and relocalisation against the stored keyframes fails.
+* **fusion** (:meth:`ModelAidedSlam.update`), a small Kalman filter on the pose: the SLAM pose
+  carries a 6x6 anchoring covariance ``P`` (grown each frame by a random-walk drift of
+  ``drift_rel_per_frame`` x scene depth), plus its PnP noise ``sigma_s^2 (J^T J)^-1``; the edge pose
+  has ``sigma_e^2 W^-1``. A healthy edge pose is accepted (status ``model``, output = the fused
+  pose, ``P`` updated) unless (a) its information ``trace(W)`` fell below ``min_info_ratio`` x its
+  running mean (model half out of the view: biased) or (b) it disagrees with the SLAM pose beyond a
+  chi-square bound on the Mahalanobis distance (a wrong edge match must not drag the SLAM). A
+  rejected edge pose is accepted anyway when ``consensus_min`` recent rejected edge poses saw the
+  same SLAM offset (the SLAM, not the edges, is off: the whole map is re-anchored). Otherwise the
+  SLAM pose is output (``slam``); ``lost`` only when neither works and relocalisation against the
+  stored keyframes fails. When the model comes back after a SLAM-only stretch, the map built
+  meanwhile is moved rigidly onto the fused pose; rgbd landmarks are re-lifted from depth under
+  every model pose (the RGB-D paper's reset), mono landmarks are corrected by the local BA.
+  Mono landmarks are re-triangulated while their parallax grows (up to ``tri_refine_deg``).
 * **keyframes and local BA**: a keyframe stores its pose, its 2D observations and, as the model
   constraint, only the model pose and the 6x6 ``W = J^T J`` of its edge optimisation (constant size).
   At each keyframe a local bundle adjustment over the last ``ba_window`` keyframes runs in pycolmap:
