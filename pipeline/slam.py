@@ -289,6 +289,7 @@ class ModelAidedSlam:
             if not self._depth_files:
                 raise InputError(depth_dir, "no depth frames (.npy/.png/.exr/.bin) in the folder")
         self.K_depth = (depth_camera or camera).K
+        self._depth_camera_given = depth_camera is not None
         self.T_depth_color = np.eye(4) if T_depth_color is None else np.asarray(T_depth_color, float)
         self._orb = cv2.ORB_create(nfeatures=self.cfg.reloc_features)
         self._lk = dict(winSize=(self.cfg.klt_win, self.cfg.klt_win), maxLevel=self.cfg.klt_levels,
@@ -730,6 +731,10 @@ class ModelAidedSlam:
         if getattr(self, "_depth_k", None) != k:
             self._depth = _read_depth(self._depth_files[k])
             self._depth_k = k
+            h, w = self._depth.shape
+            if not self._depth_camera_given and self.cam.width and w != self.cam.width:
+                # registered depth at another resolution (e.g. colour frames resized by --scale)
+                self.K_depth = self.cam.scaled(w / self.cam.width).K
         return self._depth
 
     def _depth_at(self, D: np.ndarray, uv: np.ndarray) -> np.ndarray:
@@ -873,6 +878,9 @@ class ModelAidedSlam:
         t0 = time.perf_counter()
         try:
             return self._local_ba_impl(status)
+        except (RuntimeError, ValueError, np.linalg.LinAlgError):  # a degenerate window: skip this BA
+            self.stats["ba_errors"] = self.stats.get("ba_errors", 0) + 1
+            return self.kfs[-1].T_cam_model.copy()
         finally:
             self.timing_ms["ba"] += (time.perf_counter() - t0) * 1e3
             self.stats["ba_runs"] += 1
@@ -885,6 +893,7 @@ class ModelAidedSlam:
         cfg = self.cfg
         kfs = list(self.kfs)
         cur = kfs[-1]
+        T_in = cur.T_cam_model.copy()   # this frame's output pose before the BA
         # landmarks seen by >= 2 window keyframes
         all_t = np.concatenate([kf.tids for kf in kfs])
         u, cnt = np.unique(all_t, return_counts=True)
@@ -996,8 +1005,8 @@ class ModelAidedSlam:
                 self.lm.pop(t, None)
             else:
                 self.lm[t] = np.asarray(p.xyz, float).copy()
-        if status != STATUS_SLAM and cur.prior_T_cam_model is not None:
-            return cur.prior_T_cam_model.copy()  # under a model pose the output stays the drift-free edge pose
+        if status != STATUS_SLAM:
+            return T_in  # under a model pose the output stays the (fused) model pose
         return cur.T_cam_model.copy()
 
     def _relocalise(self, gray: np.ndarray) -> np.ndarray | None:
