@@ -40,7 +40,7 @@ def corridor(tmp_path_factory):
 def fast(tmp_path_factory):
     if not SAMPLE_MODEL.exists():
         pytest.skip("samples/building_tin.obj missing")
-    return {d: _synth(tmp_path_factory, f"fast{d}", "fast", base="orbit", drop=d, frames=40) for d in (8, 10)}
+    return {d: _synth(tmp_path_factory, f"fast{d}", "fast", base="orbit", drop=d, frames=30) for d in (8, 10)}
 
 
 def test_corridor_rgbd_carries_the_pose_while_the_model_is_away(corridor, tmp_path):
@@ -68,7 +68,7 @@ def test_corridor_rgbd_carries_the_pose_while_the_model_is_away(corridor, tmp_pa
 def test_fast_orbit_every_frame_tracked(fast, tmp_path, drop, mode):
     seq = fast[drop]
     summ, e = _track(seq, mode, tmp_path / f"{mode}.txt")
-    assert summ["lost"] == 0 and summ["tracked"] == summ["frames"] == 40
+    assert summ["lost"] == 0 and summ["tracked"] == summ["frames"] == 30
     assert np.nanmean(e["rel"]) <= 0.01
     assert np.nanmax(e["rel"]) <= 0.02
 
