@@ -8,9 +8,15 @@ Loops run in parallel over points (``prange``), using every core.
 
 from __future__ import annotations
 
-import numba
-import numpy as np
-from numba import njit, prange
+import os
+
+# idle OpenMP workers sleep instead of spinning (read when the OpenMP layer starts, at the first
+# parallel call): spinning workers would steal the main thread's core on a 2-core machine
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
+import numba  # noqa: E402
+import numpy as np  # noqa: E402
+from numba import njit, prange  # noqa: E402
 
 # OpenMP first: the TBB found beside some wheels is too old and numba warns on stderr when it tries it
 numba.config.THREADING_LAYER_PRIORITY = ["omp", "workqueue", "tbb"]
