@@ -91,7 +91,10 @@ def ping_pong_links(src: Path, dst: Path, n: int, pattern: str) -> None:
     dst.mkdir(parents=True, exist_ok=True)
     for k in range(n):
         f = files[order[k % len(order)]]
-        os.symlink(f.resolve(), dst / f"{k:06d}{f.suffix}")
+        link = dst / f"{k:06d}{f.suffix}"
+        if link.is_symlink():  # a rerun in the same work folder
+            link.unlink()
+        os.symlink(f.resolve(), link)
 
 
 def _synth(work: Path, name: str, scenario: str, **kw) -> Path:
