@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+
 from mst.pipeline import slam
 from mst.pipeline.camera import Camera
 from mst.pipeline.poses import inv_T, make_T, pose_error, se3_exp
