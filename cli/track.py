@@ -24,15 +24,17 @@ from mst.cli.common import emit_json, info, json_option, progress_bar, quiet_opt
 @click.option("--constant-velocity", is_flag=True, help="Predict each pose by repeating the last motion (no SLAM aid).")
 @click.option("--klt/--no-klt", default=False, show_default=True, help="Add KLT points inside visible faces (ViSP hybrid tracker).")
 @click.option("--overlay", default=None, type=click.Path(), help="Write an overlay video (.mp4) or a folder of PNGs.")
-@click.option("--slam", type=click.Choice(["auto", "mono", "rgbd", "off"]), default=None,
-              help="SLAM aid: auto = rgbd with --depth, else mono. Default: rgbd when --depth is given, else off.")
+@click.option("--slam", type=click.Choice(["auto", "mono", "rgbd", "off"]), default="auto", show_default=True,
+              help="SLAM aid: auto = rgbd with --depth, else mono; off = edges only.")
 @click.option("--depth", "depth_dir", type=click.Path(file_okay=False), default=None, help="Depth frames folder (for --slam rgbd).")
 @click.option("--depth-camera", "depth_camera", type=click.Path(dir_okay=False), default=None, help="Depth camera file (default: the colour camera).")
+@click.option("--landmarks", "landmarks_path", type=click.Path(dir_okay=False), default=None,
+              help="Write the SLAM map points (model frame) as PLY, e.g. for `mst fuse --landmarks` (mono).")
 @click.option("--depth-to-color", "depth_to_color", type=click.Path(dir_okay=False), default=None, help="4x4 depth-to-colour transform file.")
 @json_option
 @quiet_option
 def track(frames_src, model_path, camera_path, init_path, out, settings_path, frame_range, scale, fps, search_range,
-          sample_step, pyramid_levels, constant_velocity, klt, overlay, slam, depth_dir, depth_camera, depth_to_color, as_json, quiet):
+          sample_step, pyramid_levels, constant_velocity, klt, overlay, slam, depth_dir, depth_camera, depth_to_color, landmarks_path, as_json, quiet):
     """Track MODEL through FRAMES (video, image folder, glob or printf pattern) from an initial pose.
 
     Per frame: visible model edges are sampled, moving edges searched along their normals (ViSP's
@@ -62,12 +64,12 @@ def track(frames_src, model_path, camera_path, init_path, out, settings_path, fr
         cfg = read_tracker_xml(camera_path)
     cfg = cfg.updated(search_range=search_range, sample_step=sample_step, pyramid_levels=pyramid_levels, use_klt=klt or None,
                       constant_velocity=constant_velocity or None)
-    if slam is None:
-        slam = "rgbd" if depth_dir else "off"
+    if slam == "auto":
+        slam = "rgbd" if depth_dir else "mono"
     notes: list[str] = []
     summary = run_track(frames_src, model_path, camera_path, init_path, out, cfg, frames=frame_range, scale=scale,
                         fps=fps, overlay=overlay, slam=slam, depth_dir=depth_dir, depth_camera_path=depth_camera,
-                        depth_to_color_path=depth_to_color, write_json=as_json, notes=notes,
+                        depth_to_color_path=depth_to_color, landmarks_path=landmarks_path, write_json=as_json, notes=notes,
                         progress=lambda total: progress_bar(total, "tracking", quiet))
     for nt in notes:
         info(f"note: {nt}", quiet)

@@ -380,7 +380,7 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
               init_pose_path: str | os.PathLike, out_traj: str | os.PathLike, config: TrackerConfig | None = None, *,
               frames: str | None = None, scale: float = 1.0, fps: float | None = None, overlay: str | None = None,
               slam: str = "off", depth_dir: str | os.PathLike | None = None, depth_camera_path=None,
-              depth_to_color_path=None, write_json: bool = False, progress=None, notes: list[str] | None = None) -> dict:
+              depth_to_color_path=None, landmarks_path: str | os.PathLike | None = None, write_json: bool = False, progress=None, notes: list[str] | None = None) -> dict:
     """Track a model through frames; write ``out_traj`` (TUM, tracked frames), ``.csv`` and ``.json``.
 
     ``init_pose_path``: the pose of the first selected frame (TUM line or 4x4 cMo). Returns the
@@ -425,6 +425,8 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
         raise InputError(depth_dir, "depth folder does not exist")
     if slam == "rgbd" and depth_dir is None:
         raise InputError(None, "--slam rgbd needs --depth DIR")
+    if landmarks_path is not None and slam == "off":
+        raise InputError(landmarks_path, "--landmarks needs a SLAM aid (--slam mono or rgbd)")
     if slam in ("off", "mono") and depth_dir is not None:
         notes.append(f"--depth is not used with --slam {slam}")
     aid, aid_mode = _make_aid(slam, cam, cfg, Path(depth_dir) if depth_dir else None, depth_camera, T_depth_color, notes)
@@ -487,6 +489,7 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
             ov.close(commit=False)
         raise
     finally:
+        landmarks = aid.landmarks() if aid is not None and landmarks_path is not None else None
         if aid is not None and hasattr(aid, "close"):
             aid.close()
     n = len(rows)
@@ -509,7 +512,13 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
     }
     from mst.pipeline.poses import format_tum
 
-    with atomic_outputs(out_traj, csv_path, json_path) as (tmp_traj, tmp_csv, tmp_json):
+    if landmarks is not None:
+        summary["landmarks"] = int(len(landmarks))
+    with atomic_outputs(out_traj, csv_path, json_path, landmarks_path) as (tmp_traj, tmp_csv, tmp_json, tmp_lm):
+        if tmp_lm is not None:
+            from mst.pipeline.fusion import write_ply
+
+            write_ply(tmp_lm, landmarks, comments=["mst track SLAM landmarks, model frame, metres"])
         tmp_traj.write_text("# mst track: TUM 't tx ty tz qx qy qz qw' camera pose in model frame, tracked frames only\n"
                             + (format_tum(np.array(times), np.array(poses)) if poses else ""))
         buf = io.StringIO()

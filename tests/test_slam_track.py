@@ -80,3 +80,27 @@ def test_fast_orbit_edge_only_is_worse(fast, tmp_path):
     bad_off = (e_off["status"] == "lost").sum() + np.nansum(e_off["rel"] > 0.01)
     bad_slam = (e_slam["status"] == "lost").sum() + np.nansum(e_slam["rel"] > 0.01)
     assert bad_slam < bad_off
+
+
+def test_mono_landmarks_written_and_lie_on_the_scene(fast, tmp_path):
+    """``--landmarks``: the mono SLAM map is written as PLY in model coordinates, on the scene surfaces."""
+    import open3d as o3d
+
+    from mst.meshtools.io import load_triangles
+    from mst.pipeline.fusion import read_ply_points
+    from mst.pipeline.tracker import run_track
+
+    seq = fast[8]
+    lm = tmp_path / "map.ply"
+    s = run_track(seq / "rgb", seq / "model.obj", seq / "camera.json", seq / "cMo" / "000000.txt", tmp_path / "t.txt",
+                  slam="mono", fps=30.0, landmarks_path=lm)
+    X, _ = read_ply_points(lm)
+    assert s["landmarks"] == len(X) >= 50
+    V, F = load_triangles(seq / "scene.ply")
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(V.astype(np.float32), F.astype(np.uint32))
+    d = scene.compute_distance(X.astype(np.float32)).numpy()
+    dist_cam = np.linalg.norm(X - X.mean(0), axis=1).mean()
+    # triangulated points: most within 2 % of the scene scale of a real surface
+    assert np.median(d) < 0.02 * dist_cam
+    assert (d < 0.05 * dist_cam).mean() > 0.8
