@@ -177,7 +177,7 @@ def list_depth_frames(folder: str | os.PathLike, suffix: str | None = None) -> l
     return sorted(files, key=natural_key)
 
 
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm")
 
 
 def list_image_frames(folder: str | os.PathLike) -> list[Path]:

@@ -23,11 +23,12 @@ from pathlib import Path
 import numpy as np
 
 from mst import InputError
+from mst.pipeline.depth_io import IMAGE_SUFFIXES as IMAGE_EXTS
+from mst.pipeline.depth_io import natural_key
 
 # FFmpeg prints its own errors ("moov atom not found") on stderr; mst reports one clean line instead
 os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")
 
-IMAGE_EXTS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm")
 
 
 def parse_range(text: str | None) -> tuple[int, int | None, int]:
@@ -146,7 +147,8 @@ def open_frames(spec: str | os.PathLike, frames: str | None = None, scale: float
     p = Path(spec)
     files: list[Path] | None = None
     if p.is_dir():
-        files = sorted(f for f in p.iterdir() if f.suffix.lower() in IMAGE_EXTS)
+        # natural order (img2 before img10), the same order `mst fuse` pairs depth/colour frames in
+        files = sorted((f for f in p.iterdir() if f.suffix.lower() in IMAGE_EXTS and not f.name.startswith(".")), key=natural_key)
         if not files:
             raise InputError(p, "folder holds no images (.png .jpg .bmp .tif)")
     elif re.search(r"%0?\d*d", spec):
@@ -154,7 +156,7 @@ def open_frames(spec: str | os.PathLike, frames: str | None = None, scale: float
         if not files:
             raise InputError(spec, "no file matches the printf pattern")
     elif any(c in spec for c in "*?["):
-        files = sorted(Path(f) for f in _glob.glob(spec))
+        files = sorted((Path(f) for f in _glob.glob(spec)), key=natural_key)
         if not files:
             raise InputError(spec, "no file matches the glob")
     elif p.is_file() and p.suffix.lower() in IMAGE_EXTS:

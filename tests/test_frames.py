@@ -57,3 +57,20 @@ def test_video_times_and_bad_video(shared_data, tmp_path):
         open_frames(bad)
     with pytest.raises(InputError, match="does not exist"):
         open_frames(tmp_path / "missing.mp4")
+
+
+def test_image_folder_order_is_natural_and_matches_fuse(tmp_path):
+    """Unpadded names: img2 comes before img10 in `mst track` and in `mst fuse` alike (frame k = k-th file)."""
+    import cv2
+    import numpy as np
+
+    from mst.pipeline.depth_io import list_image_frames
+    from mst.pipeline.frames import open_frames
+
+    for i in (0, 1, 2, 10, 11):
+        cv2.imwrite(str(tmp_path / f"img{i}.png"), np.full((8, 8), i * 10, np.uint8))
+    vals = [int(img[0, 0, 0]) for _, _, img in open_frames(tmp_path)]
+    assert vals == [0, 10, 20, 100, 110]
+    assert [f.name for f in list_image_frames(tmp_path)] == ["img0.png", "img1.png", "img2.png", "img10.png", "img11.png"]
+    vals_glob = [int(img[0, 0, 0]) for _, _, img in open_frames(str(tmp_path / "img*.png"))]
+    assert vals_glob == vals
