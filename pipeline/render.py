@@ -293,68 +293,92 @@ class ShadedRenderer(Renderer):
         self._albedo = np.array([materials[int(k)].albedo for k in mids], np.float32).reshape(-1, 3)[mat_index]
         if albedo_tri is not None:  # per-triangle flat colours (e.g. a face colouring of the model)
             self._albedo = np.asarray(albedo_tri, np.float32).reshape(M, 3)
+        self._build_kernel_tables()
+
+    def _build_kernel_tables(self) -> None:
+        """Arrays for the numba kernels: stacked texture atlases (main textures first, then the
+        modulations), per-texture constants, per-triangle texture index, float32 normals and uv forms."""
+        texs = [m.texture for m in self._tex_list]
+        mod_idx = []
+        for m in self._tex_list:
+            if m.modulation is None:
+                mod_idx.append(-1)
+            else:
+                mod_idx.append(len(texs))
+                texs.append(m.modulation)
+        K = max(len(texs), 1)
+        if texs:
+            hmax = max(t.atlas.shape[0] for t in texs)
+            wmax = max(t.atlas.shape[1] for t in texs)
+            lmax = max(len(t.levels) for t in texs)
+        else:
+            hmax = wmax = lmax = 1
+        self._k_atlas = np.zeros((K, hmax, wmax, 3), np.uint8)
+        self._k_level_xy = np.zeros((K, lmax, 2), np.float32)
+        self._k_size = np.ones(K, np.int64)
+        self._k_inv_texel = np.ones(K, np.float32)
+        self._k_nlev = np.ones(K, np.int64)
+        self._k_mod_R = np.zeros((K, 2, 2), np.float32)
+        for i, tx in enumerate(texs):
+            a = tx.atlas
+            self._k_atlas[i, : a.shape[0], : a.shape[1]] = a
+            self._k_level_xy[i, : len(tx.levels)] = tx.level_xy
+            self._k_size[i] = tx.size
+            self._k_inv_texel[i] = np.float32(1.0 / tx.texel_m)
+            self._k_nlev[i] = len(tx.levels)
+        self._k_mod_idx = np.full(K, -1, np.int64)
+        for i, (m, mi) in enumerate(zip(self._tex_list, mod_idx)):
+            self._k_mod_idx[i] = mi
+            if mi >= 0:
+                self._k_mod_R[i] = _MOD_ROT.astype(np.float32) * np.float32(1.0 / m.modulation.texel_m)
+        M = len(self.F)
+        self._k_tex_tri = np.ascontiguousarray(self._tex_mat[:M])
+        periods = np.array([m.texture.size * m.texture.texel_m for m in self._tex_list] or [1.0], np.float64)
+        self._period_tri = np.where(self._k_tex_tri >= 0, periods[np.maximum(self._k_tex_tri, 0)], 1.0)
+        self._k_nrm = np.ascontiguousarray(self.normals, dtype=np.float32)
+        self._k_a_uv = np.ascontiguousarray(np.column_stack([self._a_u, self._a_v]), dtype=np.float32)
+        self._k_mat = np.concatenate([self.material_ids, [-1]]).astype(np.int64)
+        L = self.lighting
+        self._k_sky = np.array([self._sky_row, L.sky_horizon, L.sky_zenith], np.float32)
 
     # ------------------------------------------------------------------ per-ray shading
     def _frame_tables(self, origin_local: np.ndarray) -> dict:
-        """Per-triangle quantities of one camera position: two-sided shading, flat colours, uv origins."""
+        """Per-triangle quantities of one camera position: two-sided shading, flat colours, uv origins
+        (metres, float32, wrapped to the tile period of the triangle's texture for precision)."""
         n = self.normals
         facing = np.einsum("ij,ij->i", n, origin_local - self._v0_local) >= 0
         n_eff = np.where(facing[:, None], n, -n)
         shade = np.full(len(n), self.lighting.ambient)
         for ld, k in zip(self._light_dirs_model, self._light_k):
             shade += k * np.maximum(n_eff @ ld, 0.0)
+        u0 = self._a_u @ origin_local + self._c_u
+        v0 = self._a_v @ origin_local + self._c_v
         return {
             "shade": shade.astype(np.float32),
             "flat": np.concatenate([self._albedo * shade[:, None], np.zeros((1, 3))]).astype(np.float32),
-            "u0": self._a_u @ origin_local + self._c_u,  # metres, float64
-            "v0": self._a_v @ origin_local + self._c_v,
+            "u0": np.mod(u0, self._period_tri).astype(np.float32),
+            "v0": np.mod(v0, self._period_tri).astype(np.float32),
         }
 
-    def shade(self, origin_local: np.ndarray, d: tuple, inv_norm: np.ndarray, t: np.ndarray, prim: np.ndarray,
-              focal_px: float, tables: dict | None = None) -> np.ndarray:
-        """Colour (N, 3) float32 linear RGB in [0, 1] of rays from one origin along ``d = (dx, dy, dz)``.
+    def shade(self, R_model_cam: np.ndarray, x_cam: np.ndarray, y_cam: np.ndarray, t: np.ndarray, prim: np.ndarray,
+              focal_px: float, tables: dict, group: int = 1) -> np.ndarray:
+        """Colour (N // group, 3) float32 linear RGB in [0, 1] of rays from the camera centre.
 
-        ``inv_norm``: 1/|d| per ray; ``t``/``prim``: the cast result.
+        Rays have camera-frame directions ``(x_cam, y_cam, 1)`` (float32 (N,)) rotated to the model
+        frame by ``R_model_cam``; ``t``/``prim``: the cast result; ``tables``: :meth:`_frame_tables`
+        of the camera centre. Each output row is the mean of ``group`` consecutive rays (sub-pixel samples).
         """
-        tb = tables or self._frame_tables(origin_local)
-        M = len(self.F)
-        dx, dy, dz = d
-        pc = np.minimum(prim, M).astype(np.int64)  # M = no hit
-        rgb = np.take(tb["flat"], pc, axis=0)
-        miss = np.flatnonzero(pc == M)
-        L = self.lighting
-        if len(miss):
-            r = self._sky_row
-            el = np.clip((r[0] * dx[miss] + r[1] * dy[miss] + r[2] * dz[miss]) * inv_norm[miss], 0, 1)[:, None]
-            hz, zn = np.asarray(L.sky_horizon, np.float32), np.asarray(L.sky_zenith, np.float32)
-            rgb[miss] = hz + (zn - hz) * el
-        tmat = self._tex_mat[pc]  # texture-material index per ray, -1 = flat or miss
-        counts = np.bincount(tmat + 1, minlength=len(self._tex_list) + 1)
-        for k in np.nonzero(counts[1:])[0]:
-            m = self._tex_list[k]
-            sel = np.flatnonzero(tmat == k)
-            p = pc[sel]
-            tt = t[sel]
-            ddx, ddy, ddz = dx[sel], dy[sel], dz[sel]
-            tex = m.texture
-            inv_tex = np.float32(1.0 / tex.texel_m)
-            period = tex.size * tex.texel_m
-            au0, au1, au2, av0, av1, av2 = self._a_cols
-            u0 = np.mod(tb["u0"], period).astype(np.float32)  # wrapped per triangle (precision)
-            v0 = np.mod(tb["v0"], period).astype(np.float32)
-            um = u0[p] + tt * (au0[p] * ddx + au1[p] * ddy + au2[p] * ddz)
-            vm = v0[p] + tt * (av0[p] * ddx + av1[p] * ddy + av2[p] * ddz)
-            nx, ny, nz = self._n32
-            cosi = np.abs(nx[p] * ddx + ny[p] * ddy + nz[p] * ddz) * inv_norm[sel]
-            foot_m = tt * np.float32(1.0 / focal_px) / np.sqrt(np.maximum(cosi, np.float32(0.05)))
-            col = tex.sample(um * inv_tex, vm * inv_tex, foot_m * inv_tex)
-            if m.modulation is not None:
-                mt = m.modulation
-                R = _MOD_ROT.astype(np.float32) * np.float32(1.0 / mt.texel_m)
-                col *= mt.sample_level0(R[0, 0] * um + R[0, 1] * vm, R[1, 0] * um + R[1, 1] * vm)
-            col *= tb["shade"][p][:, None]
-            rgb[sel] = col
-        return rgb
+        from mst.pipeline import render_kernels as rk
+
+        n = len(x_cam) // group
+        out = np.empty((n, 3), np.float32)
+        rk.shade_rays(np.ascontiguousarray(x_cam, np.float32), np.ascontiguousarray(y_cam, np.float32),
+                      np.asarray(R_model_cam, np.float32), np.ascontiguousarray(t, np.float32),
+                      np.ascontiguousarray(prim, np.uint32), int(group), tables["flat"], self._k_tex_tri,
+                      tables["u0"], tables["v0"], self._k_a_uv, self._k_nrm, tables["shade"], self._k_sky,
+                      np.float32(1.0 / focal_px), self._k_atlas, self._k_size, self._k_inv_texel, self._k_nlev,
+                      self._k_level_xy, self._k_mod_idx, self._k_mod_R, out)
+        return out
 
     # ------------------------------------------------------------------ images
     def edge_mask(self, prim: np.ndarray, t: np.ndarray, shape: tuple[int, int], crease_deg: float = 3.0,
@@ -366,36 +390,29 @@ class ShadedRenderer(Renderer):
         differ, the normals differ by more than ``crease_deg``, or the depth jumps by more than
         ``rel_depth_jump`` (relative). Gentle creases of a terrain TIN are not edges.
         """
+        from mst.pipeline import render_kernels as rk
+
         H, W = shape
         M = len(self.F)
         pc = np.minimum(prim, M).astype(np.int64).reshape(H, W)
-        pl = self._plane_id[pc]
         tt = np.asarray(t, np.float32).reshape(H, W)
-        nx, ny, nz = self._n32
-        mat = np.concatenate([self.material_ids, [-1]])
-        cos_tol = np.float32(np.cos(np.radians(crease_deg)))
         edge = np.zeros((H, W), bool)
-        for dy, dx in ((0, 1), (1, 0), (1, 1), (1, -1)):
-            ys0, ys1 = slice(0, H - dy), slice(dy, H)
-            xs0, xs1 = (slice(0, W - dx), slice(dx, W)) if dx >= 0 else (slice(-dx, W), slice(0, W + dx))
-            ya, xa = np.nonzero(pl[ys0, xs0] != pl[ys1, xs1])
-            if not len(ya):
-                continue
-            yb, xb = ya + dy, xa + (dx if dx >= 0 else 0)
-            xa = xa + (0 if dx >= 0 else -dx)
-            pa, pb = pc[ya, xa], pc[yb, xb]
-            miss = (pa == M) | (pb == M)
-            pa0, pb0 = np.where(miss, 0, pa), np.where(miss, 0, pb)
-            cosn = nx[pa0] * nx[pb0] + ny[pa0] * ny[pb0] + nz[pa0] * nz[pb0]
-            ta, tb = tt[ya, xa], tt[yb, xb]
-            jump = np.abs(ta - tb) > np.float32(rel_depth_jump) * np.minimum(ta, tb)
-            sep = miss | (mat[pa] != mat[pb]) | (np.abs(cosn) < cos_tol) | jump
-            edge[ya[sep], xa[sep]] = True
-            edge[yb[sep], xb[sep]] = True
+        rk.edge_mask(pc, tt, self._plane_id, self._k_nrm, self._k_mat, np.float32(np.cos(np.radians(crease_deg))),
+                     np.float32(rel_depth_jump), edge)
         return edge
 
-    def primary_hits(self, cam: Camera, o: np.ndarray, d: tuple) -> tuple[np.ndarray, np.ndarray]:
-        """Hits of all pixel-centre rays, casting only where needed.
+    def _cast_idx(self, o: np.ndarray, R32: np.ndarray, x: np.ndarray, y: np.ndarray, idx: np.ndarray):
+        """Cast the pixel rays ``idx`` (all when empty) of camera-frame directions ``(x, y, 1)``."""
+        from mst.pipeline import render_kernels as rk
+
+        n = len(idx) if len(idx) else len(x)
+        rays = np.empty((n, 6), np.float32)
+        rk.build_rays(np.asarray(o, np.float32), R32, x, y, idx, rays)
+        ans = self.scene.cast_rays(self._o3d.core.Tensor.from_numpy(rays), nthreads=self.nthreads)
+        return ans["t_hit"].numpy(), ans["primitive_ids"].numpy()
+
+    def primary_hits(self, cam: Camera, o: np.ndarray, R_model_cam: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Hits of all pixel-centre rays (from local-frame centre ``o``), casting only where needed.
 
         Rays are cast on a stride-2 grid of pixels first. Inside a 2x2 cell of those samples that all
         see the same plane (plane id: normal, offset, material), the other pixels see that plane too:
@@ -404,7 +421,11 @@ class ShadedRenderer(Renderer):
         two pixels lying entirely between the coarse samples can be lost; larger ones are exact.)
         Returns ``t`` (H*W,) float32 (inf on miss) and triangle ids (H*W,) uint32.
         """
+        from mst.pipeline import render_kernels as rk
+
         H, W = cam.height, cam.width
+        x, y, _ = self.camera_dirs(cam)
+        R32 = np.asarray(R_model_cam, np.float32)
         ys = np.arange(0, H, 2)
         xs = np.arange(0, W, 2)
         if ys[-1] != H - 1:
@@ -412,40 +433,16 @@ class ShadedRenderer(Renderer):
         if xs[-1] != W - 1:
             xs = np.append(xs, W - 1)
         cidx = (ys[:, None] * W + xs[None, :]).ravel()
-        tc, pcst = self.cast(o, (d[0][cidx], d[1][cidx], d[2][cidx]))
-        M = len(self.F)
-        plc = self._plane_id[np.minimum(pcst, M).astype(np.int64)].reshape(len(ys), len(xs))
-        same = ((plc[:-1, :-1] == plc[1:, :-1]) & (plc[:-1, :-1] == plc[:-1, 1:]) & (plc[:-1, :-1] == plc[1:, 1:]))
-        # cell of each pixel: rows ys[k] <= i <= ys[k+1] (k = i // 2, the last odd row in the last cell)
-        ki = np.minimum(np.arange(H) // 2, len(ys) - 2)
-        kj = np.minimum(np.arange(W) // 2, len(xs) - 2)
-        rep2 = pcst.reshape(len(ys), len(xs))[:-1, :-1]      # each cell's top-left sample
-        if H % 2 == 0 and W % 2 == 0:                         # cells of 2x2 pixels: plain repeats
-            uni = np.repeat(np.repeat(same, 2, axis=0), 2, axis=1).ravel()
-            rep = np.repeat(np.repeat(rep2, 2, axis=0), 2, axis=1).ravel()
-        else:
-            uni = same[ki][:, kj].ravel()
-            rep = rep2[ki][:, kj].ravel()
+        _, pcst = self._cast_idx(o, R32, x, y, cidx)
+        num_tri = (self._plane_h - self.normals @ o).astype(np.float32)  # per triangle, float64 then rounded
         t = np.empty(H * W, np.float32)
         prim = np.empty(H * W, np.uint32)
-        # uniform cells: analytic depth on the plane of the representative triangle
-        ui = np.flatnonzero(uni)
-        pr = rep[ui]
-        hit = pr != INVALID
-        uh, um = ui[hit], ui[~hit]
-        p64 = pr[hit].astype(np.int64)
-        nx, ny, nz = self._n32
-        num_tri = (self._plane_h - self.normals @ o).astype(np.float32)  # per triangle, float64 then rounded
-        num = num_tri[p64]
-        den = nx[p64] * d[0][uh] + ny[p64] * d[1][uh] + nz[p64] * d[2][uh]
-        t[uh] = num / den
-        prim[uh] = pr[hit]
-        t[um] = np.inf
-        prim[um] = INVALID
-        # the rest: cast
-        ci = np.flatnonzero(~uni)
-        if len(ci):
-            t[ci], prim[ci] = self.cast(o, (d[0][ci], d[1][ci], d[2][ci]))
+        rest = np.empty(H * W, np.int64)
+        n_rest = rk.fill_planar_cells(H, W, ys, xs, np.ascontiguousarray(pcst.reshape(len(ys), len(xs))),
+                                      self._plane_id, num_tri, self._k_nrm, R32, x, y, t, prim, rest)
+        if n_rest:
+            ci = rest[:n_rest]
+            t[ci], prim[ci] = self._cast_idx(o, R32, x, y, ci)
         return t, prim
 
     def render(self, cam: Camera, T_cam_model: np.ndarray, aa_samples: int = 16, with_cos: bool = False,
@@ -458,16 +455,21 @@ class ShadedRenderer(Renderer):
         (supersampled pixels), ``n_edge_px``, and with ``with_cos`` ``cos_incidence`` (H, W) float32
         |cos| of the angle between ray and surface normal (0 = no surface).
         """
+        from mst.pipeline import render_kernels as rk
+
         H, W = cam.height, cam.width
         x, y, inv_norm = self.camera_dirs(cam)
-        o, d = self.rays_for(T_cam_model, x, y)
+        T = np.asarray(T_cam_model, np.float64)
+        R_model_cam = T[:3, :3].T
+        o = -R_model_cam @ T[:3, 3] - self.origin
+        R32 = R_model_cam.astype(np.float32)
         if full_cast or H < 4 or W < 4:
-            t, prim = self.cast(o, d)
+            t, prim = self._cast_idx(o, R32, x, y, np.zeros(0, np.int64))
         else:
-            t, prim = self.primary_hits(cam, o, d)
+            t, prim = self.primary_hits(cam, o, R_model_cam)
         focal = 0.5 * (cam.fx + cam.fy)
         tables = self._frame_tables(o)
-        rgb = self.shade(o, d, inv_norm, t, prim, focal, tables)
+        rgb = self.shade(R_model_cam, x, y, t, prim, focal, tables)
         edges = np.zeros((H, W), bool)
         if aa_samples:
             edges = self.edge_mask(prim, t, (H, W))
@@ -478,21 +480,22 @@ class ShadedRenderer(Renderer):
                 sub = (uv[:, None, :] + pat[None, :, :]).reshape(-1, 2)
                 xy = cam.unproject(sub)
                 sx, sy = xy[:, 0].astype(np.float32), xy[:, 1].astype(np.float32)
-                s_inv = (1.0 / np.sqrt(1.0 + sx.astype(np.float64) ** 2 + sy.astype(np.float64) ** 2)).astype(np.float32)
-                o2, d2 = self.rays_for(T_cam_model, sx, sy)
-                t2, p2 = self.cast(o2, d2)
-                c2 = self.shade(o2, d2, s_inv, t2, p2, focal, tables)
-                rgb[e_idx] = c2.reshape(len(e_idx), len(pat), 3).mean(axis=1)
-        hit = prim != INVALID
+                t2, p2 = self._cast_idx(o, R32, sx, sy, np.zeros(0, np.int64))
+                rgb[e_idx] = self.shade(R_model_cam, sx, sy, t2, p2, focal, tables, group=len(pat))
+        depth = np.empty(H * W, np.float32)
+        ids = np.empty(H * W, np.int64)
+        rk.depth_ids(t, prim, len(self.F), depth, ids)
         out = {
             "rgb": rgb.reshape(H, W, 3),
-            "depth": np.where(hit, t, 0).astype(np.float32).reshape(H, W),
-            "ids": np.where(hit, prim.astype(np.int64), -1).reshape(H, W),
+            "depth": depth.reshape(H, W),
+            "ids": ids.reshape(H, W),
             "edges": edges,
             "n_edge_px": int(edges.sum()),
         }
         if with_cos:
-            pc = np.where(hit, prim, 0).astype(np.int64)
+            hit = ids >= 0
+            pc = np.where(hit, ids, 0)
+            d = _rot(R_model_cam, x, y, 1.0)
             nx, ny, nz = self._n32
             cosi = np.abs(nx[pc] * d[0] + ny[pc] * d[1] + nz[pc] * d[2]) * inv_norm
             out["cos_incidence"] = np.where(hit, cosi, 0).astype(np.float32).reshape(H, W)
