@@ -56,10 +56,11 @@ class C2MConfig:
     max_dist: float | None = None
     chunk_points: int = 1_000_000
     workers: int = 2
-    #: with engine "auto": meshes up to this many triangles use the numpy grid search (0: never; the
-    #: Open3D BVH measured faster on every case so far)
+    #: grid engine: meshes up to this many triangles use the lazily filled dense grid of candidate
+    #: lists (:class:`_DenseGrid`), larger ones the binned grid with shell search (:class:`_BinGrid`)
     small_mesh_triangles: int = 5000
-    #: nearest-triangle engine: "auto", "grid" (numpy float64, no Open3D) or "bvh" (Open3D)
+    #: nearest-triangle engine: "auto" (= "grid"), "grid" (compiled float64, no Open3D) or "bvh"
+    #: (Open3D's float32 BVH + exact float64 recheck)
     engine: str = "auto"
 
 
@@ -245,7 +246,7 @@ def prepare_mesh(V: np.ndarray, F: np.ndarray, path: str | os.PathLike | None = 
     if signed:
         _pseudo_normals(idx, cr / area2[:, None])
     if engine == "auto":
-        engine = "grid" if m <= small_mesh_triangles else "bvh"
+        engine = "grid"
     idx.engine = engine
     if engine == "bvh":
         import open3d as o3d
@@ -254,9 +255,12 @@ def prepare_mesh(V: np.ndarray, F: np.ndarray, path: str | os.PathLike | None = 
         scene.add_triangles(o3d.core.Tensor(Vm.astype(np.float32)), o3d.core.Tensor(Fm.astype(np.uint32)))
         idx._scene = scene
     elif engine == "grid":
-        if m > 0xFFFF:
-            raise InputError(path, f"{m} triangles: the grid engine handles up to 65535 (use the bvh engine)")
-        idx._grid = _DenseGrid(idx)
+        if m <= small_mesh_triangles:
+            idx._grid = _DenseGrid(idx)
+        else:
+            from mst.eval import c2m_kernels as nb
+
+            idx._grid = _BinGrid(idx, nb)
     else:
         raise ValueError(f"unknown engine {engine!r}")
     return idx
@@ -396,6 +400,58 @@ class _TriangleGrid:
         out_f = np.empty(n, np.int8)
         out_t[perm], out_d[perm], out_f[perm] = best_t, best_d2, best_f
         return out_t, out_d, out_f
+
+
+class _BinGrid:
+    """Nearest-triangle search for large meshes (compiled, exact float64, no Open3D).
+
+    A uniform grid of cubic cells over the mesh box (plus a margin); every triangle is listed in each
+    cell its bounding box overlaps (conservative, CSR with int32 triangle ids). Per point, shells of
+    cells around its cell are searched outward until the best distance is at most the distance to the
+    cells not searched yet (:func:`mst.eval.c2m_kernels.bins_query`): exact, also near ties. The cell
+    size is about ``cell_factor`` times the mean triangle edge (from the mean area), enlarged when the
+    grid would exceed ``max_cells``. Points far outside the grid (more than ``far_cells`` cells) scan
+    the occupied cells instead (:func:`mst.eval.c2m_kernels.bins_far_query`).
+    """
+
+    def __init__(self, idx: MeshIndex, nb, cell_factor: float = 2.0, max_cells: int = 4_000_000,
+                 far_cells: float = 32.0):
+        self.idx, self.nb = idx, nb
+        m = idx.n_triangles
+        vmin, vmax = idx.V.min(0), idx.V.max(0)
+        ext = float((vmax - vmin).max()) or 1.0
+        area = 0.5 * float(np.linalg.norm(np.cross(idx.AB, idx.AC), axis=1).sum())
+        h = cell_factor * np.sqrt(2.0 * area / m)
+        size = np.maximum(vmax - vmin, 1e-9 * ext)
+        h = max(h, float(np.cbrt(np.prod(size + 4 * h) / max_cells)), ext / 4096)
+        for _ in range(8):  # the margin (2 cells each side) depends on h
+            dims = np.ceil((size + 4 * h) / h).astype(np.int64)
+            if int(np.prod(dims)) <= max_cells:
+                break
+            h *= 1.26
+        self.h = float(h)
+        self.lo = vmin - 2 * h
+        self.dims = dims
+        corners = np.stack([idx.A, idx.A + idx.AB, idx.A + idx.AC])
+        self.BB = np.concatenate([corners.min(0), corners.max(0)], axis=1)  # (m, 6) triangle boxes
+        self.start, self.items = nb.bin_triangles(self.BB, self.lo, 1.0 / self.h, self.dims)
+        self.far_d2 = (far_cells * self.h) ** 2
+        self.occ = np.nonzero(np.diff(self.start))[0]  # occupied cells, for the far points
+
+    def nearest(self, P: np.ndarray, max_dist: float | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(tri, d2, feature)`` per point; tri = -1 where farther than ``max_dist``."""
+        nb, idx = self.nb, self.idx
+        P = np.ascontiguousarray(P, np.float64)
+        md2 = np.inf if max_dist is None else (float(max_dist) * (1 + 1e-9)) ** 2
+        order = nb.bucket_order(P, self.lo, 1.0 / self.h, self.dims, 2)
+        tri, d2, feat, st = nb.bins_query(P, self.lo, self.h, self.dims, self.start, self.items, md2, self.far_d2,
+                                          idx.A, idx.AB, idx.AC, idx.BC, idx.N, idx.G, self.BB, order)
+        out = np.nonzero(st == 1)[0]
+        if len(out):
+            tri[out], d2[out], feat[out] = nb.bins_far_query(P[out], self.lo, self.h, self.dims, self.start,
+                                                             self.items, self.occ, md2, idx.A, idx.AB, idx.AC,
+                                                             idx.BC, idx.N, idx.G, self.BB)
+        return tri, d2, feat
 
 
 class _DenseGrid:
@@ -713,14 +769,6 @@ def _summary(mo: _Moments, values: np.ndarray) -> dict:
 
 
 # ------------------------------------------------------------------------------------ the stage
-def _likely_large_mesh(path: str | os.PathLike, small_mesh_triangles: int) -> bool:
-    """Guess from the file size (about 100 bytes per triangle or more) whether the BVH will be used."""
-    try:
-        return Path(path).stat().st_size > 100 * small_mesh_triangles
-    except OSError:
-        return False
-
-
 def _prefetch_open3d():
     """Start importing Open3D in a thread; returns the thread (None when already imported)."""
     import importlib
@@ -776,7 +824,7 @@ def run_c2m(cloud_path: str | os.PathLike, mesh_path: str | os.PathLike, config:
     if src.count == 0:
         raise InputError(cloud_path, "cloud has no points")
     pre = None
-    if cfg.engine == "bvh" or (cfg.engine == "auto" and _likely_large_mesh(mesh_path, cfg.small_mesh_triangles)):
+    if cfg.engine == "bvh":
         pre = _prefetch_open3d()  # overlap the ~1 s Open3D import with reading the mesh
     try:
         V, F = load_mesh_triangles(mesh_path)

@@ -285,3 +285,187 @@ def threshold_sums(d, thresholds):
                 s1[j] += x
                 s2[j] += x * x
     return cnt, s1, s2, lo, hi
+
+
+# ------------------------------------------------------------------ binned grid (large meshes)
+@njit(cache=True)
+def bin_triangles(BB, lo, inv_h, dims):
+    """Conservative binning of triangles into the cells their bounding boxes overlap (CSR).
+
+    ``BB`` (m, 6) triangle boxes (min xyz, max xyz), ``lo`` (3,) grid origin, ``inv_h`` 1 / cell size,
+    ``dims`` (3,) cells per axis. Returns ``(start (cells + 1,) int64, items (start[-1],) int32)``:
+    the triangles of cell ``c = (ix * ny + iy) * nz + iz`` are ``items[start[c]:start[c + 1]]``.
+    """
+    m = len(BB)
+    nx, ny, nz = dims[0], dims[1], dims[2]
+    rng = np.empty((m, 6), np.int64)
+    start = np.zeros(nx * ny * nz + 1, np.int64)
+    for k in range(m):
+        for a in range(3):
+            n_a = dims[a]
+            i0 = int(np.floor((BB[k, a] - lo[a]) * inv_h))
+            i1 = int(np.floor((BB[k, 3 + a] - lo[a]) * inv_h))
+            rng[k, a] = min(max(i0, 0), n_a - 1)
+            rng[k, 3 + a] = min(max(i1, 0), n_a - 1)
+        for ix in range(rng[k, 0], rng[k, 3] + 1):
+            for iy in range(rng[k, 1], rng[k, 4] + 1):
+                for iz in range(rng[k, 2], rng[k, 5] + 1):
+                    start[(ix * ny + iy) * nz + iz + 1] += 1
+    for c in range(nx * ny * nz):
+        start[c + 1] += start[c]
+    fill = start[:-1].copy()
+    items = np.empty(start[-1], np.int32)
+    for k in range(m):
+        for ix in range(rng[k, 0], rng[k, 3] + 1):
+            for iy in range(rng[k, 1], rng[k, 4] + 1):
+                for iz in range(rng[k, 2], rng[k, 5] + 1):
+                    c = (ix * ny + iy) * nz + iz
+                    items[fill[c]] = k
+                    fill[c] += 1
+    return start, items
+
+
+@njit(cache=True, inline="always")
+def _axis_gap(p, lo, h, i, r, n):
+    """Lower bound of the distance along one axis from coordinate p to the cells farther than r
+    from cell i (inf when there are none on either side)."""
+    g = np.inf
+    if i - r - 1 >= 0:
+        g = min(g, p - (lo + (i - r) * h))
+    if i + r + 1 <= n - 1:
+        g = min(g, lo + (i + r + 1) * h - p)
+    return g
+
+
+@njit(cache=True, parallel=True)
+def bins_query(P, lo, h, dims, start, items, max_d2, far_d2, A, AB, AC, BC, N, G, BB, order):
+    """Exact nearest triangle of every point by an expanding search over the binned grid.
+
+    Shells of cells (Chebyshev radius r = 0, 1, ...) around the point's cell (clamped into the
+    grid) are searched until the best squared distance is at most the squared gap to the cells not
+    yet searched: the closest point of the nearest triangle lies in a cell the triangle is binned in,
+    so the answer is exact (float64, ties keep the first found). ``max_d2`` (inf: none) starts the
+    search radius: nothing farther is looked at (tri -1, status 3). Points whose distance to the grid
+    box exceeds ``sqrt(far_d2)`` are not evaluated (status 1). Returns ``(tri, d2, feature, status)``.
+    """
+    n = len(P)
+    tri = np.full(n, -1, np.int64)
+    d2 = np.full(n, np.inf)
+    feat = np.zeros(n, np.int8)
+    status = np.zeros(n, np.int8)
+    nx, ny, nz = dims[0], dims[1], dims[2]
+    inv_h = 1.0 / h
+    eps = 1e-9 * h
+    for kk in prange(n):
+        i = order[kk]
+        px, py, pz = P[i, 0], P[i, 1], P[i, 2]
+        ox = max(lo[0] - px, 0.0, px - (lo[0] + nx * h))
+        oy = max(lo[1] - py, 0.0, py - (lo[1] + ny * h))
+        oz = max(lo[2] - pz, 0.0, pz - (lo[2] + nz * h))
+        if not (ox * ox + oy * oy + oz * oz <= far_d2):  # also catches NaN
+            status[i] = 1
+            continue
+        ix = min(max(int(np.floor((px - lo[0]) * inv_h)), 0), nx - 1)
+        iy = min(max(int(np.floor((py - lo[1]) * inv_h)), 0), ny - 1)
+        iz = min(max(int(np.floor((pz - lo[2]) * inv_h)), 0), nz - 1)
+        best = max_d2
+        bt = -1
+        bf = 0
+        r = 0
+        while True:
+            for cx in range(max(ix - r, 0), min(ix + r, nx - 1) + 1):
+                ex = max(lo[0] + cx * h - px, 0.0, px - (lo[0] + (cx + 1) * h))
+                ax = cx == ix - r or cx == ix + r
+                for cy in range(max(iy - r, 0), min(iy + r, ny - 1) + 1):
+                    ey = max(lo[1] + cy * h - py, 0.0, py - (lo[1] + (cy + 1) * h))
+                    exy = ex * ex + ey * ey
+                    if exy >= best:
+                        continue
+                    full = ax or cy == iy - r or cy == iy + r
+                    z0 = max(iz - r, 0)
+                    z1 = min(iz + r, nz - 1)
+                    step = 1 if (full or r == 0) else 2 * r
+                    for cz in range(iz - r if not full else z0, z1 + 1, step):
+                        if cz < z0:
+                            continue
+                        ez = max(lo[2] + cz * h - pz, 0.0, pz - (lo[2] + (cz + 1) * h))
+                        if exy + ez * ez >= best:
+                            continue
+                        c = (cx * ny + cy) * nz + cz
+                        for j in range(start[c], start[c + 1]):
+                            k = np.int64(items[j])
+                            if _box_d2(px, py, pz, k, BB) >= best:
+                                continue
+                            r2, f = pt_tri(px, py, pz, k, A, AB, AC, BC, N, G)
+                            if r2 < best:
+                                best, bt, bf = r2, k, f
+            g = min(_axis_gap(px, lo[0], h, ix, r, nx), _axis_gap(py, lo[1], h, iy, r, ny),
+                    _axis_gap(pz, lo[2], h, iz, r, nz))
+            if g == np.inf:
+                break
+            g -= eps
+            if g > 0.0 and g * g >= best:
+                break
+            r += 1
+        tri[i] = bt
+        if bt < 0:
+            status[i] = 3
+        else:
+            d2[i] = best
+            feat[i] = bf
+    return tri, d2, feat, status
+
+
+@njit(cache=True, inline="always")
+def _cell_d2(px, py, pz, c, lo, h, ny, nz):
+    ix = c // (ny * nz)
+    iy = (c // nz) % ny
+    iz = c % nz
+    ex = max(lo[0] + ix * h - px, 0.0, px - (lo[0] + (ix + 1) * h))
+    ey = max(lo[1] + iy * h - py, 0.0, py - (lo[1] + (iy + 1) * h))
+    ez = max(lo[2] + iz * h - pz, 0.0, pz - (lo[2] + (iz + 1) * h))
+    return ex * ex + ey * ey + ez * ez
+
+
+@njit(cache=True, parallel=True)
+def bins_far_query(P, lo, h, dims, start, items, occ, max_d2, A, AB, AC, BC, N, G, BB):
+    """Exact nearest triangle of points far outside the grid: the occupied cells ``occ`` are scanned,
+    nearest cell first, then every cell whose box is nearer than the best distance so far.
+    Returns ``(tri, d2, feature)`` (tri -1: farther than ``max_d2``)."""
+    n = len(P)
+    tri = np.full(n, -1, np.int64)
+    d2 = np.full(n, np.inf)
+    feat = np.zeros(n, np.int8)
+    ny, nz = dims[1], dims[2]
+    for i in prange(n):
+        px, py, pz = P[i, 0], P[i, 1], P[i, 2]
+        if not (np.isfinite(px) and np.isfinite(py) and np.isfinite(pz)):
+            continue
+        best = max_d2
+        bt = -1
+        bf = 0
+        first = -1
+        fd = np.inf
+        for q in range(len(occ)):
+            e = _cell_d2(px, py, pz, occ[q], lo, h, ny, nz)
+            if e < fd:
+                fd, first = e, q
+        for rep in range(2):
+            for q in range(len(occ)):
+                if (rep == 0) != (q == first):
+                    continue
+                c = occ[q]
+                if _cell_d2(px, py, pz, c, lo, h, ny, nz) >= best:
+                    continue
+                for j in range(start[c], start[c + 1]):
+                    k = np.int64(items[j])
+                    if _box_d2(px, py, pz, k, BB) >= best:
+                        continue
+                    r2, f = pt_tri(px, py, pz, k, A, AB, AC, BC, N, G)
+                    if r2 < best:
+                        best, bt, bf = r2, k, f
+        tri[i] = bt
+        if bt >= 0:
+            d2[i] = best
+            feat[i] = bf
+    return tri, d2, feat
