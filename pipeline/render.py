@@ -361,18 +361,20 @@ class ShadedRenderer(Renderer):
         }
 
     def shade(self, R_model_cam: np.ndarray, x_cam: np.ndarray, y_cam: np.ndarray, t: np.ndarray, prim: np.ndarray,
-              focal_px: float, tables: dict, group: int = 1) -> np.ndarray:
+              focal_px: float, tables: dict, group: int = 1, inv_norm: np.ndarray | None = None) -> np.ndarray:
         """Colour (N // group, 3) float32 linear RGB in [0, 1] of rays from the camera centre.
 
         Rays have camera-frame directions ``(x_cam, y_cam, 1)`` (float32 (N,)) rotated to the model
         frame by ``R_model_cam``; ``t``/``prim``: the cast result; ``tables``: :meth:`_frame_tables`
         of the camera centre. Each output row is the mean of ``group`` consecutive rays (sub-pixel samples).
+        ``inv_norm``: optional 1/|(x, y, 1)| per ray (computed when absent).
         """
         from mst.pipeline import render_kernels as rk
 
         n = len(x_cam) // group
         out = np.empty((n, 3), np.float32)
-        rk.shade_rays(np.ascontiguousarray(x_cam, np.float32), np.ascontiguousarray(y_cam, np.float32),
+        inv = np.zeros(0, np.float32) if inv_norm is None else np.ascontiguousarray(inv_norm, np.float32)
+        rk.shade_rays(np.ascontiguousarray(x_cam, np.float32), np.ascontiguousarray(y_cam, np.float32), inv,
                       np.asarray(R_model_cam, np.float32), np.ascontiguousarray(t, np.float32),
                       np.ascontiguousarray(prim, np.uint32), int(group), tables["flat"], self._k_tex_tri,
                       tables["u0"], tables["v0"], self._k_a_uv, self._k_nrm, tables["shade"], self._k_sky,
@@ -469,7 +471,7 @@ class ShadedRenderer(Renderer):
             t, prim = self.primary_hits(cam, o, R_model_cam)
         focal = 0.5 * (cam.fx + cam.fy)
         tables = self._frame_tables(o)
-        rgb = self.shade(R_model_cam, x, y, t, prim, focal, tables)
+        rgb = self.shade(R_model_cam, x, y, t, prim, focal, tables, inv_norm=inv_norm)
         edges = np.zeros((H, W), bool)
         if aa_samples:
             edges = self.edge_mask(prim, t, (H, W))

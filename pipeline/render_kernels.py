@@ -19,90 +19,97 @@ from numba import njit
 F32 = np.float32
 
 
-@njit(cache=True, nogil=True, inline="always")
-def _bilinear(atlas, ti, x, y, out3, wgt):
-    """Add ``wgt`` x the bilinear sample of atlas ``ti`` at atlas pixel coordinates (x, y) to out3 (0..255)."""
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _bilinear(atlas, ti, x, y):
+    """Bilinear sample (r, g, b), 0..255, of atlas ``ti`` at atlas pixel coordinates (x, y)."""
     H = atlas.shape[1]
     W = atlas.shape[2]
     xf = np.floor(x)
     yf = np.floor(y)
     fx = x - xf
     fy = y - yf
-    x0 = int(xf)
-    y0 = int(yf)
-    x0 = min(max(x0, 0), W - 1)
-    y0 = min(max(y0, 0), H - 1)
+    x0 = min(max(int(xf), 0), W - 1)
+    y0 = min(max(int(yf), 0), H - 1)
     x1 = min(x0 + 1, W - 1)
     y1 = min(y0 + 1, H - 1)
-    w00 = (F32(1.0) - fx) * (F32(1.0) - fy)
-    w01 = fx * (F32(1.0) - fy)
-    w10 = (F32(1.0) - fx) * fy
-    w11 = fx * fy
-    for c in range(3):
-        v = (w00 * F32(atlas[ti, y0, x0, c]) + w01 * F32(atlas[ti, y0, x1, c])
-             + w10 * F32(atlas[ti, y1, x0, c]) + w11 * F32(atlas[ti, y1, x1, c]))
-        out3[c] += wgt * v
+    gx = F32(1.0) - fx
+    gy = F32(1.0) - fy
+    a = atlas[ti]
+    r0 = gx * F32(a[y0, x0, 0]) + fx * F32(a[y0, x1, 0])
+    g0 = gx * F32(a[y0, x0, 1]) + fx * F32(a[y0, x1, 1])
+    b0 = gx * F32(a[y0, x0, 2]) + fx * F32(a[y0, x1, 2])
+    r1 = gx * F32(a[y1, x0, 0]) + fx * F32(a[y1, x1, 0])
+    g1 = gx * F32(a[y1, x0, 1]) + fx * F32(a[y1, x1, 1])
+    b1 = gx * F32(a[y1, x0, 2]) + fx * F32(a[y1, x1, 2])
+    return gy * r0 + fy * r1, gy * g0 + fy * g1, gy * b0 + fy * b1
 
 
-@njit(cache=True, nogil=True, inline="always")
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _wrap(a, size):
     """``a`` modulo ``size`` (float32, in [0, size])."""
     return a - np.floor(a * (F32(1.0) / size)) * size
 
 
-@njit(cache=True, nogil=True)
-def texture_sample(atlas, ti, size, nlev, level_xy, u, v, foot, mip, out3):
-    """Colour (0..255, into ``out3``) of texture ``ti`` at level-0 texel coordinates (u, v).
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def texture_sample(atlas, ti, size, nlev, level_xy, u, v, foot, mip):
+    """Colour (r, g, b), 0..255, of texture ``ti`` at level-0 texel coordinates (u, v).
 
     ``mip``: trilinear-ish ("brilinear") mip-mapping from the footprint ``foot`` (level-0 texels):
     level ``floor(lod)``, blended with the next one over the middle half of each level step.
     Without ``mip``: plain bilinear in level 0. Texel centres are at integer (u, v).
     """
     sz = F32(size)
-    uw = _wrap(u, sz)
-    vw = _wrap(v, sz)
-    for c in range(3):
-        out3[c] = F32(0.0)
+    uw = _wrap(u, sz) + F32(0.5)
+    vw = _wrap(v, sz) + F32(0.5)
     lvl = 0
     w = F32(0.0)
+    scale = F32(1.0)
     if mip:
-        f = max(foot, F32(1.0))
-        lod = F32(np.log2(f))
-        lod = min(max(lod, F32(0.0)), F32(nlev - 1.001))
-        lvl = int(lod)
-        w = min(max((lod - F32(lvl) - F32(0.25)) * F32(2.0), F32(0.0)), F32(1.0))
-        if w >= F32(1.0):
+        # lod = log2(footprint) = lvl + log2(m), m in [1, 2); log2(m) ~ x (1.3465 - 0.3465 x), x = m - 1
+        m = foot
+        while m >= F32(2.0) and lvl < nlev - 1:
+            m *= F32(0.5)
+            scale *= F32(0.5)
             lvl += 1
-            w = F32(0.0)
-    scale = F32(1.0) / F32(1 << lvl)
-    x = (uw + F32(0.5)) * scale + (level_xy[ti, lvl, 0] - F32(0.5))
-    y = (vw + F32(0.5)) * scale + (level_xy[ti, lvl, 1] - F32(0.5))
+        if lvl < nlev - 1:
+            xm = max(m, F32(1.0)) - F32(1.0)
+            frac = xm * (F32(1.3465) - F32(0.3465) * xm)
+            w = min(max((frac - F32(0.25)) * F32(2.0), F32(0.0)), F32(1.0))
+            if w >= F32(1.0):
+                lvl += 1
+                scale *= F32(0.5)
+                w = F32(0.0)
+    x = uw * scale + (level_xy[ti, lvl, 0] - F32(0.5))
+    y = vw * scale + (level_xy[ti, lvl, 1] - F32(0.5))
+    r, g, b = _bilinear(atlas, ti, x, y)
     if w > F32(0.0):
-        _bilinear(atlas, ti, x, y, out3, F32(1.0) - w)
         scale2 = scale * F32(0.5)
-        x2 = (uw + F32(0.5)) * scale2 + (level_xy[ti, lvl + 1, 0] - F32(0.5))
-        y2 = (vw + F32(0.5)) * scale2 + (level_xy[ti, lvl + 1, 1] - F32(0.5))
-        _bilinear(atlas, ti, x2, y2, out3, w)
-    else:
-        _bilinear(atlas, ti, x, y, out3, F32(1.0))
+        x2 = uw * scale2 + (level_xy[ti, lvl + 1, 0] - F32(0.5))
+        y2 = vw * scale2 + (level_xy[ti, lvl + 1, 1] - F32(0.5))
+        r2, g2, b2 = _bilinear(atlas, ti, x2, y2)
+        r += (r2 - r) * w
+        g += (g2 - g) * w
+        b += (b2 - b) * w
+    return r, g, b
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def sample_points(atlas, ti, size, nlev, level_xy, u, v, foot, mip, out):
     """:func:`texture_sample` over arrays: ``out`` (N, 3) float32 in [0, 1]."""
-    c3 = np.zeros(3, np.float32)
     for i in range(len(u)):
-        texture_sample(atlas, ti, size, nlev, level_xy, F32(u[i]), F32(v[i]), F32(foot[i]), mip, c3)
-        for c in range(3):
-            out[i, c] = c3[c] * F32(1.0 / 255.0)
+        r, g, b = texture_sample(atlas, ti, size, nlev, level_xy, F32(u[i]), F32(v[i]), F32(foot[i]), mip)
+        out[i, 0] = r * F32(1.0 / 255.0)
+        out[i, 1] = g * F32(1.0 / 255.0)
+        out[i, 2] = b * F32(1.0 / 255.0)
 
 
-@njit(cache=True, nogil=True)
-def shade_rays(x, y, R, t, prim, group, flat, tex_of_tri, u0, v0, a_uv, nrm, shade_tri, sky,
+@njit(cache=True, nogil=True, error_model="numpy")
+def shade_rays(x, y, inv_norm, R, t, prim, group, flat, tex_of_tri, u0, v0, a_uv, nrm, shade_tri, sky,
                inv_focal, atlas, tex_size, tex_inv_texel, tex_nlev, level_xy, mod_idx, mod_R, out):
     """Colour of rays from one camera centre; ``out[i]`` is the mean over rays ``i*group .. i*group+group-1``.
 
-    ``x, y``: (N,) camera-frame directions ``(x, y, 1)``; ``R`` (3, 3) float32 R_model_cam;
+    ``x, y``: (N,) camera-frame directions ``(x, y, 1)``; ``inv_norm``: their 1/|d| (N,), or an empty
+    array to compute it here; ``R`` (3, 3) float32 R_model_cam;
     ``t``/``prim``: cast results (prim >= M = number of triangles, or the uint32 invalid id, = miss).
     Per triangle: ``flat`` (M+1, 3) shaded flat colour, ``tex_of_tri`` (M,) texture index or -1,
     ``u0, v0`` (M,) uv (metres, wrapped to the tile) of the camera centre, ``a_uv`` (M, 6) model-frame
@@ -112,10 +119,9 @@ def shade_rays(x, y, R, t, prim, group, flat, tex_of_tri, u0, v0, a_uv, nrm, sha
     ``level_xy``; ``mod_idx[k]`` the modulation texture (-1: none) looked up at ``mod_R[k] @ (u, v)``.
     """
     M = len(tex_of_tri)
-    c3 = np.zeros(3, np.float32)
-    m3 = np.zeros(3, np.float32)
     inv_g = F32(1.0) / F32(group)
     n_out = len(x) // group
+    have_inv = len(inv_norm) == len(x)
     for g in range(n_out):
         ar = F32(0.0)
         ag = F32(0.0)
@@ -129,7 +135,7 @@ def shade_rays(x, y, R, t, prim, group, flat, tex_of_tri, u0, v0, a_uv, nrm, sha
             dz = R[2, 0] * xi + R[2, 1] * yi + R[2, 2]
             p = np.int64(prim[i])
             if p >= M:
-                inv_n = F32(1.0) / np.sqrt(F32(1.0) + xi * xi + yi * yi)
+                inv_n = inv_norm[i] if have_inv else F32(1.0) / np.sqrt(F32(1.0) + xi * xi + yi * yi)
                 el = (sky[0, 0] * dx + sky[0, 1] * dy + sky[0, 2] * dz) * inv_n
                 el = min(max(el, F32(0.0)), F32(1.0))
                 ar += sky[1, 0] + (sky[2, 0] - sky[1, 0]) * el
@@ -145,25 +151,25 @@ def shade_rays(x, y, R, t, prim, group, flat, tex_of_tri, u0, v0, a_uv, nrm, sha
             tt = t[i]
             um = u0[p] + tt * (a_uv[p, 0] * dx + a_uv[p, 1] * dy + a_uv[p, 2] * dz)
             vm = v0[p] + tt * (a_uv[p, 3] * dx + a_uv[p, 4] * dy + a_uv[p, 5] * dz)
-            inv_n = F32(1.0) / np.sqrt(F32(1.0) + xi * xi + yi * yi)
+            inv_n = inv_norm[i] if have_inv else F32(1.0) / np.sqrt(F32(1.0) + xi * xi + yi * yi)
             cosi = abs(nrm[p, 0] * dx + nrm[p, 1] * dy + nrm[p, 2] * dz) * inv_n
             foot_m = tt * inv_focal / np.sqrt(max(cosi, F32(0.05)))
             it = tex_inv_texel[k]
-            texture_sample(atlas, k, tex_size[k], tex_nlev[k], level_xy, um * it, vm * it, foot_m * it, True, c3)
+            cr, cg, cb = texture_sample(atlas, k, tex_size[k], tex_nlev[k], level_xy, um * it, vm * it, foot_m * it, True)
             sh = shade_tri[p] * F32(1.0 / 255.0)
             mk = mod_idx[k]
             if mk >= 0:
                 mu = mod_R[k, 0, 0] * um + mod_R[k, 0, 1] * vm
                 mv = mod_R[k, 1, 0] * um + mod_R[k, 1, 1] * vm
-                texture_sample(atlas, mk, tex_size[mk], tex_nlev[mk], level_xy, mu, mv, F32(1.0), False, m3)
+                mr, mg, mb = texture_sample(atlas, mk, tex_size[mk], tex_nlev[mk], level_xy, mu, mv, F32(1.0), False)
                 sh2 = sh * F32(1.0 / 255.0)
-                ar += c3[0] * m3[0] * sh2
-                ag += c3[1] * m3[1] * sh2
-                ab += c3[2] * m3[2] * sh2
+                ar += cr * mr * sh2
+                ag += cg * mg * sh2
+                ab += cb * mb * sh2
             else:
-                ar += c3[0] * sh
-                ag += c3[1] * sh
-                ab += c3[2] * sh
+                ar += cr * sh
+                ag += cg * sh
+                ab += cb * sh
         if group == 1:
             out[g, 0] = ar
             out[g, 1] = ag
@@ -174,7 +180,7 @@ def shade_rays(x, y, R, t, prim, group, flat, tex_of_tri, u0, v0, a_uv, nrm, sha
             out[g, 2] = ab * inv_g
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def build_rays(o, R, x, y, idx, rays):
     """Rows ``rays[j] = (o, R @ (x[idx[j]], y[idx[j]], 1))`` (float32 (n, 6), Open3D's ray layout);
     ``idx`` None-like (length 0) means all rays in order."""
@@ -192,7 +198,7 @@ def build_rays(o, R, x, y, idx, rays):
         rays[j, 5] = R[2, 0] * xi + R[2, 1] * yi + R[2, 2]
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def fill_planar_cells(H, W, ys, xs, pcst, plane_id, num_tri, nrm, R, x, y, t, prim, rest):
     """Primary hits from a coarse grid (see ``ShadedRenderer.primary_hits``).
 
@@ -233,7 +239,7 @@ def fill_planar_cells(H, W, ys, xs, pcst, plane_id, num_tri, nrm, R, x, y, t, pr
     return n_rest
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def edge_mask(pc, t, plane_id, nrm, mat, cos_tol, rel_jump, edge):
     """Silhouette/crease pixels (see ``ShadedRenderer.edge_mask``): ``pc`` (H, W) int64 triangle ids with
     M = miss, ``t`` (H, W) float32 depths; sets ``edge`` (H, W) bool; returns the count."""
@@ -278,7 +284,7 @@ def edge_mask(pc, t, plane_id, nrm, mat, cos_tol, rel_jump, edge):
     return n
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def depth_ids(t, prim, M, depth, ids):
     """``depth`` = t where hit else 0 (float32), ``ids`` = triangle id where hit else -1 (int64)."""
     for i in range(len(t)):
