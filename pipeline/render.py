@@ -478,10 +478,14 @@ class ShadedRenderer(Renderer):
             e_idx = np.flatnonzero(edges)
             if len(e_idx):
                 pat = aa_pattern(aa_samples)
-                uv = np.stack([e_idx % W, e_idx // W], axis=1).astype(np.float64)
-                sub = (uv[:, None, :] + pat[None, :, :]).reshape(-1, 2)
-                xy = cam.unproject(sub)
-                sx, sy = xy[:, 0].astype(np.float32), xy[:, 1].astype(np.float32)
+                if cam.has_distortion:
+                    uv = np.stack([e_idx % W, e_idx // W], axis=1).astype(np.float64)
+                    xy = cam.unproject((uv[:, None, :] + pat[None, :, :]).reshape(-1, 2))
+                    sx, sy = xy[:, 0].astype(np.float32), xy[:, 1].astype(np.float32)
+                else:
+                    sx = np.empty(len(e_idx) * len(pat), np.float32)
+                    sy = np.empty(len(e_idx) * len(pat), np.float32)
+                    rk.subpixel_dirs(e_idx, W, pat, cam.fx, cam.fy, cam.cx, cam.cy, sx, sy)
                 t2, p2 = self._cast_idx(o, R32, sx, sy, np.zeros(0, np.int64))
                 rgb[e_idx] = self.shade(R_model_cam, sx, sy, t2, p2, focal, tables, group=len(pat))
         depth = np.empty(H * W, np.float32)

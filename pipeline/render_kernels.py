@@ -295,3 +295,16 @@ def depth_ids(t, prim, M, depth, ids):
         else:
             depth[i] = 0.0
             ids[i] = -1
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def subpixel_dirs(e_idx, W, pat, fx, fy, cx, cy, sx, sy):
+    """Camera-frame directions (x, y, 1) of the sub-pixel samples ``pat`` (S, 2) (pixels, float64) of the
+    pixels ``e_idx`` (row-major, width ``W``) of an undistorted pinhole camera: ``sx, sy`` (len(e_idx) * S,) float32."""
+    S = len(pat)
+    for j in range(len(e_idx)):
+        u = float(e_idx[j] % W)
+        v = float(e_idx[j] // W)
+        for s in range(S):
+            sx[j * S + s] = np.float32((u + pat[s, 0] - cx) / fx)
+            sy[j * S + s] = np.float32((v + pat[s, 1] - cy) / fy)
