@@ -3,7 +3,7 @@
 Each texture is generated once per scene from a seed (value noise summed over octaves, bricks,
 tiles, terrain) as a tileable ``uint8`` RGB image of ``size x size`` texels, then stored with a
 box-filtered mip pyramid. :meth:`Texture.sample` looks up colours at 3D hit points mapped to the
-texture plane with trilinear mip-mapping (level chosen from the pixel footprint), which
+texture plane with mip-mapping (level chosen from the pixel footprint), which
 anti-aliases mortar lines and high-frequency noise, so texture edges need no extra rays.
 
 Units: ``texel_m`` is the world size of one level-0 texel in metres; lookups take texel
@@ -187,21 +187,12 @@ _STREAM = {"brick": 0, "modulation": 1, "plaster": 2, "terrain": 3, "tiles": 4, 
 
 
 # ---------------------------------------------------------------------------- lookup
-def _as_map(a: np.ndarray, cols: int = 1024) -> np.ndarray:
-    """(N,) coordinates -> a (rows, cols) float32 map for cv2.remap (which needs sides < 32767)."""
-    n = len(a)
-    rows = -(-n // cols)
-    m = np.zeros(rows * cols, np.float32)
-    m[:n] = a
-    return m.reshape(rows, cols)
-
-
 @dataclass
 class Texture:
     """A tileable RGB texture with a mip pyramid (uint8 levels, level 0 is ``size x size``).
 
-    For lookups the levels are packed into one atlas image, each with a 1-texel wrapped border, so a
-    trilinear lookup is two ``cv2.remap`` calls over all points whatever their levels.
+    For lookups the levels are packed into one atlas image, each with a 1-texel wrapped border (numba
+    kernels in :mod:`mst.pipeline.render_kernels` do the filtered lookups).
     """
 
     levels: list[np.ndarray]
@@ -241,66 +232,24 @@ class Texture:
 
         ``u``, ``v``: (N,) level-0 texel coordinates (any range, wrapped; texel centres at integers).
         ``footprint_texels``: (N,) size of the pixel footprint in level-0 texels (selects the level).
-        Returns (N, 3) float32 RGB in [0, 1].
+        Returns (N, 3) float32 RGB in [0, 1]. The renderer's shading kernel does the same lookup
+        (:func:`mst.pipeline.render_kernels.texture_sample`).
         """
-        n = len(u)
-        if n == 0:
-            return np.zeros((0, 3), np.float32)
-        nlev = len(self.levels)
-        uw = _wrap(u, self.size)
-        vw = _wrap(v, self.size)
-        lod = np.clip(np.log2(np.maximum(np.asarray(footprint_texels, np.float32), np.float32(1.0))), 0, nlev - 1.001)
-        lvl = lod.astype(np.int64)
-        # "brilinear" filtering: blend two levels only in the middle half of each level interval
-        w = np.clip((lod - lvl - np.float32(0.25)) * np.float32(2.0), 0.0, 1.0)
-        out = self._lookup(lvl + (w >= 1.0), uw, vw)
-        band = np.flatnonzero((w > 0.0) & (w < 1.0))
-        if len(band):
-            lo = out[band]
-            hi = self._lookup(lvl[band] + 1, uw[band], vw[band])
-            out[band] = lo + (hi - lo) * w[band, None]
-        out *= np.float32(1.0 / 255.0)
-        return out
-
-    def _lookup(self, lvl: np.ndarray, uw: np.ndarray, vw: np.ndarray) -> np.ndarray:
-        """Bilinear lookup at per-point mip levels ``lvl`` and wrapped level-0 coordinates: (N, 3) float32 0..255."""
-        import cv2
-
-        n = len(uw)
-        lvl = np.minimum(lvl, len(self.levels) - 1)
-        scale = _LEVEL_SCALE[lvl]
-        cols = 1024
-        rows = -(-n // cols)
-        mx = np.zeros(rows * cols, np.float32)
-        my = np.zeros(rows * cols, np.float32)
-        ox, oy = self.level_xy[:, 0] - np.float32(0.5), self.level_xy[:, 1] - np.float32(0.5)
-        np.add(uw, np.float32(0.5), out=mx[:n])
-        mx[:n] *= scale
-        mx[:n] += ox[lvl]
-        np.add(vw, np.float32(0.5), out=my[:n])
-        my[:n] *= scale
-        my[:n] += oy[lvl]
-        smp = cv2.remap(self.atlas, mx.reshape(rows, cols), my.reshape(rows, cols), cv2.INTER_LINEAR,
-                        borderMode=cv2.BORDER_REPLICATE)
-        return smp.reshape(-1, 3)[:n].astype(np.float32)
+        return self._sample(u, v, footprint_texels, True)
 
     def sample_level0(self, u: np.ndarray, v: np.ndarray) -> np.ndarray:
         """Plain bilinear lookup in level 0 (for smooth, low-frequency textures): (N, 3) float32 in [0, 1]."""
-        uw = _wrap(u, self.size)
-        vw = _wrap(v, self.size)
-        return self._lookup(np.zeros(len(uw), np.int64), uw, vw) * np.float32(1.0 / 255.0)
+        return self._sample(u, v, np.ones(len(np.atleast_1d(u)), np.float32), False)
 
+    def _sample(self, u, v, foot, mip: bool) -> np.ndarray:
+        from mst.pipeline.render_kernels import sample_points
 
-def _wrap(a: np.ndarray, size: int) -> np.ndarray:
-    """``a`` modulo ``size`` as float32 in [0, size] (faster than ``np.mod``; ``size`` itself can occur
-    by rounding, which the atlas' wrapped border covers)."""
-    a = np.asarray(a, np.float32)
-    w = np.floor(a * np.float32(1.0 / size))
-    w *= np.float32(size)
-    return a - w
-
-
-_LEVEL_SCALE = (2.0 ** -np.arange(32)).astype(np.float32)
+        u = np.ascontiguousarray(np.atleast_1d(u), np.float32)
+        v = np.ascontiguousarray(np.atleast_1d(v), np.float32)
+        foot = np.ascontiguousarray(np.broadcast_to(np.asarray(foot, np.float32), u.shape))
+        out = np.empty((len(u), 3), np.float32)
+        sample_points(self.atlas[None], 0, self.size, len(self.levels), self.level_xy[None], u, v, foot, mip, out)
+        return out
 
 
 def _pack_atlas(levels: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
