@@ -63,6 +63,31 @@ def test_corridor_rgbd_carries_the_pose_while_the_model_is_away(corridor, tmp_pa
     assert np.nanmean(e["rel"]) < 0.2 * np.nanmean(e_off["rel"])
 
 
+def test_corridor_mono_rejects_wrong_edge_poses_on_the_return(corridor, tmp_path):
+    """Mono on the same corridor: the model comes back into a drifted SLAM prediction.
+
+    Starting from it, the edge tracker converges onto floor/wall-texture edges for several frames
+    (poses 35-46 % of the distance off that pass the absolute health tests); those must not be output
+    as ``model`` nor reset the map. At 320x240 the mono map's scale drifts while the model is away (the
+    SLAM pose is ~25 % off at the return), so here the pose stays the SLAM's; the 640x480 bench row
+    ``corridor mono`` measures the actual re-acquisition (back under 0.2 % within a few frames).
+    """
+    import csv
+
+    hidden = out_of_view(corridor)
+    summ, e = _track(corridor, "mono", tmp_path / "mono.txt")
+    st = e["status"]
+    assert summ["aid"] == "mono" and not (st == "lost").any()
+    assert (st[hidden] == "slam").all()
+    ret = np.flatnonzero(hidden)[-1] + 1
+    rows = list(csv.DictReader(open((tmp_path / "mono.csv"))))
+    # the edge tracker did run on the returning model (edge samples found) ...
+    assert sum(int(r["samples"]) > 50 for r in rows[ret:]) >= 10
+    # ... and every pose output as a model pose after the return is a correct one (320x240 edge noise)
+    after = np.arange(len(st)) >= ret
+    assert np.all(e["rel"][after & (st == "model")] < 0.01)
+
+
 @pytest.mark.parametrize("drop", [8, 10])
 @pytest.mark.parametrize("mode", ["rgbd", "mono"])
 def test_fast_orbit_every_frame_tracked(fast, tmp_path, drop, mode):
