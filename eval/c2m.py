@@ -209,10 +209,17 @@ def prepare_mesh(V: np.ndarray, F: np.ndarray, path: str | os.PathLike | None = 
         raise InputError(path, "mesh has NaN or infinite vertex coordinates")
     if F.min() < 0 or F.max() >= len(V):
         raise InputError(path, "mesh face indices out of range")
+    if engine == "auto":
+        engine = "grid"
+    if engine not in ("grid", "bvh"):
+        raise ValueError(f"unknown engine {engine!r}")
     shift = (V.min(0) + V.max(0)) / 2.0
     Vs = V - shift
-    Vm, inv = np.unique(Vs, axis=0, return_inverse=True)
-    Fm = inv.reshape(-1)[F]
+    if signed or engine == "bvh":  # topology (pseudo-normals, one-rings): merge duplicate vertices
+        Vm, inv = np.unique(Vs, axis=0, return_inverse=True)
+        Fm = inv.reshape(-1)[F]
+    else:
+        Vm, Fm = Vs, F
     A = Vm[Fm[:, 0]]
     AB = Vm[Fm[:, 1]] - A
     AC = Vm[Fm[:, 2]] - A
@@ -224,7 +231,22 @@ def prepare_mesh(V: np.ndarray, F: np.ndarray, path: str | os.PathLike | None = 
         raise InputError(path, "mesh has only degenerate (zero-area) triangles")
     Fm, A, AB, AC, cr, area2 = Fm[ok], A[ok], AB[ok], AC[ok], cr[ok], area2[ok]
     m, nv = len(Fm), len(Vm)
-    # one-ring of every triangle (triangles sharing at least one vertex), CSR
+    aa, ab, bb = _dot(AB, AB), _dot(AB, AC), _dot(AC, AC)
+    det = aa * bb - ab * ab
+    G = np.stack([bb / det, -ab / det, aa / det], axis=1)
+    N = cr / area2[:, None]
+    idx = MeshIndex(shift, Vm, Fm, A, AB, AC, AC - AB, N, G, n_dropped=int((~ok).sum()), engine=engine)
+    if signed:
+        _pseudo_normals(idx, N)
+    if engine == "grid":
+        if m <= small_mesh_triangles:
+            idx._grid = _DenseGrid(idx)
+        else:
+            from mst.eval import c2m_kernels as nb
+
+            idx._grid = _BinGrid(idx, nb)
+        return idx
+    # BVH: one-ring of every triangle (triangles sharing at least one vertex), CSR, for the exact recheck
     vt_tri = np.repeat(np.arange(m), 3)
     vt_v = Fm.reshape(-1)
     order = np.argsort(vt_v, kind="stable")
@@ -238,31 +260,13 @@ def prepare_mesh(V: np.ndarray, F: np.ndarray, path: str | os.PathLike | None = 
     # gather v_tris[v_ptr[v]:v_ptr[v+1]] for the 3 vertices of each triangle (duplicates are harmless)
     starts = v_ptr[Fm.reshape(-1)]
     lens = deg[Fm.reshape(-1)]
-    ring_idx = v_tris[np.repeat(starts - np.cumsum(np.r_[0, lens[:-1]]), lens) + np.arange(lens.sum())]
-    aa, ab, bb = _dot(AB, AB), _dot(AB, AC), _dot(AC, AC)
-    det = aa * bb - ab * ab
-    G = np.stack([bb / det, -ab / det, aa / det], axis=1)
-    idx = MeshIndex(shift, Vm, Fm, A, AB, AC, AC - AB, cr / area2[:, None], G, n_dropped=int((~ok).sum()), ring_ptr=ring_ptr, ring_idx=ring_idx)
-    if signed:
-        _pseudo_normals(idx, cr / area2[:, None])
-    if engine == "auto":
-        engine = "grid"
-    idx.engine = engine
-    if engine == "bvh":
-        import open3d as o3d
+    idx.ring_idx = v_tris[np.repeat(starts - np.cumsum(np.r_[0, lens[:-1]]), lens) + np.arange(lens.sum())]
+    idx.ring_ptr = ring_ptr
+    import open3d as o3d
 
-        scene = o3d.t.geometry.RaycastingScene()
-        scene.add_triangles(o3d.core.Tensor(Vm.astype(np.float32)), o3d.core.Tensor(Fm.astype(np.uint32)))
-        idx._scene = scene
-    elif engine == "grid":
-        if m <= small_mesh_triangles:
-            idx._grid = _DenseGrid(idx)
-        else:
-            from mst.eval import c2m_kernels as nb
-
-            idx._grid = _BinGrid(idx, nb)
-    else:
-        raise ValueError(f"unknown engine {engine!r}")
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.core.Tensor(Vm.astype(np.float32)), o3d.core.Tensor(Fm.astype(np.uint32)))
+    idx._scene = scene
     return idx
 
 
@@ -834,6 +838,8 @@ def run_c2m(cloud_path: str | os.PathLike, mesh_path: str | os.PathLike, config:
         if pre is not None:  # never leave an import running in a thread at interpreter exit
             pre.join()
         raise
+    if pre is not None:
+        pre.join()
     t_mesh = time.perf_counter() - t0
 
     n_total = src.count
