@@ -308,3 +308,35 @@ def subpixel_dirs(e_idx, W, pat, fx, fy, cx, cy, sx, sy):
         for s in range(S):
             sx[j * S + s] = np.float32((u + pat[s, 0] - cx) / fx)
             sy[j * S + s] = np.float32((v + pat[s, 1] - cy) / fy)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def encode_bgr8(rgb, noise_bits, sigma, out):
+    """8-bit BGR image ``out`` (H, W, 3) uint8 from linear RGB ``rgb`` (H, W, 3) float32 in [0, 1]:
+    ``clip(255 rgb + sigma n + 0.5, 0, 255)`` truncated, with sensor noise ``n`` ~ N(0, 1) made from
+    ``noise_bits`` (H, W, 3) uint32 random draws (RGB order; an empty array for no noise): the
+    standardised sum of their four bytes (Irwin-Hall, 4 uniforms: Gaussian up to tails cut at 3.45 sigma)."""
+    H, W, _ = rgb.shape
+    has_noise = noise_bits.size == rgb.size
+    inv_sd = F32(1.0 / np.sqrt(4.0 * (256.0 * 256.0 - 1.0) / 12.0))
+    for i in range(H):
+        for j in range(W):
+            for c in range(3):
+                val = rgb[i, j, c] * F32(255.0)
+                if has_noise:
+                    b = noise_bits[i, j, c]
+                    sb = (b & 255) + ((b >> 8) & 255) + ((b >> 16) & 255) + (b >> 24)
+                    val += (F32(sb) - F32(510.0)) * inv_sd * sigma
+                val = min(max(val + F32(0.5), F32(0.0)), F32(255.0))
+                out[i, j, 2 - c] = np.uint8(val)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def depth_to_mm(depth, out):
+    """16-bit depth PNG content: ``out`` (H, W) uint16 = round(1000 depth) (metres -> millimetres, half to
+    even, in float64), 0 where that is <= 0 or > 65535."""
+    H, W = depth.shape
+    for i in range(H):
+        for j in range(W):
+            mm = np.rint(np.float64(depth[i, j]) * 1000.0)
+            out[i, j] = np.uint16(mm) if (mm > 0.0 and mm <= 65535.0) else np.uint16(0)

@@ -269,3 +269,22 @@ def test_motion_blur_smooths_moving_frames(house: Path, tmp_path: Path):
     assert np.abs(cv2.Laplacian(ib, cv2.CV_64F)).mean() < 0.9 * np.abs(cv2.Laplacian(ia, cv2.CV_64F)).mean()
     # ground truth is the pose at the end of the exposure: identical files
     assert (a / "gt.txt").read_bytes() == (b / "gt.txt").read_bytes()
+
+
+def test_rgb_noise_encoding_statistics():
+    """8-bit encoding: BGR order, rounding, and the near-Gaussian sensor noise has mean 0 and the asked sigma."""
+    from mst.pipeline.render_kernels import encode_bgr8
+
+    rgb = np.empty((200, 300, 3), np.float32)
+    rgb[:] = np.array([0.2, 0.5, 0.8], np.float32)
+    out = np.empty(rgb.shape, np.uint8)
+    encode_bgr8(rgb, np.zeros((0, 0, 0), np.uint32), np.float32(0.0), out)
+    assert (out[0, 0] == np.array([204, 128, 51])).all() and np.ptp(out.reshape(-1, 3), axis=0).max() == 0
+    bits = np.random.default_rng(0).integers(0, 2**32, rgb.shape, dtype=np.uint32)
+    encode_bgr8(rgb, bits, np.float32(3.0), out)
+    diff = out.astype(np.float64) - np.array([204.0, 127.5, 51.0])
+    assert np.abs(diff.mean(axis=(0, 1))).max() < 0.05
+    assert np.allclose(diff.std(axis=(0, 1)), np.sqrt(3.0**2 + 1 / 12), atol=0.05)  # noise + 8-bit rounding
+    # near-Gaussian: |level - 204| <= 3 <=> n in [-3.5, 3.5): erf(3.5 / (3 sqrt 2)) = 0.757 for a Gaussian
+    inside = np.mean(np.abs(diff[..., 0]) <= 3.0)
+    assert abs(inside - 0.757) < 0.02
