@@ -14,9 +14,22 @@ import os
 # parallel call): spinning workers would steal the main thread's core on a 2-core machine
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
+import sys  # noqa: E402
+
 import numba  # noqa: E402
 import numpy as np  # noqa: E402
 from numba import njit, prange  # noqa: E402
+
+if "numba.np.arraymath" not in sys.modules and "scipy.linalg.cython_blas" not in sys.modules:
+    # numba's first compile or cache load imports numba.np.arraymath, which probes for BLAS by
+    # importing scipy.linalg (~0.25 s of every run). The probe only selects BLAS for np.correlate /
+    # np.convolve inner products (a plain loop otherwise); no kernel here uses them, so it is
+    # answered "absent" (a None entry in sys.modules makes that import fail at once), then restored.
+    sys.modules["scipy.linalg.cython_blas"] = None
+    try:
+        import numba.np.arraymath  # noqa: F401
+    finally:
+        del sys.modules["scipy.linalg.cython_blas"]
 
 # OpenMP first: the TBB found beside some wheels is too old and numba warns on stderr when it tries it
 numba.config.THREADING_LAYER_PRIORITY = ["omp", "workqueue", "tbb"]
