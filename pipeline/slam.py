@@ -366,8 +366,10 @@ class ModelAidedSlam:
             self.P = self.P + self._process_noise()
         reset = False
         if edge_ok and slam_ok:
-            passed = self._strong_enough(W) and self._gate(T_cam_model_edges, W, st)
-            agree = self._consensus(np.asarray(T_cam_model_edges, float), st.T, rejected=not passed)
+            strong = self._strong_enough(W)
+            passed = strong and self._gate(T_cam_model_edges, W, st)
+            # a weak (partial-view, ill-conditioned) edge pose never votes for a consensus reset
+            agree = self._consensus(np.asarray(T_cam_model_edges, float), st.T, rejected=not passed) if strong else 0
             if not passed:
                 edge_ok = False
                 if agree >= self.cfg.consensus_min:

@@ -26,7 +26,6 @@ from mst import InputError, atomic_outputs
 from mst.pipeline.overlay import OverlayWriter, draw_overlay
 from mst.pipeline.settings import TrackerConfig, config_to_dict
 
-
 #: on re-acquisition (the model back after a SLAM-only stretch) an edge pose is healthy only when its
 #: gradient support is at least this fraction of its running mean over the model frames (measured
 #: on the synthetic corridor at 640x480: correct poses 0.90-0.96 against a usual 0.93, poses locked

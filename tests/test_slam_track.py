@@ -80,7 +80,7 @@ def test_corridor_mono_rejects_wrong_edge_poses_on_the_return(corridor, tmp_path
     assert summ["aid"] == "mono" and not (st == "lost").any()
     assert (st[hidden] == "slam").all()
     ret = np.flatnonzero(hidden)[-1] + 1
-    rows = list(csv.DictReader(open((tmp_path / "mono.csv"))))
+    rows = list(csv.DictReader(open(tmp_path / "mono.csv")))
     # the edge tracker did run on the returning model (edge samples found) ...
     assert sum(int(r["samples"]) > 50 for r in rows[ret:]) >= 10
     # ... and every pose output as a model pose after the return is a correct one (320x240 edge noise)
