@@ -333,7 +333,10 @@ class ShadedRenderer(Renderer):
                 self._k_mod_R[i] = _MOD_ROT.astype(np.float32) * np.float32(1.0 / m.modulation.texel_m)
         M = len(self.F)
         self._k_tex_tri = np.ascontiguousarray(self._tex_mat[:M])
-        periods = np.array([m.texture.size * m.texture.texel_m for m in self._tex_list] or [1.0], np.float64)
+        # uv of the camera centre are wrapped to the tile (float32 precision far from the origin); with a
+        # modulation texture (not periodic with the tile) to 1024 tiles, so its seams are kilometres apart
+        periods = np.array([m.texture.size * m.texture.texel_m * (1 if m.modulation is None else 1024)
+                            for m in self._tex_list] or [1.0], np.float64)
         self._period_tri = np.where(self._k_tex_tri >= 0, periods[np.maximum(self._k_tex_tri, 0)], 1.0)
         self._k_nrm = np.ascontiguousarray(self.normals, dtype=np.float32)
         self._k_a_uv = np.ascontiguousarray(np.column_stack([self._a_u, self._a_v]), dtype=np.float32)

@@ -162,3 +162,39 @@ def test_coarse_to_fine_primary_hits_equal_full_cast():
         pid = r._plane_id
         assert np.array_equal(pid[np.where(out["ids"] < 0, len(Fs), out["ids"])],
                               pid[np.where(ids_ref < 0, len(Fs), ids_ref)])
+
+
+def test_textured_plane_colour_matches_texture_lookup_and_lighting():
+    """The fused shading kernel = texture at the hit point (u = x, v = y on a z-up floor) with the
+    pixel-footprint mip level, times the Lambertian factor, also with a modulation texture."""
+    g = np.array([[-6.0, -6.0, 0.0], [6.0, -6.0, 0.0], [6.0, 6.0, 0.0], [-6.0, 6.0, 0.0]])
+    F = np.array([[0, 1, 2], [0, 2, 3]])
+    tex = Texture.generate("concrete", 128, 0.01, seed=2)
+    mod = Texture.generate("modulation", 64, 0.05, seed=5)
+    eye = np.array([0.3, -2.2, 1.4])
+    T = inv_T(look_at(eye, np.array([0.1, 0.5, 0.0])))
+    for modulation in (None, mod):
+        r = ShadedRenderer(g, F, np.zeros(2, int), {0: Material(texture=tex, modulation=modulation)})
+        out = r.render(CAM, T, aa_samples=0)
+        depth = out["depth"]
+        assert (depth > 0).mean() > 0.5
+        v, u = np.nonzero(depth > 0)
+        z = depth[v, u].astype(float)
+        d_cam = np.stack([(u - CAM.cx) / CAM.fx, (v - CAM.cy) / CAM.fy, np.ones_like(z)], axis=1)
+        X = eye + (d_cam * z[:, None]) @ inv_T(T)[:3, :3].T          # hit points, model frame
+        np.testing.assert_allclose(X[:, 2], 0.0, atol=1e-4)
+        cos_i = np.abs(d_cam @ T[:3, :3][:, 2]) / np.linalg.norm(d_cam, axis=1)  # normal (0,0,1) in the camera frame
+        foot_m = z / (0.5 * (CAM.fx + CAM.fy)) / np.sqrt(np.maximum(cos_i, 0.05))
+        want = tex.sample(X[:, 0] / tex.texel_m, X[:, 1] / tex.texel_m, foot_m / tex.texel_m)
+        if modulation is not None:
+            # looked up at uv relative to the camera centre's uv wrapped to 1024 tiles of the main texture
+            P = 1024 * tex.size * tex.texel_m
+            xu, yv = X[:, 0] + (np.mod(eye[0], P) - eye[0]), X[:, 1] + (np.mod(eye[1], P) - eye[1])
+            R = np.array([[0.8, 0.6], [-0.6, 0.8]]) * 0.173 / mod.texel_m
+            want = want * mod.sample_level0(R[0, 0] * xu + R[0, 1] * yv, R[1, 0] * xu + R[1, 1] * yv)
+        L = r.lighting
+        shade = L.ambient + sum(k * max(np.asarray(dl) @ [0, 0, 1] / np.linalg.norm(dl), 0.0) for dl, k in L.lights)
+        got = out["rgb"][v, u]
+        err = np.abs(got - want * shade)
+        assert np.median(err) < 2e-3 and np.percentile(err, 99) < 0.02, (np.median(err), np.percentile(err, 99))
+        assert np.ptp(got) > 0.2  # a real texture, not a flat colour
