@@ -5,13 +5,19 @@ triangle of the mesh, like CloudCompare's C2M. How it is computed:
 
 1. A float64 global shift (the mesh bounding-box centre) is subtracted from mesh and cloud, so
    georeferenced coordinates (1e6 m) keep their precision; nothing below runs on raw coordinates.
-2. The nearest triangle of each point is found by Open3D's ``RaycastingScene`` BVH (float32 on the
-   shifted coordinates), or with ``engine="grid"`` by a numpy grid search in float64 (no Open3D).
-3. The distance to that triangle is recomputed exactly in float64 (Ericson's closest point on a
-   triangle, vectorised), and when the closest point lies on an edge or vertex the triangles around
-   that vertex are checked too, so a float32 near-tie cannot pick a farther triangle. Points
-   farther than 100 mesh extents (where float32 picks degrade) are searched again exactly. The
-   grid engine is exact float64 throughout.
+2. The nearest triangle of each point is found by the compiled grid engine (default, ``engine="grid"``,
+   numba, exact float64, no Open3D): meshes up to ``small_mesh_triangles`` triangles use a dense grid
+   of lazily computed per-cell candidate lists; larger meshes bin every triangle into the cells its
+   bounding box overlaps and search shells of cells around each point until the best distance is at
+   most the distance to the cells not yet searched (exact, ties included); points far outside the
+   grid scan the occupied cells. ``engine="bvh"`` uses Open3D's ``RaycastingScene`` BVH (float32 on
+   the shifted coordinates) instead, followed by step 3.
+3. (BVH engine) The distance to the picked triangle is recomputed exactly in float64 (Ericson's
+   closest point on a triangle, vectorised), and when the closest point lies on an edge or vertex the
+   triangles around that vertex are checked too, so a float32 near-tie cannot pick a farther triangle.
+   Points farther than 100 mesh extents (where float32 picks degrade) are searched again exactly. A
+   float32 BVH can still miss the nearest triangle by about 1e-6 m for points metres away from a
+   wide flat region; the grid engine has no such error.
 
 Sign (``signed=True``): positive on the side the triangle normals point to (outside of a closed
 mesh wound counter-clockwise seen from outside), negative inside. The normal used is the
