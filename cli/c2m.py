@@ -40,8 +40,9 @@ def _floats(ctx, param, value: str) -> tuple[float, ...]:
 @click.option("--chunk", type=click.IntRange(min=1000), default=1_000_000, show_default=True,
               help="Points per streamed chunk (memory bound).")
 @click.option("--engine", type=click.Choice(["auto", "bvh", "grid"]), default="auto", show_default=True,
-              help="Nearest-triangle search: auto = compiled grid (numba) for meshes up to 5000 triangles, "
-              "Open3D BVH above; distances are exact float64 either way.")
+              help="Nearest-triangle search: auto/grid = compiled exact float64 grid search for every mesh (dense "
+              "candidate lists up to 5000 triangles, binned cells with ring search above); bvh = Open3D BVH + "
+              "exact float64 recheck.")
 @json_option
 @quiet_option
 def c2m(cloud, mesh, thresholds, signed, max_dist, output, as_csv, markdown, plot, chunk, engine, as_json, quiet):

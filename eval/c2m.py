@@ -959,8 +959,14 @@ def run_c2m(cloud_path: str | os.PathLike, mesh_path: str | os.PathLike, config:
 
 # ------------------------------------------------------------------------------------- reports
 def table1_rows(summary: dict) -> list[list[str]]:
-    """Table 1 of the RGB-D paper as rows of strings (label, one column per threshold)."""
+    """Table 1 of the RGB-D paper as rows of strings (label, one column per threshold).
+
+    Means and standard deviations use the paper's 2 decimals for thresholds >= 0.1 m and one more
+    decimal per decade below (a 0.01 m threshold prints 3), so centimetre tables stay readable.
+    """
     t = summary["thresholds"]
+    smallest = min((r["max_dist"] for r in t if r["max_dist"] > 0), default=0.1)
+    nd_m = max(2, 1 - int(np.floor(np.log10(smallest) + 1e-9)))
 
     def f(v, nd):
         return "-" if v is None else f"{v:.{nd}f}"
@@ -968,8 +974,8 @@ def table1_rows(summary: dict) -> list[list[str]]:
     return [
         ["Max. C2M distance [m]"] + [f"{r['max_dist']:g}" for r in t],
         ["% of points less than max. distance"] + [f(r["percent"], 1) for r in t],
-        ["Mean C2M dist. [m]"] + [f(r["mean"], 2) for r in t],
-        ["Std. Dev. C2M dist. [m]"] + [f(r["std"], 2) for r in t],
+        ["Mean C2M dist. [m]"] + [f(r["mean"], nd_m) for r in t],
+        ["Std. Dev. C2M dist. [m]"] + [f(r["std"], nd_m) for r in t],
     ]
 
 

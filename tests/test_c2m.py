@@ -399,3 +399,17 @@ def test_binned_grid_engine_matches_brute_force_on_a_large_random_surface():
     dm, _ = _dist(idx, Q, signed=False, max_dist=0.2)
     np.testing.assert_array_equal(np.isnan(dm), dq > 0.2)
     np.testing.assert_array_equal(dm[dq <= 0.2], dq[dq <= 0.2])
+
+
+def test_table1_decimals_follow_the_thresholds():
+    """The paper's 2 decimals at metre thresholds; one more per decade below 0.1 m."""
+    from mst.eval.c2m import table1_rows
+
+    def rows(ths):
+        return table1_rows({"thresholds": [{"max_dist": t, "percent": 57.54, "mean": 0.0623456, "std": 0.00456} for t in ths]})
+
+    paper = rows([0.1, 0.2, 0.5, 1.0])
+    assert paper[0] == ["Max. C2M distance [m]", "0.1", "0.2", "0.5", "1"]
+    assert paper[1][1:] == ["57.5"] * 4 and paper[2][1:] == ["0.06"] * 4 and paper[3][1:] == ["0.00"] * 4
+    assert rows([0.01, 0.02])[2][1:] == ["0.062", "0.062"]
+    assert rows([0.005])[3][1:] == ["0.0046"]
