@@ -169,6 +169,27 @@ def se3_log(T: np.ndarray) -> np.ndarray:
     return np.concatenate([v, w], axis=-1)
 
 
+def look_at(eye: np.ndarray, target: np.ndarray, up=(0.0, 0.0, 1.0), roll_deg: float = 0.0) -> np.ndarray:
+    """Camera pose ``T_world_cam`` (4x4) at ``eye`` looking at ``target`` (x right, y down, z forward).
+
+    ``up`` is the world up direction; ``roll_deg`` rotates the camera about its optical axis.
+    """
+    eye = np.asarray(eye, np.float64)
+    z = np.asarray(target, np.float64) - eye
+    z /= np.linalg.norm(z)
+    x = np.cross(z, up)
+    if np.linalg.norm(x) < 1e-9:  # looking straight along up
+        x = np.cross(z, [1.0, 0.0, 0.0])
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    R = np.stack([x, y, z], axis=1)
+    if roll_deg:
+        a = np.radians(roll_deg)
+        Rz = np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]])
+        R = R @ Rz
+    return make_T(R, eye)
+
+
 def pose_error(T_est: np.ndarray, T_ref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Translation error (model units) and rotation error (degrees) between camera poses.
 

@@ -56,7 +56,7 @@ import numpy as np
 
 from mst import InputError, MstError, __version__
 from mst.pipeline.camera import Camera, write_camera
-from mst.pipeline.poses import format_tum, inv_T, make_T
+from mst.pipeline.poses import format_tum, inv_T, look_at, make_T  # noqa: F401  (look_at re-exported)
 from mst.pipeline.render import row_ids
 
 SCENARIOS = ("orbit", "corridor", "flyover", "fast")
@@ -111,27 +111,6 @@ class SynthConfig:
 
 
 # ---------------------------------------------------------------------------- geometry helpers
-def look_at(eye: np.ndarray, target: np.ndarray, up=(0.0, 0.0, 1.0), roll_deg: float = 0.0) -> np.ndarray:
-    """Camera pose ``T_world_cam`` (4x4) at ``eye`` looking at ``target`` (x right, y down, z forward).
-
-    ``up`` is the world up direction; ``roll_deg`` rotates the camera about its optical axis.
-    """
-    eye = np.asarray(eye, np.float64)
-    z = np.asarray(target, np.float64) - eye
-    z /= np.linalg.norm(z)
-    x = np.cross(z, up)
-    if np.linalg.norm(x) < 1e-9:  # looking straight along up
-        x = np.cross(z, [1.0, 0.0, 0.0])
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
-    R = np.stack([x, y, z], axis=1)
-    if roll_deg:
-        a = math.radians(roll_deg)
-        Rz = np.array([[math.cos(a), -math.sin(a), 0], [math.sin(a), math.cos(a), 0], [0, 0, 1]])
-        R = R @ Rz
-    return make_T(R, eye)
-
-
 def R_canon_from_up(up: str) -> np.ndarray:
     """Rotation ``R_canon_model`` taking the model's ``up`` axis to canonical +z (a proper rotation)."""
     if up not in UP_AXES:

@@ -8,20 +8,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from mst.pipeline.poses import inv_T
+from mst.pipeline.poses import look_at as poses_look_at
+
 
 def look_at(eye, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:
     """``T_cam_model`` of a camera at ``eye`` looking at ``target`` (model frame z up)."""
-    eye, target, up = (np.asarray(a, float) for a in (eye, target, up))
-    z = target - eye
-    z /= np.linalg.norm(z)
-    x = np.cross(z, up)
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
-    R = np.stack([x, y, z])
-    T = np.eye(4)
-    T[:3, :3] = R
-    T[:3, 3] = -R @ eye
-    return T
+    return inv_T(poses_look_at(eye, target, up))
 
 
 def render_views(model, cam, poses, seed: int = 0, ground: float | None = 0.0, noise: float = 2.0) -> list[np.ndarray]:

@@ -93,3 +93,17 @@ def test_pose_error_units():
     dt, dr = P.pose_error(T2, T)
     assert dt == pytest.approx(0.5)
     assert dr == pytest.approx(2.0)
+
+
+def test_look_at_points_the_optical_axis_at_the_target():
+    eye, target = np.array([4.0, -3.0, 2.0]), np.array([0.5, 0.5, 0.2])
+    T_model_cam = P.look_at(eye, target)
+    X_cam = P.transform_points(P.inv_T(T_model_cam), target[None])[0]
+    assert np.allclose(X_cam[:2], 0, atol=1e-12) and X_cam[2] == pytest.approx(np.linalg.norm(target - eye))
+    # image x axis horizontal (no roll), image y pointing down in the world (z up)
+    assert abs(T_model_cam[2, 0]) < 1e-12 and T_model_cam[2, 1] < 0
+    # straight down along -up still gives a valid rotation; roll turns about the optical axis
+    T_down = P.look_at([0, 0, 5], [0, 0, 0])
+    assert np.allclose(T_down[:3, :3].T @ T_down[:3, :3], np.eye(3))
+    T_roll = P.look_at(eye, target, roll_deg=10)
+    assert np.allclose(T_roll[:3, 2], T_model_cam[:3, 2]) and P.rotation_angle_deg(T_model_cam[:3, :3].T @ T_roll[:3, :3]) == pytest.approx(10)

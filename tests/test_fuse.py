@@ -19,7 +19,7 @@ from mst.pipeline.fusion import (
     read_ply_points,
     write_ply,
 )
-from mst.pipeline.poses import inv_T, make_T, se3_exp, write_tum
+from mst.pipeline.poses import inv_T, look_at, se3_exp, write_tum
 
 W, H = 160, 120
 CAM = Camera(140.0, 140.0, 79.5, 59.5, W, H)
@@ -38,13 +38,7 @@ def _scene():
 
 def _look_at(eye, target=(0.0, 0.0, 0.4), up=(0.0, 0.0, 1.0)) -> np.ndarray:
     """T_model_cam for a camera at ``eye`` looking at ``target`` (x right, y down, z forward)."""
-    eye, target, up = (np.asarray(v, float) for v in (eye, target, up))
-    z = target - eye
-    z /= np.linalg.norm(z)
-    x = np.cross(z, up)
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
-    return make_T(np.stack([x, y, z], axis=1), eye)
+    return look_at(eye, target, up)
 
 
 def _poses(n: int = 6) -> np.ndarray:

@@ -18,6 +18,7 @@ import pytest
 from mst.pipeline import slam
 from mst.pipeline.camera import Camera
 from mst.pipeline.poses import inv_T, make_T, pose_error, se3_exp
+from mst.pipeline.poses import look_at as poses_look_at
 
 W_PX, H_PX = 320, 240
 CAM = Camera(250.0, 250.0, 159.5, 119.5, W_PX, H_PX)
@@ -63,12 +64,7 @@ class TexturedScene:
 
 def look_at(C, target=(0.0, 0.0, 0.5), up=(0.0, 0.0, 1.0)) -> np.ndarray:
     """T_cam_world of a camera at C looking at target."""
-    C = np.asarray(C, float)
-    z = np.asarray(target, float) - C
-    z /= np.linalg.norm(z)
-    x = np.cross(z, up)
-    x /= np.linalg.norm(x)
-    return inv_T(make_T(np.stack([x, np.cross(z, x), z], 1), C))
+    return inv_T(poses_look_at(C, target, up))
 
 
 def orbit(n: int, step_deg: float = 1.0, radius: float = 3.0) -> np.ndarray:
