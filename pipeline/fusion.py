@@ -38,7 +38,7 @@ import numpy as np
 from mst import InputError, atomic_output, require_file
 from mst.pipeline.camera import Camera, read_camera
 from mst.pipeline.depth_io import list_depth_frames, list_image_frames, read_depth
-from mst.pipeline.poses import inv_T, read_tum
+from mst.pipeline.poses import inv_T, read_rigid_transform, read_tum
 
 
 @dataclass
@@ -215,26 +215,7 @@ def frame_index_of_times(t: np.ndarray, fps: float | None, traj_path: str | os.P
 
 def read_extrinsic(path: str | os.PathLike) -> np.ndarray:
     """Read a 4x4 rigid transform (16 numbers, e.g. ViSP's ``depth_M_color.txt``); ``#`` comments allowed."""
-    p = require_file(path, "extrinsic file")
-    vals: list[float] = []
-    for line in p.read_text().splitlines():
-        s = line.split("#", 1)[0].replace(",", " ").replace("[", " ").replace("]", " ")
-        try:
-            vals.extend(float(x) for x in s.split())
-        except ValueError:
-            raise InputError(p, f"not a number in line {line.strip()!r}") from None
-    if len(vals) not in (12, 16):
-        raise InputError(p, f"{len(vals)} numbers: expected a 4x4 (16) or 3x4 (12) matrix")
-    T = np.eye(4)
-    T[: len(vals) // 4] = np.asarray(vals).reshape(-1, 4)
-    R = T[:3, :3]
-    if not np.isfinite(T).all() or abs(np.linalg.det(R) - 1) > 1e-3 or np.abs(R.T @ R - np.eye(3)).max() > 1e-3:
-        raise InputError(p, "not a rigid transform (rotation part not orthonormal)")
-    if np.abs(T[3] - [0, 0, 0, 1]).max() > 1e-9:
-        raise InputError(p, "last row must be 0 0 0 1")
-    U, _, Vt = np.linalg.svd(R)
-    T[:3, :3] = U @ Vt
-    return T
+    return read_rigid_transform(path, "extrinsic file")
 
 
 # ---------------------------------------------------------------------------- accumulators

@@ -255,6 +255,50 @@ def write_tum(path: str | os.PathLike, t: np.ndarray, T_model_cam: np.ndarray, h
     Path(path).write_text(text)
 
 
+def _read_numbers(p: Path) -> np.ndarray:
+    """All numbers of a small text file; ``#`` comments, commas and brackets ignored."""
+    vals: list[float] = []
+    for line in p.read_text().splitlines():
+        s = line.split("#", 1)[0].replace(",", " ").replace("[", " ").replace("]", " ")
+        try:
+            vals.extend(float(x) for x in s.split())
+        except ValueError:
+            raise InputError(p, f"not a number in line {line.strip()!r}") from None
+    a = np.asarray(vals)
+    if not np.isfinite(a).all():
+        raise InputError(p, "NaN or infinite values")
+    return a
+
+
+def _rigid_from_rows(a: np.ndarray, p: Path) -> np.ndarray:
+    """12 or 16 row-major numbers -> 4x4 rigid transform, rotation re-orthonormalised (SVD)."""
+    T = np.eye(4)
+    T[: len(a) // 4] = a.reshape(-1, 4)
+    R = T[:3, :3]
+    if abs(np.linalg.det(R) - 1) > 1e-3 or np.abs(R.T @ R - np.eye(3)).max() > 1e-3:
+        raise InputError(p, "the 4x4 matrix is not a rigid transform (rotation part not orthonormal)")
+    if np.abs(T[3] - [0, 0, 0, 1]).max() > 1e-9:
+        raise InputError(p, "last row must be 0 0 0 1")
+    U, _, Vt = np.linalg.svd(R)
+    T[:3, :3] = U @ Vt
+    return T
+
+
+def read_rigid_transform(path: str | os.PathLike, what: str = "transform file") -> np.ndarray:
+    """Read a 4x4 (16 numbers) or 3x4 (12) rigid transform, row-major, e.g. ViSP's ``depth_M_color.txt``.
+
+    ``#`` comments, commas and brackets are allowed. Raises :class:`mst.InputError` naming the file
+    when it is missing, holds another count of numbers, or is not rigid.
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise InputError(p, f"{what} does not exist")
+    a = _read_numbers(p)
+    if len(a) not in (12, 16):
+        raise InputError(p, f"{len(a)} numbers: expected a 4x4 (16) or 3x4 (12) matrix")
+    return _rigid_from_rows(a, p)
+
+
 def read_pose_file(path: str | os.PathLike) -> np.ndarray:
     """Read one pose and return ``T_cam_model`` (ViSP's cMo), 4x4.
 
@@ -267,25 +311,9 @@ def read_pose_file(path: str | os.PathLike) -> np.ndarray:
     p = Path(path)
     if not p.is_file():
         raise InputError(p, "pose file does not exist")
-    vals: list[float] = []
-    for line in p.read_text().splitlines():
-        s = line.split("#", 1)[0].replace(",", " ").strip()
-        try:
-            vals.extend(float(x) for x in s.split())
-        except ValueError:
-            raise InputError(p, f"not a number in line {line.strip()!r}") from None
-    a = np.asarray(vals)
-    if not np.isfinite(a).all():
-        raise InputError(p, "pose holds NaN or infinite values")
+    a = _read_numbers(p)
     if len(a) in (16, 12):
-        T = np.eye(4)
-        T[: len(a) // 4] = a.reshape(-1, 4)
-        R = T[:3, :3]
-        if abs(np.linalg.det(R) - 1) > 1e-3 or np.abs(R.T @ R - np.eye(3)).max() > 1e-3:
-            raise InputError(p, "the 4x4 matrix is not a rigid transform (rotation part not orthonormal)")
-        U, _, Vt = np.linalg.svd(R)
-        T[:3, :3] = U @ Vt
-        return T
+        return _rigid_from_rows(a, p)
     if len(a) in (7, 8):
         return inv_T(tum_to_T(a[-7:])[0])
     raise InputError(p, f"{len(a)} numbers: expected 16 (4x4 cMo matrix), 8 (TUM line) or 7")

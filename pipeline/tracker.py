@@ -398,7 +398,7 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
 
     from mst.pipeline.camera import read_camera
     from mst.pipeline.frames import check_camera_size, open_frames
-    from mst.pipeline.poses import inv_T, read_pose_file
+    from mst.pipeline.poses import inv_T, read_pose_file, read_rigid_transform
     from mst.pipeline.settings import validate_config
 
     cfg = config or TrackerConfig()
@@ -420,13 +420,7 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
         pass  # poses are metric; only the intrinsics scale
     check_pose_in_view(model, T0, cam, init_pose_path)
     depth_camera = read_camera(depth_camera_path) if depth_camera_path else None
-    T_depth_color = None
-    if depth_to_color_path:
-        vals = np.array(Path(depth_to_color_path).read_text().split(), float) if Path(depth_to_color_path).is_file() else None
-        if vals is None or vals.size not in (12, 16):
-            raise InputError(depth_to_color_path, "expected a 4x4 (or 3x4) matrix")
-        T_depth_color = np.eye(4)
-        T_depth_color[: vals.size // 4] = vals.reshape(-1, 4)
+    T_depth_color = read_rigid_transform(depth_to_color_path, "depth-to-colour file") if depth_to_color_path else None
     if depth_dir is not None and not Path(depth_dir).is_dir():
         raise InputError(depth_dir, "depth folder does not exist")
     if slam == "rgbd" and depth_dir is None:

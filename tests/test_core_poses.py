@@ -107,3 +107,15 @@ def test_look_at_points_the_optical_axis_at_the_target():
     assert np.allclose(T_down[:3, :3].T @ T_down[:3, :3], np.eye(3))
     T_roll = P.look_at(eye, target, roll_deg=10)
     assert np.allclose(T_roll[:3, 2], T_model_cam[:3, 2]) and P.rotation_angle_deg(T_model_cam[:3, :3].T @ T_roll[:3, :3]) == pytest.approx(10)
+
+
+def test_read_rigid_transform_forms_and_errors(tmp_path):
+    T = random_T(1)[0]
+    f = tmp_path / "T.txt"
+    f.write_text("# depth_M_color\n[" + ",\n".join(" ".join(f"{v:.12f}" for v in row) for row in T[:3]) + "]\n")
+    assert np.abs(P.read_rigid_transform(f) - T).max() < 1e-10  # 3x4 with brackets, commas, comments
+    f.write_text("\n".join(" ".join(f"{v:.12f}" for v in row) for row in T[:3]) + "\n0 0 1 1\n")
+    with pytest.raises(InputError, match="last row must be 0 0 0 1"):
+        P.read_rigid_transform(f)
+    with pytest.raises(InputError, match="depth-to-colour file does not exist"):
+        P.read_rigid_transform(tmp_path / "none.txt", "depth-to-colour file")
