@@ -100,6 +100,30 @@ def _read_header_lines(p: Path, magic: bytes, end: bytes, limit: int = 1 << 20) 
             return lines, pos
 
 
+def _ascii_reader(p: Path, start: int, n: int, cols, what: str, unit: str):
+    """Chunked reader of ``n`` whitespace-separated rows from byte ``start``: columns ``cols`` as float64.
+
+    Corrupt rows and a file that ends early raise :class:`mst.InputError` naming ``what``/``unit``.
+    """
+
+    def reader(size: int) -> Iterator[np.ndarray]:
+        with open(p, "rb") as f:
+            f.seek(start)
+            left = n
+            while left > 0:
+                k = min(size, left)
+                try:
+                    a = np.loadtxt(f, dtype=np.float64, usecols=cols, max_rows=k, ndmin=2)
+                except ValueError as e:
+                    raise InputError(p, f"corrupt {what} ({e})") from None
+                if len(a) < k:
+                    raise InputError(p, f"file ends after {n - left + len(a)} of {n} {unit}")
+                left -= k
+                yield a
+
+    return reader
+
+
 def _open_ply(p: Path) -> CloudSource:
     lines, data_start = _read_header_lines(p, b"ply", b"end_header")
     fmt = None
@@ -139,22 +163,7 @@ def _open_ply(p: Path) -> CloudSource:
         if any(t == "list" for _, t in props):
             raise InputError(p, "ascii PLY vertex with list properties is not supported")
 
-        def reader(size: int) -> Iterator[np.ndarray]:
-            with open(p, "rb") as f:
-                f.seek(data_start)
-                left = n
-                while left > 0:
-                    k = min(size, left)
-                    try:
-                        a = np.loadtxt(f, dtype=np.float64, usecols=cols, max_rows=k, ndmin=2)
-                    except ValueError as e:
-                        raise InputError(p, f"corrupt ascii vertex data ({e})") from None
-                    if len(a) < k:
-                        raise InputError(p, f"file ends after {n - left + len(a)} of {n} vertices")
-                    left -= k
-                    yield a
-
-        return CloudSource(p, n, xyz_dtype, reader)
+        return CloudSource(p, n, xyz_dtype, _ascii_reader(p, data_start, n, cols, "ascii vertex data", "vertices"))
     if any(t == "list" for e in elements[: vi + 1] for _, t in e[2]):
         raise InputError(p, "binary PLY with list properties before/in 'vertex' is not supported")
     end = "<" if fmt == "binary_little_endian" else ">"
@@ -217,22 +226,7 @@ def _open_pcd(p: Path) -> CloudSource:
             cols[nm] = col
             col += c
 
-        def reader(size: int) -> Iterator[np.ndarray]:
-            with open(p, "rb") as f:
-                f.seek(pos)
-                left = n
-                while left > 0:
-                    k = min(size, left)
-                    try:
-                        a = np.loadtxt(f, dtype=np.float64, usecols=[cols[c] for c in "xyz"], max_rows=k, ndmin=2)
-                    except ValueError as e:
-                        raise InputError(p, f"corrupt ascii PCD data ({e})") from None
-                    if len(a) < k:
-                        raise InputError(p, f"file ends after {n - left + len(a)} of {n} points")
-                    left -= k
-                    yield a
-
-        return CloudSource(p, n, xyz_dtype, reader)
+        return CloudSource(p, n, xyz_dtype, _ascii_reader(p, pos, n, [cols[c] for c in "xyz"], "ascii PCD data", "points"))
     if data != "binary":
         raise InputError(p, f"PCD DATA {data!r} not supported (use ascii or binary)")
     dt = np.dtype([(nm, "<" + kind[t] + str(s), (c,)) if c > 1 else (nm, "<" + kind[t] + str(s))
