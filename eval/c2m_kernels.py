@@ -339,6 +339,20 @@ def bin_triangles(BB, lo, inv_h, dims):
 
 
 @njit(cache=True, inline="always")
+def _scan_cell(px, py, pz, c, start, items, A, AB, AC, BC, N, G, BB, best, bt, bf):
+    """Nearest of the triangles binned in cell ``c`` (CSR ``start``/``items``) if closer than ``best``
+    (squared distance); returns the updated ``(best, triangle, feature)``."""
+    for j in range(start[c], start[c + 1]):
+        k = np.int64(items[j])
+        if _box_d2(px, py, pz, k, BB) >= best:
+            continue
+        r2, f = pt_tri(px, py, pz, k, A, AB, AC, BC, N, G)
+        if r2 < best:
+            best, bt, bf = r2, k, f
+    return best, bt, bf
+
+
+@njit(cache=True, inline="always")
 def _axis_gap(p, lo, h, i, r, n):
     """Lower bound of the distance along one axis from coordinate p to the cells farther than r
     from cell i (inf when there are none on either side)."""
@@ -405,13 +419,7 @@ def bins_query(P, lo, h, dims, start, items, max_d2, far_d2, A, AB, AC, BC, N, G
                         if exy + ez * ez >= best:
                             continue
                         c = (cx * ny + cy) * nz + cz
-                        for j in range(start[c], start[c + 1]):
-                            k = np.int64(items[j])
-                            if _box_d2(px, py, pz, k, BB) >= best:
-                                continue
-                            r2, f = pt_tri(px, py, pz, k, A, AB, AC, BC, N, G)
-                            if r2 < best:
-                                best, bt, bf = r2, k, f
+                        best, bt, bf = _scan_cell(px, py, pz, c, start, items, A, AB, AC, BC, N, G, BB, best, bt, bf)
             g = min(_axis_gap(px, lo[0], h, ix, r, nx), _axis_gap(py, lo[1], h, iy, r, ny),
                     _axis_gap(pz, lo[2], h, iz, r, nz))
             if g == np.inf:
@@ -470,13 +478,7 @@ def bins_far_query(P, lo, h, dims, start, items, occ, max_d2, A, AB, AC, BC, N, 
                 c = occ[q]
                 if _cell_d2(px, py, pz, c, lo, h, ny, nz) >= best:
                     continue
-                for j in range(start[c], start[c + 1]):
-                    k = np.int64(items[j])
-                    if _box_d2(px, py, pz, k, BB) >= best:
-                        continue
-                    r2, f = pt_tri(px, py, pz, k, A, AB, AC, BC, N, G)
-                    if r2 < best:
-                        best, bt, bf = r2, k, f
+                best, bt, bf = _scan_cell(px, py, pz, c, start, items, A, AB, AC, BC, N, G, BB, best, bt, bf)
         tri[i] = bt
         if bt >= 0:
             d2[i] = best
