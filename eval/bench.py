@@ -23,21 +23,28 @@ STAGES = ["convert", "c2m", "synth", "track", "slam", "fuse"]
 
 
 def timed_command(cmd: list[str], **kw) -> dict:
-    """Run ``cmd`` in a fresh Python child; return wall seconds and the child's peak RSS (MiB).
+    """Run ``cmd`` in a fresh Python child; return wall seconds, the child's CPU seconds (user +
+    system), its peak RSS (MiB) and the 1-minute load average before the run.
 
     The child is wrapped so that its own ``ru_maxrss`` is reported (not the max over earlier children).
+    On a shared machine the wall time of a run depends on the other processes, its CPU time much less.
     """
+    import os
+
     wrapper = (
         "import resource,subprocess,sys,time,json;t=time.perf_counter();"
-        "r=subprocess.run(sys.argv[1:]);w=time.perf_counter()-t;"
-        "print(json.dumps({'rc':r.returncode,'wall_s':w,'peak_rss_mib':resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss/1024}),file=sys.stderr)"
+        "r=subprocess.run(sys.argv[1:]);w=time.perf_counter()-t;u=resource.getrusage(resource.RUSAGE_CHILDREN);"
+        "print(json.dumps({'rc':r.returncode,'wall_s':w,'cpu_s':u.ru_utime+u.ru_stime,"
+        "'peak_rss_mib':u.ru_maxrss/1024}),file=sys.stderr)"
     )
+    load = os.getloadavg()[0]
     r = subprocess.run([sys.executable, "-c", wrapper, *cmd], capture_output=True, text=True, **kw)
     last = r.stderr.strip().splitlines()[-1]
     out = json.loads(last)
     if out["rc"] != 0:
         raise RuntimeError(f"command failed: {' '.join(cmd)}\n{r.stderr[-3000:]}")
     out["stdout"] = r.stdout
+    out["load_avg"] = load
     return out
 
 

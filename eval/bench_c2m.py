@@ -104,30 +104,6 @@ def _ensure(workdir: Path) -> dict[str, tuple[Path, Path]]:
     return cases
 
 
-def _timed_cpu(cmd: list[str]) -> dict:
-    """Like :func:`mst.eval.bench.timed_command`, plus the child's CPU seconds (user + system) and the
-    1-minute load average before the run: on a shared 2-core machine the wall time of a run depends
-    on the other processes, its CPU time much less."""
-    import os
-    import subprocess
-    import sys
-
-    wrapper = (
-        "import resource,subprocess,sys,time,json;t=time.perf_counter();"
-        "r=subprocess.run(sys.argv[1:]);w=time.perf_counter()-t;u=resource.getrusage(resource.RUSAGE_CHILDREN);"
-        "print(json.dumps({'rc':r.returncode,'wall_s':w,'cpu_s':u.ru_utime+u.ru_stime,"
-        "'peak_rss_mib':u.ru_maxrss/1024}),file=sys.stderr)"
-    )
-    load = os.getloadavg()[0]
-    r = subprocess.run([sys.executable, "-c", wrapper, *cmd], capture_output=True, text=True)
-    out = json.loads(r.stderr.strip().splitlines()[-1])
-    if out["rc"] != 0:
-        raise RuntimeError(f"command failed: {' '.join(cmd)}\n{r.stderr[-3000:]}")
-    out["stdout"] = r.stdout
-    out["load_avg"] = load
-    return out
-
-
 def run(workdir: Path) -> list[dict]:
     """Time every case; returns the bench rows (see module docstring)."""
     from mst.eval.bench import mst_cmd, timed_command
@@ -151,7 +127,7 @@ def run(workdir: Path) -> list[dict]:
     runs.insert(2, ("c2m_1M_surface_bvh", *cases["c2m_1M_surface"], ("--engine", "bvh")))
     for name, cloud, mesh, extra in runs:
         out = Path(workdir) / f"{name}_out.ply"
-        r = _timed_cpu(mst_cmd("c2m", cloud, mesh, "-o", out, "--json", "-q", *extra))
+        r = timed_command(mst_cmd("c2m", cloud, mesh, "-o", out, "--json", "-q", *extra))
         s = json.loads(r["stdout"])
         row = {"bench": name, "points": s["points_total"], "triangles": s["mesh_triangles"], "engine": s["engine"],
                "wall_s": round(r["wall_s"], 3), "cpu_s": round(r["cpu_s"], 3), "load_avg_1min": round(r["load_avg"], 2),
