@@ -33,8 +33,9 @@ SAMPLE_MODEL = ROOT / "samples" / "building_tin.obj"
 # ---------------------------------------------------------------------------- evaluation helpers
 def model_centre(seq: Path) -> np.ndarray:
     """Centre (metres, model frame) of the bounding box of ``seq/model.obj``."""
-    V = np.array([[float(x) for x in ln.split()[1:4]] for ln in (seq / "model.obj").read_text().splitlines()
-                  if ln.startswith("v ")])
+    from mst.meshtools.io import load_triangles
+
+    V, _ = load_triangles(seq / "model.obj")
     return 0.5 * (V.min(0) + V.max(0))
 
 

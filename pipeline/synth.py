@@ -281,13 +281,6 @@ def _resolve(scenario: str, cfg: SynthConfig, lo: np.ndarray, hi: np.ndarray, ca
 
 
 # ---------------------------------------------------------------------------- mesh I/O
-def obj_text_exact(V: np.ndarray, F: np.ndarray) -> str:
-    """OBJ text with vertices written with ``repr`` precision (float64 round-trips exactly), 1-based faces."""
-    vs = "".join(f"v {x!r} {y!r} {z!r}\n" for x, y, z in np.asarray(V, np.float64).tolist())
-    fs = "".join(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in np.asarray(F, np.int64).tolist())
-    return "# mst synth: the model as rendered (model frame, metres)\n" + vs + fs
-
-
 def write_ply_mesh(path: Path, V: np.ndarray, F: np.ndarray, labels: np.ndarray) -> None:
     """Binary little-endian PLY: double vertices, int triangles, uchar face ``label``."""
     V = np.asarray(V, "<f8")
@@ -699,7 +692,9 @@ def synthesize(scenario: str, model_path: str | os.PathLike, out_dir: str | os.P
             "# mst synth clicks for frame 0: X Y Z (model frame, metres) u v (pixels)"
             + (f", pixel noise sigma {cfg.click_noise:g}" if cfg.click_noise > 0 else "") + "\n"
             + "".join(f"{X[0]:.9f} {X[1]:.9f} {X[2]:.9f} {uv[0]:.4f} {uv[1]:.4f}\n" for X, uv in zip(X_clk, uv_clk)))
-        (tmp / "model.obj").write_text(obj_text_exact(V, F))
+        from mst.meshtools.io import save_triangles
+
+        save_triangles(tmp / "model.obj", V, F)  # shortest round-trip text: float64 vertices exact
         write_ply_mesh(tmp / "scene.ply", V_all, F_all, mat_all)
         (tmp / "frames.csv").write_text("frame,time,model_px,edge_px\n"
                                         + "".join(f"{k},{t:.6f},{m},{e}\n" for k, t, m, e in rows))
