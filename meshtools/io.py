@@ -11,8 +11,9 @@ suffix                    read    write   notes
                                           ``Transform``/``Group`` nesting (translation, rotation, scale,
                                           center, scaleOrientation), ``DEF``/``USE``; ``Switch``: the
                                           chosen child, ``LOD``: the first level; Inline not followed
-``.cao``                  yes     yes     ViSP model V1: points, lines, faces from lines, faces from
+``.cao``                  yes     yes     ViSP model V1/V2: points, lines, faces from lines, faces from
                                           points, cylinders, circles, ``load("sub.cao", t=[..], tu=[..])``
+                                          as loadCAOModel reads them (see read_cao)
 ``.off``                  yes     no      polygon faces kept
 ``.ply`` ``.stl``         yes     no      through trimesh (triangles)
 ``.json`` ``.city.json``  yes     no      CityJSON 1.0-2.0: every surface of every city object (highest
@@ -826,128 +827,243 @@ def _theta_u_matrix(tu: np.ndarray) -> np.ndarray:
     return _axis_angle(np.array([*(np.asarray(tu) / th), th]))
 
 
-_CAO_LOAD = re.compile(r'load\s*\(\s*"([^"]+)"\s*(?:,(.*))?\)\s*$')
-_CAO_VEC = re.compile(r"(t|tu)\s*=\s*\[([^\]]*)\]")
+_CAO_INT = re.compile(r"[+-]?\d+")
+_CAO_FLOAT = re.compile(r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?|[+-]?(?:inf|nan)(?![A-Za-z])", re.I)
+_CAO_PARAM = re.compile(r'([A-Za-z_]\w*)\s*=\s*(?:"([^"]*)"|([^\s"]*))')
+_CAO_VEC = re.compile(r"\b(t|tu)\s*=\s*\[([^\]]*)\]")
+_CAO_MAX_COUNT = 10_000_000
 
 
-def read_cao(p: Path, _depth: int = 0) -> PolygonModel:
-    """ViSP ``.cao`` (V1): points, lines, faces from lines, faces from points, cylinders, circles.
+class _CaoCursor:
+    """ViSP-style stream over a ``.cao`` text, with line numbers for messages.
 
-    ``load("sub.cao", t=[tx, ty, tz], tu=[rx, ry, rz])`` lines (before the points) include another
-    model, path relative to this file, its points mapped by ``X = R(tu) X_sub + t`` (tu = theta-u
-    rotation vector, radians; t metres). Faces from lines are turned into point loops. Lines used
-    by no face-from-lines are kept in ``model.lines``; cylinders ``{p1, p2, radius, name}`` and circles
-    ``{radius, center, p1, p2, name}`` are kept as dicts (point indices into ``model.vertices``).
-    ``name=...`` parameters become face names; other parameters (useLod, ...) are ignored.
+    ViSP's ``loadCAOModel`` reads numbers with ``>>`` (whitespace, newlines included, skipped), then
+    drops the rest of the line (counts, points) or parses it as ``key=value`` parameters (lines,
+    faces, cylinders, circles). Text after the expected numbers is therefore a comment whatever it
+    starts with (``#``, ``//``, words); lines whose first non-blank character is ``#`` and blank
+    lines are skipped between statements.
     """
-    if _depth > 16:
-        raise InputError(p, "load() nesting deeper than 16 (a cycle?)")
-    rows: list[str] = []
-    with open(p, encoding="utf-8") as fh:
-        for raw in fh:
-            s = raw.split("#", 1)[0].strip()
-            if s:
-                rows.append(s)
-    parts: list[PolygonModel] = []
-    k = 0
-    if k < len(rows) and rows[k].upper().startswith("V1"):
-        k += 1
-    while k < len(rows) and rows[k].startswith("load"):
-        m = _CAO_LOAD.match(rows[k])
-        if not m:
-            raise InputError(p, f"cannot parse {rows[k]!r}")
-        sub = (p.parent / m.group(1)).resolve()
-        if not sub.is_file():
-            raise InputError(p, f"load(): {m.group(1)} not found (looked at {sub})")
-        vec = {name: np.array([float(x) for x in val.replace(",", " ").split()]) for name, val in _CAO_VEC.findall(m.group(2) or "")}
-        sm = read_cao(sub, _depth + 1)
-        R = _theta_u_matrix(vec.get("tu", np.zeros(3)))
-        t = vec.get("t", np.zeros(3))
-        sm.vertices = sm.vertices @ R.T + t
-        parts.append(sm)
-        k += 1
 
-    def take_count(what: str) -> int:
-        nonlocal k
-        if k >= len(rows):
-            raise InputError(p, f"missing the number of {what}")
-        try:
-            n = int(rows[k].split()[0])
-        except ValueError:
-            raise InputError(p, f"expected the number of {what}, got {rows[k]!r}") from None
-        k += 1
-        if n < 0 or k + n > len(rows):
-            raise InputError(p, f"{n} {what} announced, file truncated")
+    def __init__(self, text: str, path: Path):
+        self.lines = text.splitlines()
+        self.path = path
+        self.ln = 0  # current line index
+        self.col = 0  # position in the current line
+
+    def _skip(self) -> None:
+        while self.ln < len(self.lines):
+            rest = self.lines[self.ln][self.col:]
+            st = rest.lstrip()
+            if not st or (st.startswith("#") and not self.lines[self.ln][:self.col].strip()):
+                self.ln, self.col = self.ln + 1, 0
+                continue
+            self.col += len(rest) - len(st)
+            return
+
+    def at_end(self) -> bool:
+        self._skip()
+        return self.ln >= len(self.lines)
+
+    def peek_char(self) -> str:
+        self._skip()
+        return self.lines[self.ln][self.col] if self.ln < len(self.lines) else ""
+
+    def _token(self, rx: re.Pattern, what: str, same_line: bool = False) -> str:
+        if same_line:  # the statement goes on: its numbers must be on the line
+            if self.ln >= len(self.lines) or not self.lines[self.ln][self.col:].strip():
+                raise InputError(self.path, f"line {self.ln + 1}: {what} missing (fewer numbers than the statement needs)")
+        self._skip()
+        if self.ln >= len(self.lines):
+            raise InputError(self.path, f"file ends where {what} was expected")
+        m = rx.match(self.lines[self.ln], self.col)
+        if not m:
+            got = self.lines[self.ln][self.col:].split()[0][:20]
+            raise InputError(self.path, f"line {self.ln + 1}: expected {what}, got {got!r}")
+        self.col = m.end()
+        return m.group(0)
+
+    def int(self, what: str, same_line: bool = False) -> int:
+        tok = self._token(_CAO_INT, what, same_line)
+        nxt = self.lines[self.ln][self.col:self.col + 1]
+        if nxt in (".", "e", "E"):
+            raise InputError(self.path, f"line {self.ln + 1}: expected {what} (an integer), got {tok + nxt!r}...")
+        return int(tok)
+
+    def count(self, what: str) -> int:
+        n = self.int(f"the number of {what}")
+        if n < 0 or n > _CAO_MAX_COUNT:
+            raise InputError(self.path, f"line {self.ln + 1}: {n} {what} announced (must be 0..{_CAO_MAX_COUNT})")
+        self.rest()
         return n
 
-    def split_params(s: str) -> tuple[list[str], dict[str, str]]:
-        toks = s.split()
-        vals = [t for t in toks if "=" not in t]
-        params = dict(t.split("=", 1) for t in toks if "=" in t)
-        # name="a b" style: join quoted names
-        mq = re.search(r'name\s*=\s*"([^"]*)"', s)
-        if mq:
-            params["name"] = mq.group(1)
-            vals = s[: mq.start()].split()
-            vals = [t for t in vals if "=" not in t]
-        return vals, params
+    def index(self, what: str, n: int) -> int:
+        i = self.int(what, same_line=True)
+        if not 0 <= i < n:
+            raise InputError(self.path, f"line {self.ln + 1}: {what} {i} out of range (0..{n - 1})")
+        return i
 
-    n = take_count("points")
-    V = np.array([[float(x) for x in rows[k + i].split()[:3]] for i in range(n)], np.float64).reshape(-1, 3)
-    if any(len(rows[k + i].split()) < 3 for i in range(n)):
-        raise InputError(p, "a point needs 3 coordinates")
-    k += n
-    n = take_count("lines")
-    L = []
-    line_names = []
+    def float(self, what: str, same_line: bool = False) -> float:
+        return float(self._token(_CAO_FLOAT, what, same_line))
+
+    def rest(self) -> str:
+        """The rest of the current line (then move to the next line)."""
+        if self.ln >= len(self.lines):
+            return ""
+        r = self.lines[self.ln][self.col:]
+        self.ln, self.col = self.ln + 1, 0
+        return r
+
+    def params(self) -> dict[str, str]:
+        """``key=value`` / ``key="value"`` pairs at the start of the rest of the line (ViSP's
+        parseParameters: ``name``, ``useLod``, ``minLineLengthThreshold``, ``minPolygonAreaThreshold``,
+        and any other key); parsing stops at the first other text (a comment)."""
+        r, out, j = self.rest(), {}, 0
+        while True:
+            while j < len(r) and r[j] in " \t":
+                j += 1
+            m = _CAO_PARAM.match(r, j)
+            if not m:
+                return out
+            out[m.group(1)] = m.group(2) if m.group(2) is not None else m.group(3)
+            j = m.end()
+
+
+def _cao_vector(p: Path, name: str, text: str) -> np.ndarray:
+    """``t=[..]`` (metres) or ``tu=[..]`` (theta-u; each value radians, or with a ``deg``/``rad``
+    unit) of a ``load()``: 3 values separated by ``;`` (ViSP) or ``,``."""
+    vals = [v.strip() for v in re.split(r"[;,]", text)]
+    if len(vals) == 1:  # space-separated
+        vals = text.split()
+    if len(vals) != 3:
+        raise InputError(p, f"load(): {name}=[{text}] needs 3 values separated by ';'")
+    out = []
+    for v in vals:
+        m = re.fullmatch(r"([+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?)\s*(deg|rad)?", v)
+        if not m or (m.group(2) and name != "tu"):
+            raise InputError(p, f"load(): bad value {v!r} in {name}=[{text}]")
+        x = float(m.group(1))
+        out.append(math.radians(x) if m.group(2) == "deg" else x)
+    return np.array(out)
+
+
+def read_cao(p: Path, _stack: tuple[Path, ...] = ()) -> PolygonModel:
+    """ViSP ``.cao`` as ``vpMbTracker::loadCAOModel`` reads it (V1, V2).
+
+    Sections in order: ``V1``/``V2`` header; ``load("sub.cao", t=[tx; ty; tz], tu=[rx; ry; rz])``
+    lines; points (V2: each followed by two image coordinates, ignored); lines ``i j``; faces from
+    lines ``n l1 .. ln``; faces from points ``n p1 .. pn``; cylinders ``p1 p2 radius``; circles
+    ``radius center p1 p2`` (the last two sections optional, as in old files). Text after a
+    statement's numbers is a comment; faces, lines, cylinders and circles may carry ``key=value``
+    parameters (``name=...`` or ``name="a b"`` becomes the face name; ``useLod``, thresholds and
+    others are accepted and ignored).
+
+    ``load()``: the sub-model's path is relative to this file's folder (or absolute); its points are
+    mapped by ``X = R(tu) X_sub + t`` (tu theta-u, radians unless ``deg``; t metres; ``;`` or ``,``
+    between values), nested loads compose. A cycle raises :class:`mst.InputError` (ViSP warns and
+    skips it); a file loaded twice from different places is loaded twice (ViSP keeps only the first).
+
+    Faces from lines become point loops. Lines used by no face-from-lines are kept in
+    ``model.lines`` (ViSP tracks them as 2-point polygons). Cylinders ``{p1, p2, radius, name}`` and
+    circles ``{radius, center, p1, p2, name}`` cannot be polygon faces: they are kept as dicts
+    (point indices into ``model.vertices``) and written back by :func:`cao_text`; mst's tracker
+    does not use them.
+    """
+    p = Path(p)
+    me = p.resolve()
+    if me in _stack:
+        chain = " -> ".join(q.name for q in (*_stack, me))
+        raise InputError(p, f"load() cycle: {chain}")
+    if len(_stack) > 32:
+        raise InputError(p, "load() nesting deeper than 32")
+    text = p.read_text(encoding="utf-8-sig")
+    if "\x00" in text:
+        raise InputError(p, "not a text .cao file (NUL bytes)")
+    c = _CaoCursor(text, p)
+    version = 1
+    if c.peek_char() in ("V", "v"):
+        c.col += 1
+        version = c.int("the .cao version after 'V'")
+        c.rest()
+        if version not in (0, 1, 2):
+            raise InputError(p, f"unsupported .cao version V{version} (V1 or V2)")
+    parts: list[PolygonModel] = []
+    while c.peek_char() in ("l", "L"):
+        lno = c.ln + 1
+        line = c.rest().strip()
+        m = re.match(r'load\s*\(\s*"([^"]+)"\s*([^)]*)\)', line)
+        if not m:
+            raise InputError(p, f"line {lno}: cannot parse {line[:60]!r} (expected load(\"file.cao\", t=[..], tu=[..]))")
+        args = m.group(2).strip()
+        vec = {name: _cao_vector(p, name, val) for name, val in _CAO_VEC.findall(args)}
+        leftover = _CAO_VEC.sub("", args).replace(",", " ").strip()
+        if leftover:
+            raise InputError(p, f"line {lno}: load(): unexpected {leftover[:40]!r} (only t=[..] and tu=[..])")
+        sub = Path(m.group(1))
+        sub = sub if sub.is_absolute() else p.parent / sub
+        if not sub.is_file():
+            raise InputError(p, f"line {lno}: load(): {m.group(1)} not found (looked at {sub})")
+        sm = read_cao(sub, (*_stack, me))
+        R = _theta_u_matrix(vec.get("tu", np.zeros(3)))
+        sm.vertices = sm.vertices @ R.T + vec.get("t", np.zeros(3))
+        parts.append(sm)
+
+    n = c.count("points")
+    V = np.empty((n, 3))
     for i in range(n):
-        vals, par = split_params(rows[k + i])
-        L.append((int(vals[0]), int(vals[1])))
-        line_names.append(par.get("name"))
-    k += n
-    L_arr = np.array(L, np.int64).reshape(-1, 2)
+        V[i] = [c.float("a point coordinate"), c.float("a point coordinate", True), c.float("a point coordinate", True)]
+        if version == 2:
+            c.int("the point's image row (V2)", True)
+            c.int("the point's image column (V2)", True)
+        c.rest()
+    n_l = c.count("lines")
+    L = np.empty((n_l, 2), np.int64)
+    for i in range(n_l):
+        L[i] = [c.int("line point index"), c.int("line point index", True)]
+        if L[i].min() < 0 or L[i].max() >= n:
+            raise InputError(p, f"line {c.ln + 1}: line {i} point index out of range (0..{n - 1})")
+        c.params()
     faces: list[np.ndarray] = []
     names: list[str | None] = []
-    used_lines = np.zeros(len(L_arr), bool)
-    n = take_count("faces from lines")
-    for i in range(n):
-        vals, par = split_params(rows[k + i])
-        cnt = int(vals[0])
-        li = [int(x) for x in vals[1:1 + cnt]]
-        if len(li) != cnt:
-            raise InputError(p, f"face from lines {i}: {cnt} lines announced, {len(li)} given")
-        if li and (min(li) < 0 or max(li) >= len(L_arr)):
-            raise InputError(p, f"face from lines {i}: line index out of range")
+    used_lines = np.zeros(n_l, bool)
+    for i in range(c.count("faces from lines")):
+        k = c.int("the number of lines of a face")
+        if k < 3 or k > n_l:
+            raise InputError(p, f"line {c.ln + 1}: face from lines {i} has {k} lines (need 3..{n_l})")
+        li = [c.index("line index", n_l) for _ in range(k)]
+        par = c.params()
         used_lines[li] = True
-        faces.append(_chain_lines(L_arr[li], p, i))
-        names.append(par.get("name"))
-    k += n
-    n = take_count("faces from points")
-    for i in range(n):
-        vals, par = split_params(rows[k + i])
-        cnt = int(vals[0])
-        pi = [int(x) for x in vals[1:1 + cnt]]
-        if len(pi) != cnt:
-            raise InputError(p, f"face from points {i}: {cnt} points announced, {len(pi)} given")
-        faces.append(np.array(pi, np.int64))
-        names.append(par.get("name"))
-    k += n
+        faces.append(_chain_lines(L[li], p, i))
+        names.append(par.get("name") or None)
+    for i in range(c.count("faces from points")):
+        k = c.int("the number of points of a face")
+        if k < 3 or k > _CAO_MAX_COUNT:
+            raise InputError(p, f"line {c.ln + 1}: face from points {i} has {k} points (need at least 3)")
+        faces.append(np.array([c.index("point index", n) for _ in range(k)], np.int64))
+        names.append(c.params().get("name") or None)
     cyl: list[dict] = []
     circ: list[dict] = []
-    if k < len(rows):
-        n = take_count("cylinders")
-        for i in range(n):
-            vals, par = split_params(rows[k + i])
-            cyl.append({"p1": int(vals[0]), "p2": int(vals[1]), "radius": float(vals[2]), "name": par.get("name")})
-        k += n
-    if k < len(rows):
-        n = take_count("circles")
-        for i in range(n):
-            vals, par = split_params(rows[k + i])
-            circ.append({"radius": float(vals[0]), "center": int(vals[1]), "p1": int(vals[2]), "p2": int(vals[3]),
-                         "name": par.get("name")})
-        k += n
-    own = PolygonModel(V, faces, names=names, lines=L_arr[~used_lines], cylinders=cyl, circles=circ)
+    if not c.at_end():
+        for _ in range(c.count("cylinders")):
+            p1 = c.int("cylinder point index")
+            p2 = c.index("cylinder point index", n)
+            if not 0 <= p1 < n:
+                raise InputError(p, f"line {c.ln + 1}: cylinder point index {p1} out of range (0..{n - 1})")
+            r = c.float("the cylinder radius", True)
+            if not (r > 0 and math.isfinite(r)):
+                raise InputError(p, f"line {c.ln + 1}: cylinder radius {r} (must be > 0)")
+            cyl.append({"p1": p1, "p2": p2, "radius": r, "name": c.params().get("name") or None})
+    if not c.at_end():
+        for _ in range(c.count("circles")):
+            r = c.float("the circle radius")
+            if not (r > 0 and math.isfinite(r)):
+                raise InputError(p, f"line {c.ln + 1}: circle radius {r} (must be > 0)")
+            ids = [c.index("circle point index", n) for _ in range(3)]
+            circ.append({"radius": r, "center": ids[0], "p1": ids[1], "p2": ids[2],
+                         "name": c.params().get("name") or None})
+    # anything after the circles is ignored, as ViSP does (cube.cao carries its .init there)
+    own = PolygonModel(V, faces, names=names, lines=L[~used_lines], cylinders=cyl, circles=circ)
+    if not np.isfinite(V).all():
+        own.check_finite(str(p))
     if not parts:
         return own
     return merge_models([*parts, own])
