@@ -72,6 +72,11 @@ def load_model(path: str | os.PathLike) -> PolygonModel:
     """
     p = require_file(path, "model file")
     suf = _suffix(p)
+    with np.errstate(all="ignore"):  # overflow to inf etc. is reported as an InputError below
+        return _load_model(p, suf)
+
+
+def _load_model(p: Path, suf: str) -> PolygonModel:
     try:
         if suf == ".obj":
             m = read_obj(p)
@@ -81,8 +86,11 @@ def load_model(path: str | os.PathLike) -> PolygonModel:
             m = read_cao(p)
         elif suf == ".off":
             m = read_off(p)
-        elif suf in (".ply", ".stl"):
-            V, F = _trimesh_load(p)
+        elif suf == ".ply":
+            V, F = _read_ply_mesh(p)
+            m = PolygonModel(V, list(F))
+        elif suf == ".stl":
+            V, F = _read_stl(p)
             m = PolygonModel(V, list(F))
         elif suf == ".json":
             m = read_cityjson(p)
@@ -92,8 +100,8 @@ def load_model(path: str | os.PathLike) -> PolygonModel:
         raise
     except UnicodeDecodeError:
         raise InputError(p, f"not a text {suf} file (binary or wrong encoding)") from None
-    except (ValueError, IndexError, KeyError, TypeError) as e:
-        raise InputError(p, f"corrupt {suf} file: {e}") from None
+    except (ValueError, IndexError, KeyError, TypeError, AttributeError, OverflowError) as e:
+        raise InputError(p, f"corrupt {suf} file: {type(e).__name__}: {e}") from None
     _validate(m, p)
     if suf in (".obj", ".wrl", ".vrml", ".cao", ".off"):
         m = unbridge_faces(m)
@@ -108,24 +116,23 @@ def load_triangles(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
     triangles) keep their vertices and faces exactly as stored (no welding, no reordering).
     """
     p = require_file(path, "mesh file")
-    suf = _suffix(p)
-    if suf == ".ply":
-        fast = _read_ply_triangles_fast(p)
-        if fast is not None:
-            V, F = fast
-            _check_arrays(V, F, p)
-            return V, F
+    with np.errstate(all="ignore"):  # overflow to inf etc. is reported as an InputError
+        return _load_triangles(p, _suffix(p))
+
+
+def _load_triangles(p: Path, suf: str) -> tuple[np.ndarray, np.ndarray]:
     if suf in (".ply", ".stl"):
         try:
-            V, F = _trimesh_load(p)
-        except InputError:
-            raise
-        except Exception as e:  # noqa: BLE001 - trimesh raises many types on corrupt files
-            raise InputError(p, f"cannot read mesh: {e}") from None
+            V, F = _read_ply_mesh(p) if suf == ".ply" else _read_stl(p)
+        except (ValueError, IndexError, KeyError, TypeError, AttributeError, OverflowError) as e:
+            raise InputError(p, f"corrupt {suf} file: {type(e).__name__}: {e}") from None
         _check_arrays(V, F, p)
         return V, F
     if suf == ".obj":
-        fast = _read_obj_triangles_fast(p)
+        try:
+            fast = _read_obj_triangles_fast(p)
+        except ValueError:  # anything odd: the general reader says what and where
+            fast = None
         if fast is not None:
             V, F = fast
             _check_arrays(V, F, p)
@@ -225,6 +232,179 @@ def _trimesh_load(p: Path) -> tuple[np.ndarray, np.ndarray]:
     if len(F) == 0:
         raise InputError(p, "no faces in the mesh")
     return V, F
+
+
+def _ply_header(p: Path) -> tuple[str, list[tuple[str, int, list[list[str]]]], int]:
+    """Strictly parsed PLY header: ``(format, [(element, count, [property tokens])], data offset)``.
+
+    Raises :class:`mst.InputError` for a missing ``end_header``, an unknown format or type, a
+    negative or non-integer element count, a ``property list`` on a vertex coordinate, no vertex
+    x/y/z, and a binary body too short for what the header announces (each face needs at least 3
+    indices).
+    """
+    with open(p, "rb") as fh:
+        head = fh.read(1 << 20)
+    if not head.startswith(b"ply"):
+        raise InputError(p, "not a PLY file (no 'ply' magic)")
+    m = re.search(rb"end_header[ \t]*\r?\n", head)
+    if not m:
+        raise InputError(p, "PLY header has no 'end_header' line (truncated or corrupt)")
+    lines = head[:m.start()].decode("ascii", "replace").splitlines()
+    fmt = None
+    elems: list[tuple[str, int, list[list[str]]]] = []
+    for ln in lines[1:]:
+        t = ln.split()
+        if not t or t[0] in ("comment", "obj_info"):
+            continue
+        if t[0] == "format":
+            fmt = t[1] if len(t) > 1 else None
+            if fmt not in ("ascii", "binary_little_endian", "binary_big_endian"):
+                raise InputError(p, f"unknown PLY format {fmt!r}")
+        elif t[0] == "element":
+            if len(t) != 3 or not re.fullmatch(r"\d+", t[2]):
+                raise InputError(p, f"PLY header: bad element line {ln.strip()[:60]!r} (count must be an integer >= 0)")
+            elems.append((t[1], int(t[2]), []))
+        elif t[0] == "property":
+            if not elems:
+                raise InputError(p, "PLY header: property before any element")
+            if len(t) >= 2 and t[1] == "list":
+                if len(t) != 5 or t[2] not in _PLY_TYPES or t[3] not in _PLY_TYPES:
+                    raise InputError(p, f"PLY header: bad list property {ln.strip()[:60]!r}")
+                if elems[-1][0] == "vertex" and t[4] in ("x", "y", "z"):
+                    raise InputError(p, f"PLY header: vertex coordinate {t[4]!r} declared as a list")
+            elif len(t) != 3 or t[1] not in _PLY_TYPES:
+                raise InputError(p, f"PLY header: bad property {ln.strip()[:60]!r}")
+            elems[-1][2].append(t[1:])
+        else:
+            raise InputError(p, f"PLY header: unexpected line {ln.strip()[:60]!r}")
+    if fmt is None:
+        raise InputError(p, "PLY header has no 'format' line")
+    names = [e[0] for e in elems]
+    if "vertex" not in names:
+        raise InputError(p, "PLY has no 'vertex' element")
+    vprops = [pr[-1] for pr in elems[names.index("vertex")][2]]
+    if not {"x", "y", "z"} <= set(vprops):
+        raise InputError(p, "PLY vertex element lacks x, y, z properties")
+    if fmt != "ascii":
+        need = 0
+        for name, count, props in elems:
+            per = 0
+            for pr in props:
+                if pr[0] == "list":  # at least the count and, for faces, 3 indices
+                    per += np.dtype(_PLY_TYPES[pr[1]]).itemsize + (3 * np.dtype(_PLY_TYPES[pr[2]]).itemsize if name == "face" else 0)
+                else:
+                    per += np.dtype(_PLY_TYPES[pr[0]]).itemsize
+            need += per * count
+        have = p.stat().st_size - m.end()
+        if have < need:
+            counts = ", ".join(f"{c} {n}" for n, c, _ in elems)
+            raise InputError(p, f"PLY is truncated: the header announces {counts} (at least {need} bytes), the body has {have}")
+    return fmt, elems, m.end()
+
+
+def _fan(faces: list[np.ndarray]) -> np.ndarray:
+    """Triangle fans of polygon index loops: (M, 3) int64 (triangles pass through unchanged)."""
+    out = [np.stack([np.full(len(f) - 2, f[0]), f[1:-1], f[2:]], 1) for f in faces if len(f) >= 3]
+    return np.concatenate(out).astype(np.int64) if out else np.zeros((0, 3), np.int64)
+
+
+def _read_ply_mesh(p: Path) -> tuple[np.ndarray, np.ndarray]:
+    """A PLY mesh as ``V`` (N, 3) float64, ``F`` (M, 3) int64 (polygons fanned into triangles).
+
+    Binary triangle meshes: vectorised (:func:`_read_ply_triangles_fast`); other binary layouts:
+    trimesh after the header check; ASCII: one element instance per line, every line checked.
+    Bad headers, short bodies and missing faces raise :class:`mst.InputError`.
+    """
+    fmt, elems, start = _ply_header(p)
+    names = [e[0] for e in elems]
+    if "face" not in names:
+        raise InputError(p, "PLY has no 'face' element (a point cloud, not a mesh)")
+    if fmt == "ascii":
+        return _read_ply_ascii(p, elems, start)
+    fast = _read_ply_triangles_fast(p)
+    if fast is not None:
+        return fast
+    V, F = _trimesh_load(p)
+    nv = elems[names.index("vertex")][1]
+    if len(V) != nv:
+        raise InputError(p, f"PLY announces {nv} vertices, {len(V)} were read")
+    return V, F
+
+
+def _read_ply_ascii(p: Path, elems, start: int) -> tuple[np.ndarray, np.ndarray]:
+    with open(p, "rb") as fh:
+        fh.seek(start)
+        body = fh.read()
+    try:
+        rows = body.decode("ascii").splitlines()
+    except UnicodeDecodeError:
+        raise InputError(p, "ascii PLY body has non-ASCII bytes") from None
+    rows = [r for r in rows if r.strip()]
+    k = 0
+    V = F = None
+    for name, count, props in elems:
+        if k + count > len(rows):
+            raise InputError(p, f"ascii PLY is truncated: {count} {name} elements announced, {len(rows) - k} lines left")
+        chunk = rows[k:k + count]
+        k += count
+        if name == "vertex":
+            if any(pr[0] == "list" for pr in props):
+                raise InputError(p, "ascii PLY vertex with list properties is not supported")
+            cols = [[pr[-1] for pr in props].index(c) for c in "xyz"]
+            try:
+                A = np.array(" ".join(chunk).split(), dtype=np.float64)
+            except ValueError:
+                raise InputError(p, "ascii PLY: a vertex value is not a number") from None
+            if A.size != count * len(props):
+                raise InputError(p, f"ascii PLY: vertex lines hold {A.size} numbers, {count} x {len(props)} expected")
+            V = A.reshape(count, len(props))[:, cols]
+        elif name == "face":
+            if not props or props[0][0] != "list":
+                raise InputError(p, "ascii PLY face element without a leading index list")
+            faces = []
+            for j, r in enumerate(chunk):
+                t = r.split()
+                try:
+                    n = int(t[0])
+                    idx = [int(x) for x in t[1:1 + n]]
+                except (ValueError, IndexError):
+                    raise InputError(p, f"ascii PLY: face {j} is not a list of integers ({r.strip()[:40]!r})") from None
+                if n < 3 or len(idx) != n or len(t) != 1 + n + len(props) - 1:
+                    raise InputError(p, f"ascii PLY: face {j} has {len(t) - 1} values for {n} indices ({r.strip()[:40]!r})")
+                faces.append(np.array(idx, np.int64))
+            F = _fan(faces)
+    if V is None or F is None:
+        raise InputError(p, "ascii PLY without vertex or face data")
+    return V, F
+
+
+def _read_stl(p: Path) -> tuple[np.ndarray, np.ndarray]:
+    """STL (binary or ASCII) as unwelded triangles: ``V`` (3M, 3) float64, ``F`` (M, 3)."""
+    data = p.read_bytes()
+    if len(data) >= 84:
+        n = int(np.frombuffer(data, "<u4", 1, 80)[0])
+        if len(data) == 84 + 50 * n:
+            rec = np.frombuffer(data, dtype=[("n", "<f4", 3), ("v", "<f4", (3, 3)), ("a", "<u2")], count=n, offset=84)
+            V = rec["v"].reshape(-1, 3).astype(np.float64)
+            return V, np.arange(len(V), dtype=np.int64).reshape(-1, 3)
+    if data.lstrip()[:5].lower() != b"solid":
+        size = f"{len(data)} bytes" + (f", a binary STL of {n} triangles needs {84 + 50 * n}" if len(data) >= 84 else "")
+        raise InputError(p, f"not an STL file or truncated ({size})")
+    try:
+        text = data.decode("ascii")
+    except UnicodeDecodeError:
+        raise InputError(p, "ascii STL with non-ASCII bytes (or a binary STL whose size does not match its count)") from None
+    toks = re.findall(r"(?im)^\s*vertex\s+(\S+)\s+(\S+)\s+(\S+)\s*$", text)
+    n_vert_lines = len(re.findall(r"(?im)^\s*vertex\b", text))
+    if n_vert_lines != len(toks):
+        raise InputError(p, "ascii STL: a 'vertex' line does not hold exactly 3 values")
+    try:
+        V = np.array(toks, dtype=np.float64).reshape(-1, 3)
+    except ValueError:
+        raise InputError(p, "ascii STL: a vertex coordinate is not a number") from None
+    if len(V) % 3 or len(re.findall(r"(?im)^\s*endfacet\b", text)) * 3 != len(V):
+        raise InputError(p, f"ascii STL is truncated or corrupt ({len(V)} vertices, not 3 per facet)")
+    return V, np.arange(len(V), dtype=np.int64).reshape(-1, 3)
 
 
 _PLY_TYPES = {"char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2", "int16": "i2",
@@ -402,14 +582,24 @@ def read_obj(p: Path) -> PolygonModel:
             continue
         tag = s[0]
         if tag == "v":
-            if len(s) < 4:
-                raise InputError(p, f"line {lineno}: vertex needs 3 coordinates")
-            V.append([float(s[1]), float(s[2]), float(s[3])])
+            if len(s) not in (4, 5, 7):  # x y z [w] or x y z r g b
+                raise InputError(p, f"line {lineno}: vertex needs 3 coordinates (got {len(s) - 1} values)")
+            try:
+                V.append([float(s[1]), float(s[2]), float(s[3])])
+            except ValueError:
+                raise InputError(p, f"line {lineno}: vertex coordinate is not a number ({raw.strip()[:40]!r})") from None
         elif tag in ("f", "l"):
             idx = []
             for tok in s[1:]:
-                i = int(tok.split("/", 1)[0])
+                head = tok.split("/", 1)[0]
+                if not re.fullmatch(r"[+-]?\d+", head):
+                    raise InputError(p, f"line {lineno}: {tag!r} index {tok[:20]!r} is not an integer")
+                i = int(head)
+                if i == 0 or -i > len(V):  # positive ones are checked once every vertex is read
+                    raise InputError(p, f"line {lineno}: {tag!r} index {i} out of range (vertices so far: {len(V)})")
                 idx.append(i - 1 if i > 0 else len(V) + i)
+            if tag == "f" and len(idx) < 3:
+                raise InputError(p, f"line {lineno}: face has {len(idx)} vertices (need at least 3)")
             if tag == "f":
                 faces.append(idx)
                 names.append(name)
@@ -450,16 +640,29 @@ def read_off(p: Path) -> PolygonModel:
                 toks_lines.append(s)
     if not toks_lines or not toks_lines[0][0].upper().endswith("OFF"):
         raise InputError(p, "not an OFF file (no OFF header)")
+    if len(toks_lines) < 2 and not toks_lines[0][1:]:
+        raise InputError(p, "OFF file ends after its header (no counts)")
     head = toks_lines[0][1:] or toks_lines[1]
     start = 1 if toks_lines[0][1:] else 2
+    if len(head) < 2 or not all(re.fullmatch(r"\d+", x) for x in head[:3]):
+        raise InputError(p, f"OFF counts must be integers >= 0 (got {' '.join(head)[:40]!r})")
     nv, nf = int(head[0]), int(head[1])
     rows = toks_lines[start:]
     if len(rows) < nv + nf:
         raise InputError(p, f"truncated: {nv} vertices and {nf} faces announced, {len(rows)} rows found")
-    V = np.array([[float(x) for x in r[:3]] for r in rows[:nv]], np.float64).reshape(-1, 3)
+    if any(len(r) < 3 for r in rows[:nv]):
+        raise InputError(p, "an OFF vertex row has fewer than 3 coordinates")
+    try:
+        V = np.array([[float(x) for x in r[:3]] for r in rows[:nv]], np.float64).reshape(-1, 3)
+    except ValueError:
+        raise InputError(p, "an OFF vertex coordinate is not a number") from None
     faces = []
-    for r in rows[nv:nv + nf]:
+    for j, r in enumerate(rows[nv:nv + nf]):
+        if not all(re.fullmatch(r"[+-]?\d+", x) for x in r[:1 + (int(r[0]) if r[0].isdigit() else 0)]):
+            raise InputError(p, f"OFF face {j}: indices must be integers ({' '.join(r)[:40]!r})")
         k = int(r[0])
+        if k < 3 or len(r) < 1 + k:
+            raise InputError(p, f"OFF face {j}: {k} vertices announced, {len(r) - 1} values given (need >= 3)")
         faces.append([int(x) for x in r[1:1 + k]])
     return PolygonModel(V, faces)
 
@@ -719,6 +922,8 @@ class _VrmlParser:
         self.expect("}")
         if P is None:
             raise InputError(self.path, "IndexedFaceSet without Coordinate points")
+        if not (np.isfinite(idx).all() and (idx == np.round(idx)).all()):
+            raise InputError(self.path, "coordIndex holds a value that is not an integer")
         idx = idx.astype(np.int64)
         bad = (idx < -1) | (idx >= len(P))
         if bad.any():
@@ -1147,10 +1352,26 @@ def read_cityjson(p: Path, lod: str | None = None) -> PolygonModel:
             raise InputError(p, f"not valid JSON: {e}") from None
     if not isinstance(d, dict) or d.get("type") != "CityJSON":
         raise InputError(p, "not a CityJSON file (type != 'CityJSON')")
-    V = np.asarray(d.get("vertices", []), dtype=np.float64).reshape(-1, 3)
+    try:
+        V = np.asarray(d.get("vertices", []), dtype=np.float64)
+    except (ValueError, TypeError):
+        raise InputError(p, "CityJSON 'vertices' is not a list of [x, y, z] numbers") from None
+    if V.size and (V.ndim != 2 or V.shape[1] != 3):
+        raise InputError(p, "CityJSON 'vertices' is not a list of [x, y, z] numbers")
+    V = V.reshape(-1, 3)
     tr = d.get("transform")
-    if tr:
-        V = V * np.asarray(tr["scale"], float) + np.asarray(tr["translate"], float)
+    version = str(d.get("version", ""))
+    if tr is None and version not in ("", "1.0") and len(V):
+        raise InputError(p, f"CityJSON {version} without 'transform' (required since 1.1: vertices are integers to scale)")
+    if tr is not None:
+        try:
+            sc = np.asarray(tr["scale"], float).reshape(3)
+            tl = np.asarray(tr["translate"], float).reshape(3)
+        except (KeyError, TypeError, ValueError):
+            raise InputError(p, "CityJSON 'transform' needs 'scale' and 'translate' of 3 numbers each") from None
+        if not (np.isfinite(sc).all() and np.isfinite(tl).all()) or (sc == 0).any():
+            raise InputError(p, "CityJSON 'transform' scale/translate must be finite, scale non-zero")
+        V = V * sc + tl
     extra_V: list[np.ndarray] = []
     nV = len(V)
     tmpl = d.get("geometry-templates") or {}
@@ -1159,23 +1380,45 @@ def read_cityjson(p: Path, lod: str | None = None) -> PolygonModel:
     holes: list[list[np.ndarray]] = []
     names: list[str | None] = []
 
+    def ring_ok(ring) -> bool:
+        return isinstance(ring, list) and all(type(i) is int for i in ring)
+
     def surfaces(geom: dict):
+        """Surfaces (lists of rings of int vertex indices) of a geometry; wrong nesting or a
+        non-integer index (1.5, "3", null) raises InputError naming the object."""
+        if not isinstance(geom, dict):
+            raise InputError(p, f"city object {cur_oid!r}: a geometry is not a JSON object")
         t = geom.get("type")
         b = geom.get("boundaries", [])
-        if t in ("MultiSurface", "CompositeSurface"):
-            yield from b
-        elif t == "Solid":
-            for shell in b:
-                yield from shell
-        elif t in ("MultiSolid", "CompositeSolid"):
-            for solid in b:
-                for shell in solid:
-                    yield from shell
+        depth = {"MultiSurface": 0, "CompositeSurface": 0, "Solid": 1, "MultiSolid": 2, "CompositeSolid": 2}.get(t)
+        if depth is None:
+            return  # points, lines: no surfaces
+        level = [b]
+        for _ in range(depth + 1):
+            if not all(isinstance(x, list) for x in level):
+                raise InputError(p, f"city object {cur_oid!r}: {t} boundaries are not nested {depth + 3} deep")
+            level = [y for x in level for y in x]
+        for surf in level:
+            if not isinstance(surf, list) or not all(ring_ok(r) for r in surf):
+                raise InputError(p, f"city object {cur_oid!r}: {t} boundary holds a ring that is not a list of "
+                                    "integer vertex indices (wrong nesting, or an index like 1.5)")
+            yield surf
 
-    for oid, obj in d.get("CityObjects", {}).items():
+    cos = d.get("CityObjects", {})
+    if not isinstance(cos, dict):
+        raise InputError(p, "CityJSON 'CityObjects' is not a JSON object")
+    cur_oid = None
+    for oid, obj in cos.items():
+        cur_oid = oid
+        if not isinstance(obj, dict):
+            raise InputError(p, f"city object {oid!r} is not a JSON object")
         geoms = obj.get("geometry", []) or []
+        if not isinstance(geoms, list):
+            raise InputError(p, f"city object {oid!r}: 'geometry' is not a list")
         if not geoms:
             continue
+        if not all(isinstance(g, dict) for g in geoms):
+            raise InputError(p, f"city object {oid!r}: a geometry is not a JSON object")
         lods = [str(g.get("lod", "")) for g in geoms]
         want = lod if lod is not None else max(lods, key=lambda s: (_lod_key(s)))
         for g, gl in zip(geoms, lods):
