@@ -397,7 +397,7 @@ def _read_stl(p: Path) -> tuple[np.ndarray, np.ndarray]:
     toks = re.findall(r"(?im)^\s*vertex\s+(\S+)\s+(\S+)\s+(\S+)\s*$", text)
     n_vert_lines = len(re.findall(r"(?im)^\s*vertex\b", text))
     if n_vert_lines != len(toks):
-        raise InputError(p, "ascii STL: a 'vertex' line does not hold exactly 3 values")
+        raise InputError(p, "ascii STL is truncated or corrupt: a 'vertex' line does not hold exactly 3 values")
     try:
         V = np.array(toks, dtype=np.float64).reshape(-1, 3)
     except ValueError:
