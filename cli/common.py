@@ -3,12 +3,35 @@
 from __future__ import annotations
 
 import json
+import math
 import sys
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from typing import Any
 
 import click
+
+class FiniteFloat(click.FloatRange):
+    """A float option that must be finite (NaN and inf refused) and optionally within a range.
+
+    Bad values are reported by click as a problem of the option (``Invalid value for '--voxel'``),
+    never as a problem of an input file.
+    """
+
+    name = "number"
+
+    def convert(self, value, param, ctx):
+        rv = super().convert(value, param, ctx)
+        if not math.isfinite(rv):
+            self.fail(f"{value!r} is not a finite number", param, ctx)
+        return rv
+
+
+#: common option types: finite floats > 0 and >= 0, finite float of any sign
+POSITIVE = FiniteFloat(min=0, min_open=True)
+NON_NEGATIVE = FiniteFloat(min=0)
+FINITE = FiniteFloat()
+
 
 json_option = click.option("--json", "as_json", is_flag=True, help="Print a machine-readable JSON summary on stdout.")
 quiet_option = click.option("-q", "--quiet", is_flag=True, help="No progress bar or summary on stderr.")

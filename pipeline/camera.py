@@ -27,6 +27,12 @@ import numpy as np
 
 from mst import InputError
 
+#: bounds of plausible intrinsics: a focal length of 1e7 px is a 1000x telescope on a 10k-px sensor;
+#: image sides beyond 1e6 px do not exist; |distortion coefficients| beyond 1e4 overflow the model
+MAX_FOCAL_PX = 1e7
+MAX_SIZE_PX = 1_000_000
+MAX_DIST_COEFF = 1e4
+
 
 @dataclass
 class Camera:
@@ -44,10 +50,20 @@ class Camera:
     dist: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     def __post_init__(self) -> None:
+        """Refuse intrinsics no camera has (ValueError; :func:`read_camera` names the file)."""
         self.dist = np.asarray(self.dist, dtype=np.float64).ravel()
         vals = np.array([self.fx, self.fy, self.cx, self.cy], dtype=float)
         if not np.isfinite(vals).all() or self.fx <= 0 or self.fy <= 0:
             raise ValueError(f"invalid intrinsics fx={self.fx} fy={self.fy} cx={self.cx} cy={self.cy}")
+        if max(self.fx, self.fy) > MAX_FOCAL_PX or np.abs(vals[2:]).max() > MAX_FOCAL_PX:
+            raise ValueError(f"intrinsics beyond {MAX_FOCAL_PX:g} px: fx={self.fx:g} fy={self.fy:g} cx={self.cx:g} "
+                             f"cy={self.cy:g}")
+        if not (0 <= int(self.width) <= MAX_SIZE_PX and 0 <= int(self.height) <= MAX_SIZE_PX):
+            raise ValueError(f"invalid image size {self.width}x{self.height}")
+        if len(self.dist) and not np.isfinite(self.dist).all():
+            raise ValueError(f"distortion coefficients hold NaN or inf: {self.dist.tolist()}")
+        if len(self.dist) and np.abs(self.dist).max() > MAX_DIST_COEFF:
+            raise ValueError(f"distortion coefficient beyond {MAX_DIST_COEFF:g}: {self.dist.tolist()}")
 
     @property
     def K(self) -> np.ndarray:
@@ -179,10 +195,10 @@ def _read_opencv_yaml(path: Path) -> Camera:
 
 def read_camera(path: str | os.PathLike) -> Camera:
     """Read a camera file (ViSP XML, OpenCV YAML/JSON, or mst JSON), format detected by content."""
-    p = Path(path)
-    if not p.is_file():
-        raise InputError(p, "camera file does not exist")
-    text = p.read_text(errors="replace").lstrip()
+    from mst import require_file
+
+    p = require_file(path, "camera file")
+    text = p.read_bytes().decode("utf-8-sig", errors="replace").lstrip()
     try:
         if text.startswith("<"):
             return _read_visp_xml(p)
@@ -191,6 +207,8 @@ def read_camera(path: str | os.PathLike) -> Camera:
                 d = json.loads(text)
             except json.JSONDecodeError as e:
                 raise InputError(p, f"not valid JSON ({e.msg}, line {e.lineno})") from None
+            if not isinstance(d, dict):
+                raise InputError(p, "camera JSON must be an object with fx fy cx cy (or camera_matrix)")
             return _camera_from_mapping(d, p)
         if text.startswith("%YAML") or "camera_matrix" in text:
             return _read_opencv_yaml(p)
