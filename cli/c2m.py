@@ -51,7 +51,8 @@ def c2m(cloud, mesh, thresholds, signed, max_dist, output, as_csv, markdown, plo
     Exact point-to-triangle distances (nearest triangle, float64, after a global shift so
     georeferenced coordinates keep their precision). Prints Table 1 (percentage of points under
     each threshold, mean and std of those distances) and overall count / mean / median / std /
-    RMS / max. NaN/inf points are counted and excluded.
+    RMS / max. NaN/inf points are counted and excluded (the summary says how many;
+    points_nonfinite in --json); a cloud with a coordinate beyond 1e12 m is refused as corrupt.
 
     \b
     CLOUD: .ply (binary/ascii) .pcd .xyz .txt .csv .las .laz

@@ -20,10 +20,14 @@ class FiniteFloat(click.FloatRange):
 
     name = "number"
 
+    def __init__(self, *a, allow_inf: bool = False, **k):
+        super().__init__(*a, **k)
+        self.allow_inf = allow_inf
+
     def convert(self, value, param, ctx):
         rv = super().convert(value, param, ctx)
-        if not math.isfinite(rv):
-            self.fail(f"{value!r} is not a finite number", param, ctx)
+        if math.isnan(rv) or (math.isinf(rv) and not self.allow_inf):
+            self.fail(f"{value!r} is not a {'number' if self.allow_inf else 'finite number'}", param, ctx)
         return rv
 
 

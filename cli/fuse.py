@@ -23,7 +23,7 @@ from mst.cli.common import NON_NEGATIVE, POSITIVE, FiniteFloat, emit_json, info,
 @click.option("--depth-scale", type=POSITIVE, default=1000.0, show_default=True,
               help="Integer depth units per metre (1000 = mm, 5000 = TUM RGB-D); a value < 1 is metres per unit.")
 @click.option("--min-depth", type=NON_NEGATIVE, default=0.1, show_default=True, help="Metres; nearer samples are dropped.")
-@click.option("--max-depth", type=POSITIVE, default=50.0, show_default=True, help="Metres; farther samples are dropped.")
+@click.option("--max-depth", type=FiniteFloat(min=0, min_open=True, allow_inf=True), default=50.0, show_default=True, help="Metres; farther samples are dropped (inf: no limit).")
 @click.option("--edge-k", type=NON_NEGATIVE, default=0.03, show_default=True,
               help="Drop pixels whose 4-neighbour depth jumps by more than K * depth (0: off).")
 @click.option("--max-angle", type=FiniteFloat(min=0, min_open=True, max=90), default=80.0, show_default=True,
