@@ -70,7 +70,7 @@ def stderr_console():
 
 @contextmanager
 def progress_bar(total: int | None, description: str, quiet: bool = False) -> Iterator[Any]:
-    """A rich progress bar on stderr; yields ``advance(n=1)``. Silent with ``quiet``."""
+    """A rich progress bar on stderr; yields ``advance(n=1)``. Silent with ``quiet``; erased on an error."""
     if quiet:
         yield lambda n=1: None
         return
@@ -86,7 +86,12 @@ def progress_bar(total: int | None, description: str, quiet: bool = False) -> It
     cols = [TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), TimeRemainingColumn()]
     with Progress(*cols, console=stderr_console(), transient=False) as prog:
         task = prog.add_task(description, total=total)
-        yield lambda n=1: prog.advance(task, n)
+        try:
+            yield lambda n=1: prog.advance(task, n)
+        except BaseException:
+            # an error (a corrupt frame found on the way): the bar is removed, the error line stays alone
+            prog.live.transient = True
+            raise
 
 
 def print_table(title: str, columns: Iterable[str], rows: Iterable[Iterable[Any]], quiet: bool = False) -> None:

@@ -95,7 +95,7 @@ def main(argv: list[str] | None = None) -> None:
             click.echo(f"{prog}: error: {e}", err=True)
             code = 1
         except click.exceptions.Abort:
-            click.echo(f"{prog}: aborted", err=True)
+            click.echo(f"{prog}: interrupted", err=True)
             code = 130
         except click.ClickException as e:  # usage errors: click's own code is 2, the rule is 1
             msg = e.format_message().replace("\n", " ")
