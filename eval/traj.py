@@ -331,7 +331,14 @@ def evaluate_trajectories(est_path: str | os.PathLike, ref_path: str | os.PathLi
     has_rot = rot_e and rot_r
     Te, Tr = T_est[ie], T_ref[ir]
     if cfg.align == "first" and not has_rot:
-        raise InputError(None, "--align first needs orientations in both trajectories")
+        raise InputError(ref_path if rot_e else est_path, "--align first needs orientations (no quaternion columns)")
+    if cfg.align in ("se3", "sim3") and len(ie) >= 3:
+        # Umeyama needs positions spread in 2 dimensions: name the trajectory that is degenerate
+        for path, T in ((est_path, Te), (ref_path, Tr)):
+            sv = np.linalg.svd(T[:, :3, 3] - T[:, :3, 3].mean(0), compute_uv=False)
+            if sv[1] <= 1e-9 * max(1.0, float(np.abs(T[:, :3, 3]).max())) * np.sqrt(len(T)):
+                raise InputError(path, f"the {len(T)} associated positions are identical or on one line: "
+                                       f"--align {cfg.align} is not determined (use --align first or none)")
     Ta, T_align, scale = align_estimate(Te, Tr, cfg.align)
     dxyz = Ta[:, :3, 3] - Tr[:, :3, 3]
     ate = np.linalg.norm(dxyz, axis=1)

@@ -364,6 +364,78 @@ add("fuse-depth-corrupt-npy-no-quiet", "fuse", "depth", lambda p: _npy_nan(p / "
 add("track-frame-corrupt-no-quiet", "track", "frames", lambda p: (p / "000002.png").write_bytes(b"\x89PNG garbage"),
     replace=lambda f, o, a: [x for x in a if x != "-q"], names=lambda f, o: [str(f["frames"] / "000002.png")])
 add("track-pose-bad-no-quiet", "track", "pose", m_text("1 2 3\n"), replace=lambda f, o, a: [x for x in a if x != "-q"])
+
+
+def _one_depth(name: str, data: bytes | Callable):
+    """The depth folder holds one bad frame, 000000.<ext> (a folder's frames share one suffix)."""
+
+    def m(p: Path):
+        for old in p.iterdir():
+            old.unlink()
+        q = p / name
+        if callable(data):
+            data(q)
+        else:
+            q.write_bytes(data)
+    return m
+
+
+DEPTH_BAD = {
+    "bin-truncated": ("000001.bin", b"\x02\x00\x00"),
+    "bin-huge-header": ("000001.bin", np.array([100000, 100000], "<u4").tobytes() + b"\x00" * 16),
+    "bin-short-body": ("000001.bin", np.array([120, 160], "<u4").tobytes() + b"\x00" * 100),
+    "png-garbage": ("000001.png", b"\x89PNG\r\n\x1a\n garbage"),
+    "png-8bit": ("000001.png", lambda q: __import__("cv2").imwrite(str(q), np.zeros((120, 160), np.uint8))),
+    "png-colour": ("000001.png", lambda q: __import__("cv2").imwrite(str(q), np.zeros((120, 160, 3), np.uint16))),
+    "npy-3d": ("000001.npy", lambda q: np.save(q, np.zeros((2, 120, 160), np.float32))),
+    "npy-strings": ("000001.npy", lambda q: np.save(q, np.array(["a", "b"]))),
+    "npy-truncated": ("000001.npy", lambda q: q.write_bytes(_npy_bytes()[:200])),
+    "exr-garbage": ("000001.exr", b"v/1\x01 not an exr"),
+}
+
+
+def _npy_bytes() -> bytes:
+    import io as _io
+
+    b = _io.BytesIO()
+    np.save(b, np.ones((120, 160), np.float32))
+    return b.getvalue()
+
+
+for name, (fname, data) in DEPTH_BAD.items():
+    fname = fname.replace("000001", "000000")
+    add(f"fuse-depth-{name}", "fuse", "depth", _one_depth(fname, data),
+        names=(lambda fname: lambda f, o: [str(f["depth"] / fname)])(fname))
+
+add("track-video-garbage", "track", replace=lambda f, o, a: [_garbage_file(f["model"].parent / "v.mp4")] + a[1:] if False
+    else ["track", _garbage_file(f["model"].parent / "v.mp4")] + a[2:], names=lambda f, o: [str(f["model"].parent / "v.mp4")])
+add("track-frames-missing", "track", "frames", lambda p: shutil.rmtree(p))
+add("track-frames-empty-folder", "track", "frames", lambda p: [q.unlink() for q in p.iterdir()])
+add("track-depth-camera-bad", "track", "extrinsic", m_text('{"fx": -1}'),
+    extra=lambda f, o: ["--depth-camera", f["extrinsic"], "--depth", f["depth"], "--slam", "rgbd"])
+add("track-depth-folder-missing", "track", "depth", lambda p: shutil.rmtree(p),
+    extra=lambda f, o: ["--depth", f["depth"], "--slam", "rgbd"])
+add("init-image-garbage", "init", "image", m_garbage, extra=lambda f, o: ["--image", f["image"]])
+add("init-image-missing", "init", "image", m_missing, extra=lambda f, o: ["--image", f["image"]])
+add("init-image-wrong-size", "init", "image",
+    lambda p: __import__("cv2").imwrite(str(p), np.zeros((50, 70, 3), np.uint8)), extra=lambda f, o: ["--image", f["image"]],
+    names=lambda f, o: [str(f["camera"])])
+add("init-clicks-outside-image", "init", "clicks", m_replace_number(3, "500"), extra=lambda f, o: ["--image", f["image"]])
+add("fuse-landmarks-garbage", "fuse", "cloud", m_garbage, extra=lambda f, o: ["--landmarks", f["cloud"]])
+add("fuse-color-folder-missing", "fuse", extra=lambda f, o: ["--color", o / "no-such-folder"],
+    names=lambda f, o: [str(o / "no-such-folder")])
+add("eval-csv-columns-bad-spec", "eval", "traj", m_text("t,x,y,z\n0,1,2,3\n"),
+    extra=lambda f, o: ["--format", "csv", "--csv-columns", "t:time"], names=lambda f, o: ["--csv-columns"])
+add("track-settings-nan", "track", "extrinsic",
+    m_text("<conf><ecm><range><tracking>nan</tracking></range></ecm></conf>"),
+    extra=lambda f, o: ["--settings", f["extrinsic"]])
+
+
+def _garbage_file(p: Path) -> Path:
+    p.write_bytes(_rng().integers(0, 256, 2000, dtype=np.uint8).tobytes())
+    return p
+
+
 add("fuse-depth-empty-folder", "fuse", "depth", lambda p: [q.unlink() for q in p.iterdir()])
 
 # ---- c2m clouds with non-finite or overflowing coordinates: refused with the count
@@ -733,3 +805,12 @@ def test_no_runtime_warning_before_the_error_line(case_dir):
         et.evaluate_trajectories = real
     assert climain is not None
     assert_one_error(code, err, [str(f["traj"])])
+
+
+@pytest.mark.parametrize("which", ["traj", "gt"])
+def test_eval_degenerate_alignment_names_the_file(which, case_dir):
+    f, o = case_dir
+    lines = f[which].read_text().splitlines()
+    f[which].write_text("".join(f"{ln.split()[0]} 1 2 3 0 0 0 1\n" for ln in lines))  # one position for all
+    code, out, err = run_cli(["eval", "traj", f["traj"], f["gt"], "--align", "se3", "-q"])
+    assert_one_error(code, err, [str(f[which]), "--align se3"])
