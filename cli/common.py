@@ -41,8 +41,27 @@ json_option = click.option("--json", "as_json", is_flag=True, help="Print a mach
 quiet_option = click.option("-q", "--quiet", is_flag=True, help="No progress bar or summary on stderr.")
 
 
+def _finite_or_none(o: Any) -> Any:
+    """``o`` with numpy values converted and every NaN/inf float replaced by None (JSON null)."""
+    if hasattr(o, "tolist"):
+        o = o.tolist()
+    if isinstance(o, float):
+        return o if math.isfinite(o) else None
+    if isinstance(o, dict):
+        return {k: _finite_or_none(v) for k, v in o.items()}
+    if isinstance(o, (list, tuple)):
+        return [_finite_or_none(v) for v in o]
+    if hasattr(o, "__fspath__"):
+        return str(o)
+    return o
+
+
 def emit_json(obj: Any) -> None:
-    """Write ``obj`` as one JSON document on stdout (numpy scalars/arrays converted)."""
+    """Write ``obj`` as one JSON document on stdout (numpy scalars/arrays converted).
+
+    Strict JSON: a NaN/inf value (a statistic of nothing, an unbounded setting) is written as null,
+    never as the invalid tokens ``NaN``/``Infinity`` that ``jq`` and other parsers reject.
+    """
 
     def default(o: Any) -> Any:
         if hasattr(o, "tolist"):
@@ -51,7 +70,11 @@ def emit_json(obj: Any) -> None:
             return str(o)
         raise TypeError(f"not JSON serialisable: {type(o).__name__}")
 
-    sys.stdout.write(json.dumps(obj, indent=2, default=default, allow_nan=False) + "\n")
+    try:
+        text = json.dumps(obj, indent=2, default=default, allow_nan=False)
+    except ValueError:  # a non-finite float somewhere: nulls instead
+        text = json.dumps(_finite_or_none(obj), indent=2, default=default, allow_nan=False)
+    sys.stdout.write(text + "\n")
     sys.stdout.flush()
 
 

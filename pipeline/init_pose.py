@@ -72,7 +72,7 @@ def read_init_points(path: str | os.PathLike) -> np.ndarray:
     rows = _read_numbers(p, "points file")
     if not rows or len(rows[0]) != 1:
         raise InputError(p, "expected the point count on the first line (ViSP .init format)")
-    if rows[0][0] != int(rows[0][0]) or rows[0][0] < 1:
+    if not (np.isfinite(rows[0][0]) and rows[0][0] == int(rows[0][0]) and 1 <= rows[0][0] <= 1e6):
         raise InputError(p, f"the point count {rows[0][0]:g} on the first line is not a positive integer")
     n = int(rows[0][0])
     pts = rows[1:]

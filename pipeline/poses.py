@@ -278,6 +278,9 @@ def read_tum(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
     if not rows:
         raise InputError(p, "trajectory has no poses")
     a = np.asarray(rows)
+    bad_t = ~np.isfinite(a[:, 0])
+    if bad_t.any():
+        raise InputError(p, f"line {lines[int(np.argmax(bad_t))]}: the timestamp is NaN or infinite")
     check_pose_rows(p, a[:, 1:], np.asarray(lines))
     return a[:, 0], tum_to_T(a[:, 1:])
 

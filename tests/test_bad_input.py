@@ -814,3 +814,10 @@ def test_eval_degenerate_alignment_names_the_file(which, case_dir):
     f[which].write_text("".join(f"{ln.split()[0]} 1 2 3 0 0 0 1\n" for ln in lines))  # one position for all
     code, out, err = run_cli(["eval", "traj", f["traj"], f["gt"], "--align", "se3", "-q"])
     assert_one_error(code, err, [str(f[which]), "--align se3"])
+
+
+def test_emit_json_writes_null_for_nan(capsys):
+    from mst.cli.common import emit_json
+
+    emit_json({"a": float("nan"), "b": [1.0, np.float64("inf")], "c": np.array([np.nan, 2.0]), "d": "x"})
+    assert json.loads(capsys.readouterr().out) == {"a": None, "b": [1.0, None], "c": [None, 2.0], "d": "x"}
