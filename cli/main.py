@@ -86,8 +86,7 @@ def main(argv: list[str] | None = None) -> None:
         if args[0] == "eval" and len(args) > 1 and not args[1].startswith("-"):
             prog = f"mst eval {args[1]}"
     code = 0
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("default")
+    with warnings.catch_warnings(record=True) as caught:  # the filters in force decide what is recorded
         try:
             rv = cli.main(args=args, prog_name="mst", standalone_mode=False)
             code = rv if isinstance(rv, int) else 0
@@ -110,7 +109,8 @@ def main(argv: list[str] | None = None) -> None:
             code = 141
         except (IsADirectoryError, NotADirectoryError, PermissionError, FileNotFoundError) as e:
             # an OS-level refusal on a named file that a reader did not turn into an InputError
-            click.echo(f"{prog}: error: {e.filename or ''}: {e.strerror}", err=True)
+            where = f"{e.filename}: " if e.filename else ""
+            click.echo(f"{prog}: error: {where}{e.strerror or e}", err=True)
             code = 1
     if code == 0:
         for text in dict.fromkeys(_warning_line(w) for w in caught):
