@@ -278,6 +278,16 @@ CAMERA_BAD = {
     "negative_size": m_json(width=-160), "list": m_text("[1, 2, 3]"),
     "huge_dist": m_json(dist=[1e300, 0, 0, 0]),
 }
+_K = "camera_matrix: !!opencv-matrix\n  rows: 3\n  cols: 3\n  dt: d\n  data: [200, 0, 80, 0, 200, 60, 0, 0, 1]\n"
+CAMERA_BAD |= {
+    "yaml-garbage": m_text("%YAML:1.0\ncamera_matrix: [garbage"),
+    "yaml-count": m_text("%YAML:1.0\ncamera_matrix: !!opencv-matrix\n  rows: 3\n  cols: 3\n  dt: d\n  data: [1, 2]\n"),
+    "yaml-2x2": m_text("%YAML:1.0\ncamera_matrix: !!opencv-matrix\n  rows: 2\n  cols: 2\n  dt: d\n  data: [1, 0, 0, 1]\n"),
+    "yaml-width-word": m_text("%YAML:1.0\n" + _K + "image_width: abc\n"),
+    "yaml-nan-dist": m_text("%YAML:1.0\n" + _K + "distortion_coefficients: !!opencv-matrix\n  rows: 1\n  cols: 4\n"
+                            "  dt: d\n  data: [.nan, 0, 0, 0]\n"),
+    "json-non-utf8": lambda p: p.write_bytes(b'{"fx": 200, "fy": 200, "cx": 79.5, "cy": 59.5, "\xff": 1}'),
+}
 for name, mut in CAMERA_BAD.items():
     add(f"init-camera-{name}", "init", "camera", mut)
 for name in ("missing", "garbage", "nan_fx", "huge_fx", "nan_dist", "negative_fx"):
