@@ -9,6 +9,30 @@ from mst.cli.common import emit_json, info, json_option, progress_bar, quiet_opt
 SCENARIOS = ("orbit", "corridor", "flyover", "fast")
 
 
+def _check_not_inputs(out_dir, inputs) -> None:
+    """Refuse an output folder whose sequence files (model.obj, scene.json, rgb/ ...) include an input.
+
+    ``mst synth`` replaces those names in OUT (with --overwrite): a --model or --from-scene inside
+    them would be overwritten or deleted.
+    """
+    from pathlib import Path
+
+    from mst import InputError
+    from mst.pipeline.synth import _OWNED
+
+    out = Path(out_dir)
+    if not out.is_dir():
+        return
+    for i in inputs:
+        if i is None or not Path(i).exists():
+            continue
+        ri = Path(i).resolve()
+        for name in _OWNED:
+            target = (out / name).resolve()
+            if ri == target or target in ri.parents:
+                raise InputError(out / name, f"output would overwrite the input {i}")
+
+
 @click.command("synth")
 @click.argument("scenario", required=False, metavar="SCENARIO", type=click.Choice(SCENARIOS))
 @click.option("--model", "model", type=click.Path(dir_okay=False), help="Model file (.obj .wrl .cao .off .ply .stl, CityJSON).")
@@ -74,6 +98,7 @@ def synth(scenario, model, out_dir, from_scene, as_json, quiet, overwrite, **opt
 
     from mst import InputError
 
+    _check_not_inputs(out_dir, [model, from_scene, Path(from_scene).parent / "model.obj" if from_scene else None])
     if from_scene:
         from mst.pipeline.synth import synthesize_from_scene
 

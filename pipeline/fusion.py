@@ -204,6 +204,8 @@ def frame_index_of_times(t: np.ndarray, fps: float | None, traj_path: str | os.P
         if not fps > 0:
             raise InputError(traj_path, f"fps must be positive, got {fps}")
         k = np.rint(t * fps)
+    if np.abs(k).max() > 1e9:
+        raise InputError(traj_path, f"time {t[np.argmax(np.abs(k))]:g} is beyond a billion frames (corrupt value?)")
     k = k.astype(np.int64)
     if (k < 0).any():
         raise InputError(traj_path, f"negative frame index {int(k.min())} (time {t[np.argmin(k)]:g})")
