@@ -811,8 +811,10 @@ class ModelAidedSlam:
         with np.errstate(invalid="ignore", divide="ignore"):
             e1 = np.linalg.norm(X1c[:, :2] / X1c[:, 2:3] - x1, axis=1) * f
             e2 = np.linalg.norm(X2c[:, :2] / X2c[:, 2:3] - x2, axis=1) * f
+        # no far bound: the parallax test above already bounds the depth error (depth_max_m is the
+        # depth sensor's range; a 50 m cap rejected every landmark of a 200 m UAV flyover)
         good = (np.isfinite(X).all(1) & (X1c[:, 2] > cfg.depth_min_m) & (X2c[:, 2] > cfg.depth_min_m)
-                & (X2c[:, 2] < cfg.depth_max_m) & (e1 < cfg.tri_max_reproj_px) & (e2 < cfg.tri_max_reproj_px))
+                & (e1 < cfg.tri_max_reproj_px) & (e2 < cfg.tri_max_reproj_px))
         self.tri_deg[cand[good]] = ang[good]
         for t, x in zip(self.tid[cand[good]], X[good]):
             self.lm[int(t)] = x
