@@ -57,6 +57,15 @@ def track(frames_src, model_path, camera_path, init_path, out, settings_path, fr
     from mst.pipeline.settings import TrackerConfig, read_tracker_xml
     from mst.pipeline.tracker import run_track
 
+    from mst import InputError
+    from mst.pipeline.settings import check_setting
+
+    # options are bounded like the XML settings, and named as options (not blamed on a file)
+    for name, value, label in (("search_range", search_range, "--range"), ("sample_step", sample_step, "--step"),
+                               ("pyramid_levels", pyramid_levels, "--pyramid")):
+        problem = check_setting(name, value, label)
+        if problem:
+            raise InputError(None, f"bad option: {problem}")
     cfg = TrackerConfig()
     if settings_path:
         cfg = read_tracker_xml(settings_path)

@@ -21,7 +21,7 @@ Steps for one pose (:func:`visible_samples`):
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -114,6 +114,8 @@ class Samples:
     uv (N,2) px; normal (N,2) unit normal of the projected edge (image x right, y down);
     X_model (N,3) metres; edge (N,) index into the clipped-edge arrays; A_model/B_model (E',3)
     clipped edge endpoints in the model frame; edge_uv (E',2,2) projected clipped endpoints px.
+    stats: counts of candidate edges removed by each step (``behind``, ``beyond_far``, ``lod``,
+    ``outside``, ``short``, ``hidden`` samples) and ``z_min_m`` (nearest candidate edge point).
     """
 
     uv: np.ndarray
@@ -124,6 +126,8 @@ class Samples:
     B_model: np.ndarray
     edge_uv: np.ndarray
     face_visible: np.ndarray
+    #: how many candidate edges each step removed (see :func:`explain_no_samples`)
+    stats: dict = field(default_factory=dict)
 
     def __len__(self) -> int:
         return len(self.uv)
@@ -249,26 +253,96 @@ def inverse_depth_buffer(geom: ModelGeometry, T_cam_model: np.ndarray, K: np.nda
     return buf, scale
 
 
+def projected_face_area_px2(geom: ModelGeometry, T_cam_model: np.ndarray, K: np.ndarray, near: float) -> np.ndarray:
+    """(F,) area in px^2 of each face's outer loop projected with ``K`` (shoelace formula; holes
+    ignored); ``inf`` for a face with a vertex in front of the near plane ``near`` (metres), whose
+    projection is unbounded."""
+    if not len(geom.faces):
+        return np.zeros(0)
+    R, t = T_cam_model[:3, :3], T_cam_model[:3, 3]
+    Xc = geom.vertices[geom.loop_vid] @ R.T + t
+    z = Xc[:, 2]
+    zs = np.where(z > near, z, 1.0)
+    u = K[0, 0] * Xc[:, 0] / zs
+    v = K[1, 1] * Xc[:, 1] / zs
+    n = len(geom.loop_vid)
+    ends = np.append(geom.loop_start[1:], n)
+    nxt = np.arange(1, n + 1)
+    nxt[ends - 1] = geom.loop_start  # the last vertex of a loop closes it
+    cross = u * v[nxt] - u[nxt] * v
+    area = 0.5 * np.abs(np.add.reduceat(cross, geom.loop_start))
+    close = np.minimum.reduceat(z, geom.loop_start) <= near
+    area[close] = np.inf
+    return area
+
+
+def explain_no_samples(stats: dict, near: float, far: float | None, lod: tuple[float, float] = (0.0, 0.0)) -> str:
+    """The actual reason why a pose gave (almost) no edge samples, from :attr:`Samples.stats`:
+    the step that removed most candidate edges (behind the camera, beyond the far plane, too small
+    in the image, outside the image, hidden)."""
+    n = stats.get("candidates", 0)
+    if n == 0:
+        return "no model face is turned toward the camera (the pose looks at the model from behind or edge-on)"
+    steps = {k: stats.get(k, 0) for k in ("behind", "beyond_far", "lod", "outside", "short")}
+    worst = max(steps, key=steps.get)
+    z = stats.get("z_min_m")
+    if steps[worst] == 0:
+        return f"too few visible edge samples ({stats.get('samples', 0)}, hidden {stats.get('hidden', 0)})"
+    if worst == "behind":
+        return "the pose puts the model behind the camera (every candidate edge is behind the near plane)"
+    if worst == "beyond_far":
+        return (f"the model is beyond the far clipping plane (nearest edge at {z:.4g} m, far plane {far:g} m)")
+    if worst == "lod" or worst == "short":
+        return (f"the model is too small in the image ({steps['lod'] + steps['short']} of {n} edges shorter than "
+                f"{max(lod[0], 1.0):g} px or on faces smaller than {lod[1]:g} px^2; nearest edge at "
+                f"{z:.4g} m)" if z is not None else "the model is too small in the image")
+    return "the model is outside the image at this pose"
+
+
 def visible_samples(geom: ModelGeometry, T_cam_model: np.ndarray, K: np.ndarray, width: int, height: int,
-                    step: float, near: float, far: float, appear_deg: float, disappear_deg: float,
+                    step: float, near: float, far: float | None, appear_deg: float, disappear_deg: float,
                     prev_faces: np.ndarray | None = None, border_px: float = 4.0, hidden_lines: bool = True,
-                    zbuffer_scale: float = 0.5, max_samples: int = 0) -> Samples:
-    """Sample the visible projected model edges every ``step`` px (see module docstring)."""
+                    zbuffer_scale: float = 0.5, max_samples: int = 0, lod_min_line_px: float = 0.0,
+                    lod_min_face_px2: float = 0.0) -> Samples:
+    """Sample the visible projected model edges every ``step`` px (see module docstring).
+
+    ``far`` None: no far plane. Level of detail (ViSP ``setLod``): edges whose projection (after
+    near/far clipping, before the image-border clip) is shorter than ``lod_min_line_px``, and
+    edges whose visible faces all project smaller than ``lod_min_face_px2``, are skipped.
+    """
+    far = np.inf if far is None else far
     fv = face_visibility(geom, T_cam_model, prev_faces, appear_deg, disappear_deg)
     ef = geom.edge_faces
+    fv_big = fv
+    if lod_min_face_px2 > 0 and len(fv):
+        fv_big = fv & (projected_face_area_px2(geom, T_cam_model, K, near) >= lod_min_face_px2)
     ev = ((ef[:, 0] >= 0) & fv[np.maximum(ef[:, 0], 0)]) | ((ef[:, 1] >= 0) & fv[np.maximum(ef[:, 1], 0)])
     ev |= (ef[:, 0] < 0) & (ef[:, 1] < 0)  # free lines: always candidates
+    ev_big = ((ef[:, 0] >= 0) & fv_big[np.maximum(ef[:, 0], 0)]) | ((ef[:, 1] >= 0) & fv_big[np.maximum(ef[:, 1], 0)])
+    ev_big |= (ef[:, 0] < 0) & (ef[:, 1] < 0)
     E = geom.edges[ev]
+    small_face = ~ev_big[ev]
+    stats = {"candidates": int(len(E))}
     R, t = T_cam_model[:3, :3], T_cam_model[:3, 3]
     A = geom.vertices[E[:, 0]] @ R.T + t
     B = geom.vertices[E[:, 1]] @ R.T + t
+    behind = (A[:, 2] < near) & (B[:, 2] < near)
+    stats["behind"] = int(behind.sum())
+    front = ~behind
+    stats["z_min_m"] = float(np.minimum(A[front, 2], B[front, 2]).min()) if front.any() else None
     A, B, keep, _, _ = _clip_near_far(A, B, near, far)
-    A, B = A[keep], B[keep]
+    stats["beyond_far"] = int((~keep & ~behind).sum())
+    A, B, small_face = A[keep], B[keep], small_face[keep]
     ua = A @ K.T
     ua = ua[:, :2] / ua[:, 2:3]
     ub = B @ K.T
     ub = ub[:, :2] / ub[:, 2:3]
+    if lod_min_line_px > 0 or lod_min_face_px2 > 0:
+        big = ~small_face & (np.linalg.norm(ub - ua, axis=1) >= lod_min_line_px)
+        stats["lod"] = int((~big).sum())
+        A, B, ua, ub = A[big], B[big], ua[big], ub[big]
     s0, s1, k2 = _clip_rect(ua, ub, border_px, border_px, width - 1 - border_px, height - 1 - border_px)
+    stats["outside"] = int((~k2).sum())
     A, B, ua, ub, s0, s1 = A[k2], B[k2], ua[k2], ub[k2], s0[k2], s1[k2]
     izA, izB = 1.0 / A[:, 2], 1.0 / B[:, 2]
     # clipped 2D endpoints and their inverse depths (1/z is affine along the projected segment)
@@ -280,6 +354,7 @@ def visible_samples(geom: ModelGeometry, T_cam_model: np.ndarray, K: np.ndarray,
     L = np.linalg.norm(pb - pa, axis=1)
     n_s = np.floor(L / step).astype(np.int64)
     good = n_s >= 1
+    stats["short"] = int((~good).sum())
     pa, pb, iza, izb, L, n_s = pa[good], pb[good], iza[good], izb[good], L[good], n_s[good]
     Ka = (pa - K[:2, 2]) / np.array([K[0, 0], K[1, 1]])
     Kb = (pb - K[:2, 2]) / np.array([K[0, 0], K[1, 1]])
@@ -307,9 +382,11 @@ def visible_samples(geom: ModelGeometry, T_cam_model: np.ndarray, K: np.ndarray,
         ix = np.clip(np.round((uv[:, 0] + 0.5) * sc - 0.5).astype(np.int64), 0, buf.shape[1] - 1)
         iy = np.clip(np.round((uv[:, 1] + 0.5) * sc - 0.5).astype(np.int64), 0, buf.shape[0] - 1)
         vis = iz >= far_nb[iy, ix] * (1.0 - 2e-3) - 1e-9
+        stats["hidden"] = int((~vis).sum())
         uv, nrm, Xc, edge_id = uv[vis], nrm[vis], Xc[vis], edge_id[vis]
     if max_samples and len(uv) > max_samples:
         sel = np.linspace(0, len(uv) - 1, max_samples).round().astype(np.int64)
         uv, nrm, Xc, edge_id = uv[sel], nrm[sel], Xc[sel], edge_id[sel]
     X_model = (Xc - t) @ R
-    return Samples(uv, nrm, X_model, edge_id, A_model, B_model, np.stack([pa, pb], 1), fv)
+    stats["samples"] = int(len(uv))
+    return Samples(uv, nrm, X_model, edge_id, A_model, B_model, np.stack([pa, pb], 1), fv, stats)
