@@ -391,6 +391,27 @@ def check_pose_in_view(model, T_cam_model: np.ndarray, cam, path, near: float = 
 
 
 # ---------------------------------------------------------------------------- the stage
+#: ``<stem>.cov.csv``: per frame the 6x6 covariance of the edge (VVS) pose, for frames whose output
+#: pose is the edge pose (status ``model``; empty otherwise): the twist ``xi = (v, w)`` of the left
+#: perturbation ``T_cam_model' = exp(xi) T_cam_model`` (v metres, w radians, camera frame),
+#: ``sigma^2 (J^T W J)^-1``; and derived 1-sigma values: the camera position in the model frame
+#: (``std_x_m .. std_z_m``, covariance ``R^T C_vv R``) and the rotation (``std_rot_deg``, the
+#: square root of the largest eigenvalue of ``C_ww``).
+COV_HEADER = (["frame", "status", "std_x_m", "std_y_m", "std_z_m", "std_rot_deg"]
+              + [f"c{i}{j}" for i in range(6) for j in range(6)])
+
+
+def _cov_row(idx: int, status: str, cov: np.ndarray | None, T_cam_model: np.ndarray | None) -> list:
+    """One ``.cov.csv`` row (see :data:`COV_HEADER`)."""
+    if status != "model" or cov is None or T_cam_model is None or not np.isfinite(cov).all():
+        return [idx, status] + [""] * (len(COV_HEADER) - 2)
+    R = T_cam_model[:3, :3]
+    C_pos = R.T @ cov[:3, :3] @ R  # camera centre c = -R^T t moves by -R^T v
+    std = np.sqrt(np.maximum(np.diag(C_pos), 0.0))
+    rot = np.degrees(np.sqrt(max(float(np.linalg.eigvalsh(0.5 * (cov[3:, 3:] + cov[3:, 3:].T)).max()), 0.0)))
+    return [idx, status, *(f"{x:.6g}" for x in std), f"{rot:.6g}", *(f"{x:.6g}" for x in cov.ravel())]
+
+
 def _mean_or_none(vals: list[float]) -> float | None:
     """Mean of the finite values (None when there is none: JSON has no NaN)."""
     a = np.asarray(vals, float)
@@ -464,6 +485,8 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
     tracker = EdgeTracker(model, cam, cfg)
     out_traj = Path(out_traj)
     csv_path = out_traj.with_suffix(".csv")
+    cov_path = out_traj.with_suffix(".cov.csv")
+    cov_rows: list[list] = []
     json_path = out_traj.with_suffix(".json") if write_json else None
     rows, times, poses = [], [], []
     ov = OverlayWriter(Path(overlay), src.fps or 30.0) if overlay else None
@@ -529,6 +552,7 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
                 rows.append([idx, f"{t_s:.6f}", status, fr.n_samples, fr.n_inliers,
                              f"{fr.residual_px:.4f}" if np.isfinite(fr.residual_px) else "nan",
                              f"{fr.proj_error_deg:.3f}", f"{ms:.3f}"])
+                cov_rows.append(_cov_row(idx, status, fr.cov, T_out))
                 if T_out is not None:
                     times.append(t_s)
                     poses.append(inv_T(T_out))
@@ -565,14 +589,15 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
         "p95_ms": float(np.percentile(t_frames, 95)) if t_frames else None,
         "mean_residual_px": _mean_or_none([float(r[5]) for r in rows]),
         "mean_proj_error_deg": float(np.mean([float(r[6]) for r in rows])) if rows else None,
-        "aid": aid_mode, "traj": str(out_traj), "csv": str(csv_path), "notes": notes,
+        "aid": aid_mode, "traj": str(out_traj), "csv": str(csv_path), "cov_csv": str(cov_path), "notes": notes,
         "camera": cam.to_dict(), "config": config_to_dict(cfg),
     }
     from mst.pipeline.poses import format_tum
 
     if landmarks is not None:
         summary["landmarks"] = int(len(landmarks))
-    with atomic_outputs(out_traj, csv_path, json_path, landmarks_path) as (tmp_traj, tmp_csv, tmp_json, tmp_lm):
+    with atomic_outputs(out_traj, csv_path, cov_path, json_path, landmarks_path) as (tmp_traj, tmp_csv, tmp_cov, tmp_json,
+                                                                                  tmp_lm):
         if tmp_lm is not None:
             from mst.pipeline.fusion import write_ply
 
@@ -584,6 +609,11 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
         w.writerow(["frame", "time", "status", "samples", "inliers", "residual_px", "health", "ms"])
         w.writerows(rows)
         tmp_csv.write_text(buf.getvalue())
+        buf = io.StringIO()
+        w = csv.writer(buf, lineterminator="\n")
+        w.writerow(COV_HEADER)
+        w.writerows(cov_rows)
+        tmp_cov.write_text(buf.getvalue())
         if tmp_json is not None:
             import json
 
