@@ -57,6 +57,8 @@ BAD_XML = [
     ("klt/quality", "0"),
     ("klt/pyramid_lvl", "100"),
     ("klt/harris", "nan"),
+    ("lod/min_line_length_threshold", "-1"),
+    ("lod/min_polygon_area_threshold", "nan"),
 ]
 
 
@@ -144,3 +146,16 @@ def test_visp_teabox_values_still_apply(shared_data):
     c = read_tracker_xml(shared_data / "visp-teabox/teabox.xml")
     assert (c.near_clip, c.far_clip, c.search_range) == (0.1, 100.0, 8)
     assert c.source.endswith("teabox.xml")
+
+
+def test_visp_lod_tags(tmp_path):
+    """ViSP's <lod> section: thresholds as given, use_lod 0 turns the rule off; default derived."""
+    from mst.pipeline.settings import lod_thresholds
+
+    assert lod_thresholds(TrackerConfig()) == (12.0, 64.0)  # 3 x 4 px step, 8 px range squared
+    f = tmp_path / "lod.xml"
+    f.write_text("<conf><lod><use_lod>1</use_lod><min_line_length_threshold>50</min_line_length_threshold>"
+                 "<min_polygon_area_threshold>2500</min_polygon_area_threshold></lod></conf>")
+    assert lod_thresholds(read_tracker_xml(f)) == (50.0, 2500.0)
+    f.write_text("<conf><lod><use_lod>0</use_lod></lod></conf>")
+    assert lod_thresholds(read_tracker_xml(f)) == (0.0, 0.0)
