@@ -171,3 +171,27 @@ def test_reason_behind_the_camera_at_a_later_pose(tmp_path):
 def test_message_pose_solver_failure(tmp_path):
     msg = _track_error(tmp_path, *_box_scene(tmp_path, 30.0))
     assert "pose solver failed" in msg and "moving edge" in msg
+
+
+def test_mono_aid_without_landmarks_predicts_nothing(tmp_path):
+    """Without a PnP pose the mono aid returns no prediction (the tracker starts from its last pose,
+    as with --slam off): its constant-velocity guess from noisy edge poses, returned as the
+    prediction, doubled the weakly observed depth error every frame of a 211 m flyover."""
+    import cv2
+
+    from mst.pipeline.camera import read_camera
+    from mst.pipeline.slam import make_aid
+
+    fr, obj, cam, pose, _ = _box_scene(tmp_path, 30.0, frames=0)
+    rng = np.random.default_rng(0)
+    tex = cv2.GaussianBlur(rng.uniform(0, 255, (240, 340)).astype(np.uint8), (0, 0), 2)
+    aid = make_aid("mono", read_camera(cam))
+    T = np.loadtxt(pose)
+    gray = np.ascontiguousarray(tex[:, :320])
+    for k in range(4):  # a still view: corners tracked, no parallax, no landmark
+        pred = aid.predict(k, gray, T)
+        assert pred is None, k
+        T = T.copy()
+        T[0, 3] -= 0.002  # a moving camera (constant velocity would predict a pose), too little parallax
+        aid.update(k, gray, T, np.eye(6) * 1e6, True)
+    assert len(aid.pts) > 50 and not aid.lm
