@@ -65,6 +65,9 @@ class ModelGeometry:
     ring_len: np.ndarray | None = None
     face_ring0: np.ndarray | None = None
     face_nring: np.ndarray | None = None
+    #: bounding sphere of each face's outer loop (centre (F,3) m, radius (F,) m), for frustum culling
+    face_center: np.ndarray | None = None
+    face_radius: np.ndarray | None = None
 
     @classmethod
     def from_model(cls, model) -> ModelGeometry:
@@ -127,8 +130,15 @@ class ModelGeometry:
         face_nring = np.array([1 + len(holes[i]) for i in range(len(faces))], np.int64)
         face_ring0 = (np.concatenate([[0], np.cumsum(face_nring)[:-1]]).astype(np.int64) if len(faces)
                       else np.zeros(0, np.int64))
+        if len(faces):
+            lo = np.minimum.reduceat(V[loop_vid], loop_start, axis=0)
+            hi = np.maximum.reduceat(V[loop_vid], loop_start, axis=0)
+            ctr = 0.5 * (lo + hi)
+            rad = 0.5 * np.linalg.norm(hi - lo, axis=1)
+        else:
+            ctr, rad = np.zeros((0, 3)), np.zeros(0)
         return cls(V, faces, holes, N, P, loop_vid, loop_start, uniq, ef, convex, size, ring_vid, ring_start,
-                   ring_len, face_ring0, face_nring)
+                   ring_len, face_ring0, face_nring, ctr, rad)
 
 
 @dataclass
@@ -158,19 +168,27 @@ class Samples:
 
 
 def face_visibility(geom: ModelGeometry, T_cam_model: np.ndarray, prev: np.ndarray | None,
-                    appear_deg: float, disappear_deg: float) -> np.ndarray:
-    """(F,) bool: faces seen from the front at less than the appear/disappear angle (hysteresis)."""
+                    appear_deg: float, disappear_deg: float, among: np.ndarray | None = None) -> np.ndarray:
+    """(F,) bool: faces seen from the front at less than the appear/disappear angle (hysteresis).
+    ``among`` (F,) bool: test only these faces (e.g. those in the view frustum); the others are False."""
     R, t = T_cam_model[:3, :3], T_cam_model[:3, 3]
     c_model = -R.T @ t  # camera centre in the model frame
-    ray = c_model[None, :] - geom.vertices  # per vertex (fewer than loop vertices)
+    F = len(geom.faces)
+    sel = np.arange(F) if among is None else np.flatnonzero(among)
+    vis = np.zeros(F, bool)
+    if not len(sel):
+        return vis
+    vid, start = (geom.loop_vid, geom.loop_start) if among is None else _loops_of(geom, sel)
+    ray = c_model[None, :] - geom.vertices[vid]
     ray /= np.maximum(np.sqrt(np.einsum("ij,ij->i", ray, ray)), 1e-12)[:, None]
-    fid = np.repeat(np.arange(len(geom.faces)), np.diff(np.append(geom.loop_start, len(geom.loop_vid))))
-    cosv = np.einsum("ij,ij->i", ray[geom.loop_vid], geom.face_normals[fid])
-    cos_best = np.maximum.reduceat(cosv, geom.loop_start) if len(cosv) else np.zeros(0)
+    fid = np.repeat(sel, np.diff(np.append(start, len(vid))))
+    cosv = np.einsum("ij,ij->i", ray, geom.face_normals[fid])
+    cos_best = np.maximum.reduceat(cosv, start)
     ang = np.degrees(np.arccos(np.clip(cos_best, -1, 1)))
-    vis = ang < appear_deg
-    if prev is not None and len(prev) == len(vis):
-        vis |= prev & (ang < disappear_deg)
+    v = ang < appear_deg
+    if prev is not None and len(prev) == F:
+        v |= prev[sel] & (ang < disappear_deg)
+    vis[sel] = v
     return vis
 
 
@@ -253,27 +271,29 @@ def inverse_depth_buffer(geom: ModelGeometry, T_cam_model: np.ndarray, K: np.nda
     sel = np.flatnonzero(faces)
     if not len(sel):
         return buf, scale
-    # plane of each face in the camera frame: 1/z = (n_c . Kinv [u v 1]) / d
-    n_c = _mat3(geom.face_normals, R)
-    p_c = _mat3(geom.face_point, R, t)
+    # plane of each selected face in the camera frame: 1/z = (n_c . Kinv [u v 1]) / d
+    n_c = _mat3(geom.face_normals[sel], R)
+    p_c = _mat3(geom.face_point[sel], R, t)
     d = np.einsum("ij,ij->i", n_c, p_c)
     with np.errstate(divide="ignore", invalid="ignore"):
-        coef = (n_c @ Kinv) / d[:, None]
-    ok_plane = np.abs(d) >= 1e-12
+        coef_sel = _mat3(n_c, Kinv.T) / d[:, None]
+    coef = np.zeros((len(geom.faces), 3))
+    coef[sel] = coef_sel
     # depth range of each face's outer loop
     Xc = _mat3(geom.vertices, R, t) if Xc_all is None else Xc_all
-    z_loop = Xc[geom.loop_vid, 2]
-    zmin = np.minimum.reduceat(z_loop, geom.loop_start)
-    zmax = np.maximum.reduceat(z_loop, geom.loop_start)
-    sel = sel[ok_plane[sel] & (zmax[sel] >= near)]
-    inside = sel[zmin[sel] >= near]
-    crossing = sel[zmin[sel] < near]
+    vid, start = _loops_of(geom, sel)
+    z_loop = Xc[vid, 2]
+    zmin = np.minimum.reduceat(z_loop, start)
+    zmax = np.maximum.reduceat(z_loop, start)
+    keep = (np.abs(d) >= 1e-12) & (zmax >= near)
+    inside = sel[keep & (zmin >= near)]
+    crossing = sel[keep & (zmin < near)]
     if len(inside):
         z = np.where(Xc[:, 2] > 1e-12, Xc[:, 2], 1e-12)
         uu = (Ks[0, 0] * Xc[:, 0] + Ks[0, 1] * Xc[:, 1]) / z + Ks[0, 2]
         vv = Ks[1, 1] * Xc[:, 1] / z + Ks[1, 2]
-        fill_faces(buf, uu[geom.ring_vid], vv[geom.ring_vid], geom.ring_start, geom.ring_len, geom.face_ring0,
-                   geom.face_nring, inside.astype(np.int64), coef)
+        fill_faces(buf, uu, vv, geom.ring_vid, geom.ring_start, geom.ring_len, geom.face_ring0, geom.face_nring,
+                   inside.astype(np.int64), coef)
     for f in crossing:
         polys = []
         for lp in [geom.faces[f], *geom.holes[f]]:
@@ -303,27 +323,73 @@ def inverse_depth_buffer(geom: ModelGeometry, T_cam_model: np.ndarray, K: np.nda
     return buf, scale
 
 
+def frustum_faces(geom: ModelGeometry, T_cam_model: np.ndarray, K: np.ndarray, width: int, height: int,
+                  near: float, far: float | None = None, counts: dict | None = None) -> np.ndarray:
+    """(F,) bool: faces whose bounding sphere reaches into the view frustum (the image rectangle,
+    ``near`` .. ``far`` metres). One vectorised plane test per face: a city's faces behind the
+    camera or beside the view never reach the per-vertex work. ``counts``: gets (F,) bool masks of
+    the faces culled as ``behind``, ``beyond_far`` and ``outside``."""
+    if not len(geom.faces):
+        return np.zeros(0, bool)
+    c = _mat3(geom.face_center, T_cam_model[:3, :3], T_cam_model[:3, 3])
+    r = geom.face_radius
+    ok = c[:, 2] >= near - r
+    if far is not None and np.isfinite(far):
+        ok &= c[:, 2] <= far + r
+    Kinv = np.linalg.inv(K)
+    corners = np.array([[-0.5, -0.5, 1], [width - 0.5, -0.5, 1], [width - 0.5, height - 0.5, 1], [-0.5, height - 0.5, 1]])
+    rays = corners @ Kinv.T
+    for i in range(4):  # side planes through the camera centre, inward normals
+        n = np.cross(rays[i], rays[(i + 1) % 4])
+        n /= np.linalg.norm(n)
+        if n @ np.array([0.0, 0.0, 1.0]) < 0:
+            n = -n
+        ok &= c @ n >= -r
+    if counts is not None:
+        behind = c[:, 2] < near - r
+        beyond = (c[:, 2] > far + r) if far is not None and np.isfinite(far) else np.zeros(len(c), bool)
+        counts["behind"] = behind
+        counts["beyond_far"] = beyond & ~behind
+        counts["outside"] = ~ok & ~behind & ~beyond
+    return ok
+
+
+def _loops_of(geom: ModelGeometry, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Outer-loop vertex ids of the faces ``faces`` (K,) concatenated, and each loop's start."""
+    ends = np.append(geom.loop_start[1:], len(geom.loop_vid))
+    lens = (ends - geom.loop_start)[faces]
+    start = np.concatenate([[0], np.cumsum(lens)[:-1]]).astype(np.int64)
+    pos = np.arange(int(lens.sum())) - np.repeat(start - geom.loop_start[faces], lens)
+    return geom.loop_vid[pos], start
+
+
 def projected_face_area_px2(geom: ModelGeometry, T_cam_model: np.ndarray, K: np.ndarray, near: float,
-                            Xc_all: np.ndarray | None = None) -> np.ndarray:
+                            Xc_all: np.ndarray | None = None, faces: np.ndarray | None = None) -> np.ndarray:
     """(F,) area in px^2 of each face's outer loop projected with ``K`` (shoelace formula; holes
     ignored); ``inf`` for a face with a vertex in front of the near plane ``near`` (metres), whose
-    projection is unbounded."""
-    if not len(geom.faces):
+    projection is unbounded. ``faces`` (F,) bool: compute only these (the others get 0)."""
+    F = len(geom.faces)
+    if not F:
         return np.zeros(0)
+    sel = np.arange(F) if faces is None else np.flatnonzero(faces)
+    area = np.zeros(F)
+    if not len(sel):
+        return area
+    vid, start = _loops_of(geom, sel)
     R, t = T_cam_model[:3, :3], T_cam_model[:3, 3]
-    Xc = (_mat3(geom.vertices, R, t) if Xc_all is None else Xc_all)[geom.loop_vid]
+    Xc = (_mat3(geom.vertices, R, t) if Xc_all is None else Xc_all)[vid]
     z = Xc[:, 2]
     zs = np.where(z > near, z, 1.0)
     u = K[0, 0] * Xc[:, 0] / zs
     v = K[1, 1] * Xc[:, 1] / zs
-    n = len(geom.loop_vid)
-    ends = np.append(geom.loop_start[1:], n)
+    n = len(vid)
+    ends = np.append(start[1:], n)
     nxt = np.arange(1, n + 1)
-    nxt[ends - 1] = geom.loop_start  # the last vertex of a loop closes it
+    nxt[ends - 1] = start  # the last vertex of a loop closes it
     cross = u * v[nxt] - u[nxt] * v
-    area = 0.5 * np.abs(np.add.reduceat(cross, geom.loop_start))
-    close = np.minimum.reduceat(z, geom.loop_start) <= near
-    area[close] = np.inf
+    a = 0.5 * np.abs(np.add.reduceat(cross, start))
+    a[np.minimum.reduceat(z, start) <= near] = np.inf
+    area[sel] = a
     return area
 
 
@@ -364,26 +430,37 @@ def visible_samples(geom: ModelGeometry, T_cam_model: np.ndarray, K: np.ndarray,
     far = np.inf if far is None else far
     R, t = T_cam_model[:3, :3], T_cam_model[:3, 3]
     Xv = _mat3(geom.vertices, R, t)  # every vertex in the camera frame, once
-    fv = face_visibility(geom, T_cam_model, prev_faces, appear_deg, disappear_deg)
+    culled: dict = {}
+    if geom.face_center is not None and len(geom.faces):
+        masks: dict = {}
+        in_view = frustum_faces(geom, T_cam_model, K, width, height, near, far, masks)
+        fv = face_visibility(geom, T_cam_model, prev_faces, appear_deg, disappear_deg, among=in_view)
+        if fv.sum() < 6:  # a failure to explain: which front-facing faces were culled, and why
+            fv_all = face_visibility(geom, T_cam_model, prev_faces, appear_deg, disappear_deg)
+            culled = {k: int((m & fv_all).sum()) for k, m in masks.items()}
+        else:
+            fv_all = fv
+    else:
+        fv = fv_all = face_visibility(geom, T_cam_model, prev_faces, appear_deg, disappear_deg)
     ef = geom.edge_faces
     fv_big = fv
     if lod_min_face_px2 > 0 and len(fv):
-        fv_big = fv & (projected_face_area_px2(geom, T_cam_model, K, near, Xv) >= lod_min_face_px2)
+        fv_big = fv & (projected_face_area_px2(geom, T_cam_model, K, near, Xv, fv) >= lod_min_face_px2)
     ev = ((ef[:, 0] >= 0) & fv[np.maximum(ef[:, 0], 0)]) | ((ef[:, 1] >= 0) & fv[np.maximum(ef[:, 1], 0)])
     ev |= (ef[:, 0] < 0) & (ef[:, 1] < 0)  # free lines: always candidates
     ev_big = ((ef[:, 0] >= 0) & fv_big[np.maximum(ef[:, 0], 0)]) | ((ef[:, 1] >= 0) & fv_big[np.maximum(ef[:, 1], 0)])
     ev_big |= (ef[:, 0] < 0) & (ef[:, 1] < 0)
     E = geom.edges[ev]
     small_face = ~ev_big[ev]
-    stats = {"candidates": int(len(E))}
+    stats = {"candidates": int(len(E)) + sum(culled.values())}
     A = Xv[E[:, 0]]
     B = Xv[E[:, 1]]
     behind = (A[:, 2] < near) & (B[:, 2] < near)
-    stats["behind"] = int(behind.sum())
+    stats["behind"] = int(behind.sum()) + culled.get("behind", 0)
     front = ~behind
     stats["z_min_m"] = float(np.minimum(A[front, 2], B[front, 2]).min()) if front.any() else None
     A, B, keep, _, _ = _clip_near_far(A, B, near, far)
-    stats["beyond_far"] = int((~keep & ~behind).sum())
+    stats["beyond_far"] = int((~keep & ~behind).sum()) + culled.get("beyond_far", 0)
     A, B, small_face = A[keep], B[keep], small_face[keep]
     ua = _mat3(A, K)
     ua = ua[:, :2] / ua[:, 2:3]
@@ -394,7 +471,7 @@ def visible_samples(geom: ModelGeometry, T_cam_model: np.ndarray, K: np.ndarray,
         stats["lod"] = int((~big).sum())
         A, B, ua, ub = A[big], B[big], ua[big], ub[big]
     s0, s1, k2 = _clip_rect(ua, ub, border_px, border_px, width - 1 - border_px, height - 1 - border_px)
-    stats["outside"] = int((~k2).sum())
+    stats["outside"] = int((~k2).sum()) + culled.get("outside", 0)
     A, B, ua, ub, s0, s1 = A[k2], B[k2], ua[k2], ub[k2], s0[k2], s1[k2]
     izA, izB = 1.0 / A[:, 2], 1.0 / B[:, 2]
     # clipped 2D endpoints and their inverse depths (1/z is affine along the projected segment)
@@ -440,4 +517,11 @@ def visible_samples(geom: ModelGeometry, T_cam_model: np.ndarray, K: np.ndarray,
         uv, nrm, Xc, edge_id = uv[sel], nrm[sel], Xc[sel], edge_id[sel]
     X_model = _mat3(Xc - t, R.T)
     stats["samples"] = int(len(uv))
+    if len(uv) < 6 and fv_all.any():
+        # a failure to explain: the nearest front-facing face, culled or not (rare, so exact)
+        vid, _ = _loops_of(geom, np.flatnonzero(fv_all))
+        zf = Xv[vid, 2]
+        zf = zf[zf >= near]
+        if len(zf):
+            stats["z_min_m"] = float(zf.min()) if stats["z_min_m"] is None else min(stats["z_min_m"], float(zf.min()))
     return Samples(uv, nrm, X_model, edge_id, A_model, B_model, np.stack([pa, pb], 1), fv, stats)

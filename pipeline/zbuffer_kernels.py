@@ -17,11 +17,11 @@ from numba import njit
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def fill_faces(buf, u, v, ring_start, ring_len, face_ring0, face_nring, faces, coef):
+def fill_faces(buf, u, v, ring_vid, ring_start, ring_len, face_ring0, face_nring, faces, coef):
     """Fill ``buf`` (H, W) float32 in place with the max of ``1/z`` over ``faces``.
 
-    u, v (P,) float64 projected ring vertices (buffer pixels), ring ``r`` is
-    ``u[ring_start[r]:ring_start[r] + ring_len[r]]``; face ``f``'s rings are
+    u, v (V,) float64 projected model vertices (buffer pixels); ring ``r`` is the vertices
+    ``ring_vid[ring_start[r]:ring_start[r] + ring_len[r]]``; face ``f``'s rings are
     ``face_ring0[f] .. face_ring0[f] + face_nring[f] - 1`` (the outer loop first); ``faces`` (K,)
     face ids to draw; ``coef`` (F, 3) ``1/z = coef[f, 0] u + coef[f, 1] v + coef[f, 2]``.
     """
@@ -38,10 +38,11 @@ def fill_faces(buf, u, v, ring_start, ring_len, face_ring0, face_nring, faces, c
         xmin = 1e300
         xmax = -1e300
         for i in range(p0, p0 + n_out):
-            ymin = min(ymin, v[i])
-            ymax = max(ymax, v[i])
-            xmin = min(xmin, u[i])
-            xmax = max(xmax, u[i])
+            q = ring_vid[i]
+            ymin = min(ymin, v[q])
+            ymax = max(ymax, v[q])
+            xmin = min(xmin, u[q])
+            xmax = max(xmax, u[q])
         if xmax < 0 or xmin > W - 1 or ymax < 0 or ymin > H - 1:
             continue
         n_edges = 0
@@ -61,8 +62,8 @@ def fill_faces(buf, u, v, ring_start, ring_len, face_ring0, face_nring, faces, c
                 s = ring_start[r]
                 m = ring_len[r]
                 for i in range(m):
-                    j = s + i
-                    jn = s + (i + 1) % m
+                    j = ring_vid[s + i]
+                    jn = ring_vid[s + (i + 1) % m]
                     ya = v[j]
                     yb = v[jn]
                     if (ya <= yc < yb) or (yb <= yc < ya):
