@@ -208,6 +208,8 @@ def _clip_near_far(A: np.ndarray, B: np.ndarray, near: float, far: float):
     t1 = np.where(zB > far, np.minimum(t1, t_far), t1)
     keep &= t1 > t0
     D = B - A
+    t0 = np.where(keep, t0, 0.0)  # dropped segments (both ends behind) may hold +-inf from dz = 0
+    t1 = np.where(keep, t1, 1.0)
     return A + t0[:, None] * D, A + t1[:, None] * D, keep, t0, t1
 
 

@@ -65,3 +65,37 @@ def test_inverse_depth_buffer_matches_ray_cast(courtyard, azimuth_deg):
     assert covered.sum() > 500
     differ = ~np.isclose(buf, ref, rtol=1e-5, atol=0)
     assert differ.sum() <= 0.01 * covered.sum(), (differ.sum(), covered.sum())
+
+
+@pytest.mark.parametrize("azimuth_deg", [0.0, 135.0])
+def test_frustum_cull_changes_no_sample(courtyard, azimuth_deg):
+    """A 5x5 block of courtyard buildings seen from inside the block, half of it behind the camera:
+    the samples with the view-frustum cull are exactly those without it (it only skips work)."""
+    import dataclasses
+
+    from mst.meshtools.io import load_model
+    from mst.meshtools.model import PolygonModel
+    from mst.pipeline.poses import inv_T, look_at
+    from mst.pipeline.visibility import ModelGeometry, visible_samples
+
+    m = load_model(courtyard)
+    V = np.asarray(m.vertices)
+    Vs, Fs, Hs = [], [], []
+    for i in range(5):
+        for j in range(5):
+            off = len(V) * len(Vs)
+            Vs.append(V + [30.0 * i, 30.0 * j, 0.0])
+            Fs += [np.asarray(f) + off for f in m.faces]
+            Hs += [[np.asarray(h) + off for h in hh] for hh in (m.holes or [[] for _ in m.faces])]
+    geom = ModelGeometry.from_model(PolygonModel(np.concatenate(Vs), Fs, Hs))
+    plain = dataclasses.replace(geom, face_center=None, face_radius=None)
+    a = np.radians(azimuth_deg)
+    eye = np.array([70.0, 70.0, 25.0])
+    T = inv_T(look_at(eye, eye + [40 * np.cos(a), 40 * np.sin(a), -20.0]))
+    K = np.array([[262.5, 0, 159.5], [0, 262.5, 119.5], [0, 0, 1.0]])
+    args = (T, K, 320, 240, 4.0, 0.05, None, 80.0, 85.0)
+    kw = dict(lod_min_line_px=12.0, lod_min_face_px2=64.0)
+    S1, S0 = visible_samples(geom, *args, **kw), visible_samples(plain, *args, **kw)
+    assert len(S0) > 100 and S0.stats["behind"] > 0
+    np.testing.assert_array_equal(S1.uv, S0.uv)
+    np.testing.assert_array_equal(S1.X_model, S0.X_model)
