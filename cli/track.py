@@ -55,13 +55,21 @@ def track(frames_src, model_path, camera_path, init_path, out, settings_path, fr
     """
     from pathlib import Path
 
-    from mst.pipeline.settings import TrackerConfig, read_tracker_xml
+    from mst import InputError
+    from mst.pipeline.settings import TrackerConfig, check_setting, read_tracker_xml
     from mst.pipeline.tracker import run_track
 
+    # options are bounded like the XML settings, and named as options (not blamed on a file)
+    for name, value, label in (("search_range", search_range, "--range"), ("sample_step", sample_step, "--step"),
+                               ("pyramid_levels", pyramid_levels, "--pyramid")):
+        problem = check_setting(name, value, label)
+        if problem:
+            raise InputError(None, f"bad option: {problem}")
     out_p = Path(out)
     frames_p = Path(frames_src)
     # the trajectory, its side outputs (traj.csv, traj.json) and the others must not replace an input
-    check_outputs([out_p, out_p.with_suffix(".csv"), out_p.with_suffix(".json") if as_json else None, landmarks_path,
+    check_outputs([out_p, out_p.with_suffix(".csv"), out_p.with_suffix(".cov.csv"),
+                   out_p.with_suffix(".json") if as_json else None, landmarks_path,
                    overlay],
                   [frames_p if frames_p.exists() else None, model_path, camera_path, init_path, settings_path,
                    depth_camera, depth_to_color, depth_dir])
