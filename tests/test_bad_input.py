@@ -15,10 +15,10 @@ from __future__ import annotations
 
 import errno
 import hashlib
-import re
 import json
 import os
 import pathlib
+import re
 import shutil
 from collections.abc import Callable
 from dataclasses import dataclass, field
