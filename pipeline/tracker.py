@@ -127,6 +127,15 @@ def _sobel_at(img: np.ndarray, uv: np.ndarray) -> np.ndarray:
     return np.stack([gx, gy], 1)
 
 
+def image_noise_sigma(gray: np.ndarray) -> float:
+    """Gray-level noise std of an image (Immerkaer 1996: mean |Laplacian-difference| response)."""
+    import cv2
+
+    M = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], np.float32)
+    r = cv2.filter2D(gray.astype(np.float32), -1, M)[1:-1, 1:-1]
+    return float(np.sqrt(np.pi / 2.0) / 6.0 * np.abs(r).mean()) if r.size else 0.0
+
+
 class EdgeTracker:
     """ViSP-style edge (+ optional KLT) tracker for one model and camera.
 
@@ -210,7 +219,22 @@ class EdgeTracker:
                                       useHarrisDetector=False, k=c.klt_harris)
         if pts is None:
             return None, None
-        pts = pts.reshape(-1, 2) + [x0, y0]
+        pts = pts.reshape(-1, 2)
+        # texture gate: goodFeaturesToTrack's quality is relative to the strongest corner, so on a
+        # textureless face it returns noise. Keep a corner only when the weakest-direction RMS
+        # gradient over the KLT window clearly exceeds what the image noise alone gives there
+        # (Sobel derivative of noise sigma: std 0.43 sigma per axis; 3x that)
+        roi = gray[y0:y1, x0:x1]
+        win = 2 * c.klt_window + 1
+        lam = cv2.cornerMinEigenVal(roi, win, 3)  # = 4 lambda_g / 255^2 (OpenCV's 8-bit scaling)
+        ij = np.clip(np.rint(pts).astype(int), 0, [roi.shape[1] - 1, roi.shape[0] - 1])
+        g_min = 127.5 * np.sqrt(np.maximum(lam[ij[:, 1], ij[:, 0]], 0))  # gray levels / px
+        sigma = image_noise_sigma(roi)
+        self._klt_gate = (g_min, sigma)
+        pts = pts[g_min >= 3.0 * 0.43 * sigma]
+        if not len(pts):
+            return None, None
+        pts = pts + [x0, y0]
         pts = pts.astype(np.float64)
         ix, iy = np.rint(pts[:, 0]).astype(int), np.rint(pts[:, 1]).astype(int)
         iz = best[iy, ix].astype(np.float64)
@@ -372,23 +396,28 @@ def _make_aid(mode: str, cam, config: TrackerConfig, depth_dir, depth_camera, T_
     if mode == "off":
         return None, "off"
     if mode == "auto":
-        mode = "rgbd" if depth_dir is not None else "mono"
+        # with depth: the rgbd aid always on; without: the mono aid on standby (see StandbyAid)
+        mode = "rgbd" if depth_dir is not None else "standby"
     try:
         from mst.pipeline import slam
     except ImportError:
         notes.append(f"SLAM aid '{mode}' unavailable (mst.pipeline.slam not installed): edges only")
         return None, "off"
     aid = slam.make_aid(mode, cam, config_to_dict(config), depth_dir, depth_camera, T_depth_color)
-    return aid, mode
+    return aid, "mono-standby" if mode == "standby" else mode
 
 
 def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, camera_path: str | os.PathLike,
               init_pose_path: str | os.PathLike, out_traj: str | os.PathLike, config: TrackerConfig | None = None, *,
               frames: str | None = None, scale: float = 1.0, fps: float | None = None, overlay: str | None = None,
               slam: str = "off", depth_dir: str | os.PathLike | None = None, depth_camera_path=None,
-              depth_to_color_path=None, landmarks_path: str | os.PathLike | None = None, write_json: bool = False, progress=None, notes: list[str] | None = None) -> dict:
+              depth_to_color_path=None, landmarks_path: str | os.PathLike | None = None, write_json: bool = False, progress=None, notes: list[str] | None = None,
+              klt: bool | None = None) -> dict:
     """Track a model through frames; write ``out_traj`` (TUM, tracked frames), ``.csv`` and ``.json``.
 
+    ``slam``: ``'auto'`` = ``'rgbd'`` with ``depth_dir``, else edges + KLT with the mono aid on
+    standby (:class:`mst.pipeline.slam.StandbyAid`); ``klt``: KLT points in the edge optimisation
+    (None: on for that default, else ``config.use_klt``).
     ``init_pose_path``: the pose of the first selected frame (TUM line or 4x4 cMo). Returns the
     summary dict (also written as ``<stem>.json`` when ``write_json``). ``progress``: optional
     ``progress(total) -> context manager yielding advance()`` (called after the input checks). Raises :class:`mst.InputError` for bad input before
@@ -402,6 +431,10 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
     from mst.pipeline.settings import validate_config
 
     cfg = config or TrackerConfig()
+    if klt is None and slam == "auto" and depth_dir is None:
+        klt = True  # the default mode: edges + KLT (measured best on teabox.mp4, README tracking section)
+    if klt is not None:
+        cfg = cfg.updated(use_klt=bool(klt))
     validate_config(cfg)
     notes = notes if notes is not None else []
     model = load_polygon_model(model_path)
@@ -466,6 +499,14 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
                 # pose locked onto floor/texture edges passes the absolute tests
                 reacq = aid is not None and prev_status == "slam" and lost_streak == 0 and not first
                 fr = tracker.track(gray, T_start, recover=lost_streak > 0, first=first)
+                if aid is not None and getattr(aid, "standby", False) and not first and aid.needs_wake(fr.healthy, fr.W):
+                    # the default aid wakes on a weak or unhealthy edge pose: its prediction may
+                    # rescue this frame (fast motion), else the edge pose goes to its gate as usual
+                    T_wake = aid.wake(idx, gray, T_prev)
+                    if T_wake is not None and not fr.healthy:
+                        fr_s = tracker.track(gray, T_wake, recover=lost_streak > 0)
+                        if fr_s.healthy:
+                            fr = fr_s
                 if reacq:
                     # also the widened search; keep the better fit (healthy, then gradient support)
                     fr_w = tracker.track(gray, T_start, recover=True)
@@ -535,6 +576,12 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
 
     if landmarks is not None:
         summary["landmarks"] = int(len(landmarks))
+    if aid is not None and "wakes" in getattr(aid, "stats", {}):
+        # the default aid: how often (and where) the mono SLAM was switched on, its replay cost
+        summary["aid_wakes"] = int(aid.stats["wakes"])
+        summary["aid_wake_frames"] = list(aid.stats["wake_frames"])
+        summary["aid_active_frames"] = int(aid.stats["frames_active"])
+        summary["aid_wake_ms"] = float(aid.timing_ms["wake"])
     with atomic_outputs(out_traj, csv_path, json_path, landmarks_path) as (tmp_traj, tmp_csv, tmp_json, tmp_lm):
         if tmp_lm is not None:
             from mst.pipeline.fusion import write_ply

@@ -257,8 +257,9 @@ def test_slam_aid_hook_contract(shared_data, tmp_path, monkeypatch):
     write_pose_file(tmp_path / "p0.txt", init_from_clicks(X, uv, read_camera(t / "teabox.xml").K).T_cam_model)
     out = tmp_path / "traj.txt"
     s = run_track(t / "teabox.mp4", t / "teabox.cao", t / "teabox.xml", tmp_path / "p0.txt", out, frames="0:6", slam="auto")
-    assert made == {"mode": "mono", "w": 640, "cfg": True, "depth_dir": None}  # auto without --depth = mono
-    assert s["tracked"] == 6 and s["slam"] == 1 and s["aid"] == "mono"
+    # auto without --depth = the mono aid on standby (edges + KLT until the edges weaken)
+    assert made == {"mode": "standby", "w": 640, "cfg": True, "depth_dir": None}
+    assert s["tracked"] == 6 and s["slam"] == 1 and s["aid"] == "mono-standby" and s["config"]["use_klt"]
     ups = [c for c in calls if c[0] == "update"]
     assert [c[1] for c in ups] == list(range(6)) and all(c[2] == (6, 6) and c[3] and c[4] > 0 and c[5] for c in ups)
     assert calls[-1] == ("close",)
