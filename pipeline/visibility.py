@@ -124,6 +124,7 @@ class Samples:
     B_model: np.ndarray
     edge_uv: np.ndarray
     face_visible: np.ndarray
+    model_edge: np.ndarray | None = None  #: (E',) index of each clipped edge into ``geom.edges``
 
     def __len__(self) -> int:
         return len(self.uv)
@@ -259,17 +260,18 @@ def visible_samples(geom: ModelGeometry, T_cam_model: np.ndarray, K: np.ndarray,
     ev = ((ef[:, 0] >= 0) & fv[np.maximum(ef[:, 0], 0)]) | ((ef[:, 1] >= 0) & fv[np.maximum(ef[:, 1], 0)])
     ev |= (ef[:, 0] < 0) & (ef[:, 1] < 0)  # free lines: always candidates
     E = geom.edges[ev]
+    eid = np.flatnonzero(ev)
     R, t = T_cam_model[:3, :3], T_cam_model[:3, 3]
     A = geom.vertices[E[:, 0]] @ R.T + t
     B = geom.vertices[E[:, 1]] @ R.T + t
     A, B, keep, _, _ = _clip_near_far(A, B, near, far)
-    A, B = A[keep], B[keep]
+    A, B, eid = A[keep], B[keep], eid[keep]
     ua = A @ K.T
     ua = ua[:, :2] / ua[:, 2:3]
     ub = B @ K.T
     ub = ub[:, :2] / ub[:, 2:3]
     s0, s1, k2 = _clip_rect(ua, ub, border_px, border_px, width - 1 - border_px, height - 1 - border_px)
-    A, B, ua, ub, s0, s1 = A[k2], B[k2], ua[k2], ub[k2], s0[k2], s1[k2]
+    A, B, ua, ub, s0, s1, eid = A[k2], B[k2], ua[k2], ub[k2], s0[k2], s1[k2], eid[k2]
     izA, izB = 1.0 / A[:, 2], 1.0 / B[:, 2]
     # clipped 2D endpoints and their inverse depths (1/z is affine along the projected segment)
     d2 = ub - ua
@@ -280,7 +282,7 @@ def visible_samples(geom: ModelGeometry, T_cam_model: np.ndarray, K: np.ndarray,
     L = np.linalg.norm(pb - pa, axis=1)
     n_s = np.floor(L / step).astype(np.int64)
     good = n_s >= 1
-    pa, pb, iza, izb, L, n_s = pa[good], pb[good], iza[good], izb[good], L[good], n_s[good]
+    pa, pb, iza, izb, L, n_s, eid = pa[good], pb[good], iza[good], izb[good], L[good], n_s[good], eid[good]
     Ka = (pa - K[:2, 2]) / np.array([K[0, 0], K[1, 1]])
     Kb = (pb - K[:2, 2]) / np.array([K[0, 0], K[1, 1]])
     Ac = np.column_stack([Ka, np.ones(len(Ka))]) / iza[:, None]  # camera-frame clipped endpoints
@@ -312,4 +314,4 @@ def visible_samples(geom: ModelGeometry, T_cam_model: np.ndarray, K: np.ndarray,
         sel = np.linspace(0, len(uv) - 1, max_samples).round().astype(np.int64)
         uv, nrm, Xc, edge_id = uv[sel], nrm[sel], Xc[sel], edge_id[sel]
     X_model = (Xc - t) @ R
-    return Samples(uv, nrm, X_model, edge_id, A_model, B_model, np.stack([pa, pb], 1), fv)
+    return Samples(uv, nrm, X_model, edge_id, A_model, B_model, np.stack([pa, pb], 1), fv, eid)

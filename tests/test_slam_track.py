@@ -58,9 +58,11 @@ def test_corridor_rgbd_carries_the_pose_while_the_model_is_away(corridor, tmp_pa
     assert np.nanmax(e["rel"][hidden]) < 0.01          # drift while away: < 1 % of the distance
     assert np.nanmax(e["rel"][ret + 5:]) < 0.008       # 320x240 edge-tracker noise level
     assert recovery_frames(e["rel"], hidden, bound=0.008) <= 5
-    # the edge tracker alone does far worse on the same frames
+    # the edge tracker alone does far worse on the same frames: it loses them, and (health score)
+    # it reports them lost instead of outputting poses locked onto the floor/wall texture
     assert (e_off["status"] == "lost").sum() + np.nansum(e_off["rel"] > 0.05) > 10
-    assert np.nanmean(e["rel"]) < 0.2 * np.nanmean(e_off["rel"])
+    assert np.nanmax(e_off["rel"]) < 0.01 and np.nanmax(e_off["deg"]) < 2.0  # the bound: 1 % or 2 deg
+    assert np.nanmean(e["rel"]) <= np.nanmean(e_off["rel"])
 
 
 @pytest.mark.parametrize("mode", ["mono", "auto"])
