@@ -233,7 +233,8 @@ class HealthMonitor:
             if n_tex >= 20:
                 a, b = ev.tex_val[seen], self.tex_ref[ev.tex_idx[seen]]
                 sa, sb = a.std(), b.std()
-                tex = float(((a - a.mean()) * (b - b.mean())).mean() / (sa * sb)) if sa > 1e-6 and sb > 1e-6 else float("nan")
+                if sb > 1e-6:  # no correlation with a structured reference = none (a flat shadow, a blank wall)
+                    tex = float(((a - a.mean()) * (b - b.mean())).mean() / (sa * sb)) if sa > 1e-6 else 0.0
         return {"match": match, "found": ev.found, "residual": -res if np.isfinite(res) else -np.inf,
                 "klt": float(klt_agree) if klt_agree is not None and n_klt > 0 else float("nan"),
                 "texture": tex, "n": ev.n, "n_edges": int(len(np.unique(ev.edge))), "n_klt": n_klt, "n_tex": n_tex}
