@@ -51,7 +51,9 @@ def track(frames_src, model_path, camera_path, init_path, out, settings_path, fr
     \b
     Outputs: traj.txt (TUM: t tx ty tz qx qy qz qw, camera pose in the model frame, tracked frames
     only), traj.csv (frame, time, status, samples, inliers, residual_px, health = mean gradient /
-    model-normal angle in degrees, ms), traj.json with --json (also printed on stdout).
+    model-normal angle in degrees, ms, score = calibrated health score: 1 typical, <= 0 rejected,
+    aid = SLAM aid on/standby, reason = why the edge pose was not used), traj.json with --json
+    (also printed on stdout).
     """
     from pathlib import Path
 
@@ -73,7 +75,10 @@ def track(frames_src, model_path, camera_path, init_path, out, settings_path, fr
     for nt in notes:
         info(f"note: {nt}", quiet)
     res = summary["mean_residual_px"]
-    info(f"tracked {summary['tracked']}/{summary['frames']} frames ({summary['lost']} lost), median "
+    sc = summary["status_counts"]
+    info(f"tracked {summary['tracked']}/{summary['frames']} frames (model {sc['model']}, slam {sc['slam']}, relocalised "
+         f"{sc['relocalised']}, lost {sc['lost']}; {summary['health_score_rejects']} edge poses rejected by the health "
+         f"score" + (f"; SLAM aid switched on {summary['aid_wakes']}x" if summary.get("aid_wakes") else "") + "), median "
          f"{summary['median_ms']:.1f} ms/frame, mean residual {'-' if res is None else f'{res:.2f}'} px -> {out}", quiet)
     if as_json:
         emit_json(summary)

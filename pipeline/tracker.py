@@ -811,9 +811,12 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
                 first = False
                 ms = (time.perf_counter() - t0) * 1000.0
                 t_frames.append(ms)
+                aid_state = "" if aid is None else ("standby" if getattr(aid, "standby", False) else "on")
                 rows.append([idx, f"{t_s:.6f}", status, fr.n_samples, fr.n_inliers,
                              f"{fr.residual_px:.4f}" if np.isfinite(fr.residual_px) else "nan",
-                             f"{fr.proj_error_deg:.3f}", f"{ms:.3f}"])
+                             f"{fr.proj_error_deg:.3f}", f"{ms:.3f}",
+                             f"{fr.score:.3f}" if np.isfinite(fr.score) else "nan", aid_state,
+                             "" if status == "model" else (fr.reason or "edge pose not used")])
                 if T_out is not None:
                     times.append(t_s)
                     poses.append(inv_T(T_out))
@@ -836,6 +839,8 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
         raise InputError(init_pose_path, f"no frame could be tracked from this initial pose (frame {rows[0][0]}: "
                                          f"{first_reason or 'lost'}); check the pose, the camera and the model units")
     statuses = [r[2] for r in rows]
+    scores = np.array([float(r[8]) for r in rows])
+    scores = scores[np.isfinite(scores)]
     summary = {
         "frames": n, "tracked": n_tr, "frames_tracked": n_tr, "lost": statuses.count("lost"), "model": statuses.count("model"),
         "slam": statuses.count("slam"), "first_lost_frame": next((r[0] for r in rows if r[2] == "lost"), None),
@@ -843,6 +848,10 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
         "p95_ms": float(np.percentile(t_frames, 95)) if t_frames else None,
         "mean_residual_px": _mean_or_none([float(r[5]) for r in rows]),
         "mean_proj_error_deg": float(np.mean([float(r[6]) for r in rows])) if rows else None,
+        "status_counts": {k: statuses.count(k) for k in ("model", "slam", "relocalised", "lost")},
+        "health_score_rejects": n_score_rejects,
+        "health_score_median": float(np.median(scores)) if len(scores) else None,
+        "health_score_min": float(scores.min()) if len(scores) else None,
         "aid": aid_mode, "traj": str(out_traj), "csv": str(csv_path), "notes": notes,
         "camera": cam.to_dict(), "config": config_to_dict(cfg),
     }
@@ -865,7 +874,8 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
                             + (format_tum(np.array(times), np.array(poses)) if poses else ""))
         buf = io.StringIO()
         w = csv.writer(buf, lineterminator="\n")
-        w.writerow(["frame", "time", "status", "samples", "inliers", "residual_px", "health", "ms"])
+        w.writerow(["frame", "time", "status", "samples", "inliers", "residual_px", "health", "ms", "score", "aid",
+                    "reason"])
         w.writerows(rows)
         tmp_csv.write_text(buf.getvalue())
         if tmp_json is not None:

@@ -39,6 +39,11 @@ def test_teabox_all_frames_tracked(teabox_run):
     assert [r["status"] for r in rows] == ["model"] * 39
     assert all(float(r["health"]) < 20.0 for r in rows)  # mean gradient/normal angle, degrees
     assert all(int(r["inliers"]) > 150 for r in rows)
+    # calibrated health score per frame: every frame accepted (> 0), the first one is the reference (1)
+    assert float(rows[0]["score"]) == 1.0 and all(0 < float(r["score"]) <= 1 for r in rows)
+    assert all(r["aid"] == "standby" and r["reason"] == "" for r in rows)  # the default's aid never woke
+    assert s["status_counts"] == {"model": 39, "slam": 0, "relocalised": 0, "lost": 0}
+    assert s["health_score_rejects"] == 0 and s["aid_wakes"] == 0
     assert json.loads(out.with_suffix(".json").read_text())["tracked"] == 39
     assert len(list((d / "ov").glob("*.png"))) == 39
     # the camera moves smoothly: no jump above 2 cm between frames
