@@ -667,13 +667,15 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
               frames: str | None = None, scale: float = 1.0, fps: float | None = None, overlay: str | None = None,
               slam: str = "off", depth_dir: str | os.PathLike | None = None, depth_camera_path=None,
               depth_to_color_path=None, landmarks_path: str | os.PathLike | None = None, write_json: bool = False, progress=None, notes: list[str] | None = None,
-              klt: bool | None = None, health_score: bool = True) -> dict:
+              klt: bool | None = None, health_score: bool = True, relocalise: bool = True) -> dict:
     """Track a model through frames; write ``out_traj`` (TUM, tracked frames), ``.csv`` and ``.json``.
 
     ``slam``: ``'auto'`` = ``'rgbd'`` with ``depth_dir``, else edges + KLT with the mono aid on
     standby (:class:`mst.pipeline.slam.StandbyAid`); ``klt``: KLT points in the edge optimisation
     (None: on for that default, else ``config.use_klt``). ``health_score``: reject poses whose
-    calibrated :class:`HealthMonitor` score is <= 0 (on top of the absolute tests).
+    calibrated :class:`HealthMonitor` score is <= 0 (on top of the absolute tests). ``relocalise``:
+    learn the object's keypoints and re-acquire a lost pose without clicks
+    (:mod:`mst.pipeline.relocalise`, status ``relocalised``).
     ``init_pose_path``: the pose of the first selected frame (TUM line or 4x4 cMo). Returns the
     summary dict (also written as ``<stem>.json`` when ``write_json``). ``progress``: optional
     ``progress(total) -> context manager yielding advance()`` (called after the input checks). Raises :class:`mst.InputError` for bad input before
@@ -734,6 +736,11 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
     prev_status = "model"
     support_ref: float | None = None  # running mean of the gradient support of model frames
     tracker.health_score = health_score
+    reloc = None
+    if relocalise:
+        from mst.pipeline.relocalise import Relocaliser
+
+        reloc = Relocaliser(tracker)
     monitor = HealthMonitor(len(tracker.geom.edges), len(tracker.surf_X)) if health_score else None
     n_score_rejects = 0
 
@@ -785,6 +792,16 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
                     if (fr_w.healthy, fr_w.support) > (fr.healthy, fr.support):
                         fr = fr_w
                         tracker._klt_next = None  # the KLT inliers were those of the discarded fit
+                relocalised = False
+                if (reloc is not None and lost_streak > 0 and not fr.healthy
+                        and (lost_streak - 1) % reloc.cfg.every == 0):
+                    # lost: search the learned keypoints, refine with the edges, accept only if healthy
+                    T_r = reloc.relocalise(gray)
+                    if T_r is not None:
+                        fr_r = judge(tracker.track(gray, T_r, first=True), False)  # no contrast reference, no coarse pass
+                        if fr_r.healthy:
+                            fr, relocalised = fr_r, True
+                            tracker._klt_next = None
                 healthy = fr.healthy
                 if healthy and reacq and support_ref is not None and fr.support < REACQUIRE_SUPPORT_RATIO * support_ref:
                     healthy = False
@@ -795,9 +812,16 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
                     T_out, status = (fr.T_cam_model, "model") if healthy else (None, "lost")
                 if status == "model" and not reacq:
                     support_ref = fr.support if support_ref is None else 0.9 * support_ref + 0.1 * fr.support
+                if relocalised and status == "model":
+                    status = "relocalised"
+                    if aid is not None and getattr(aid, "standby", None) is False:
+                        aid.close()  # the default's map belongs to the lost stretch: back to standby
                 prev_status = status
-                if monitor is not None and status == "model" and healthy and fr.evidence is not None:
+                if monitor is not None and status in ("model", "relocalised") and healthy and fr.evidence is not None:
                     monitor.learn(fr.evidence, fr._feat)
+                if (reloc is not None and status == "model" and healthy and (first or fr.score >= 0.5)
+                        and reloc.should_learn(idx, fr.T_cam_model)):
+                    reloc.learn(idx, gray, fr.T_cam_model)
                 if T_out is not None and status != "lost":
                     tracker.accept(gray, T_out)
                     T_prev2 = T_prev if lost_streak == 0 and not first else None
@@ -816,7 +840,7 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
                              f"{fr.residual_px:.4f}" if np.isfinite(fr.residual_px) else "nan",
                              f"{fr.proj_error_deg:.3f}", f"{ms:.3f}",
                              f"{fr.score:.3f}" if np.isfinite(fr.score) else "nan", aid_state,
-                             "" if status == "model" else (fr.reason or "edge pose not used")])
+                             "" if status in ("model", "relocalised") else (fr.reason or "edge pose not used")])
                 if T_out is not None:
                     times.append(t_s)
                     poses.append(inv_T(T_out))
@@ -859,6 +883,11 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
 
     if landmarks is not None:
         summary["landmarks"] = int(len(landmarks))
+    if reloc is not None:
+        st = reloc.stats
+        summary["relocalisation"] = {"keyframes": st["keyframes"], "attempts": st["attempts"], "pnp_poses": st["pnp_poses"],
+                                     "ms_per_attempt": st["ms_attempts"] / st["attempts"] if st["attempts"] else None,
+                                     "ms_learn_total": st["ms_learn"]}
     if aid is not None and "wakes" in getattr(aid, "stats", {}):
         # the default aid: how often (and where) the mono SLAM was switched on, its replay cost
         summary["aid_wakes"] = int(aid.stats["wakes"])
