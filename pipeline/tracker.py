@@ -856,14 +856,18 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
                             fr, relocalised = fr_r, True
                             tracker._klt_next = None
                 healthy = fr.healthy
-                if healthy and reacq and support_ref is not None and fr.support < REACQUIRE_SUPPORT_RATIO * support_ref:
+                # the same guard after a loss (edges only, or the aid lost too): a pose found by the
+                # widened search on its first frame back has too little history for the health score
+                # (few edges in view: wide binomial floors) and can lock onto texture edges
+                recovering = reacq or lost_streak > 0
+                if healthy and recovering and support_ref is not None and fr.support < REACQUIRE_SUPPORT_RATIO * support_ref:
                     healthy = False
                     fr.reason = f"gradient support {fr.support:.0%} (usual {support_ref:.0%})"
                 if aid is not None:
                     T_out, status = aid.update(idx, gray, fr.T_cam_model, fr.W, healthy)
                 else:
                     T_out, status = (fr.T_cam_model, "model") if healthy else (None, "lost")
-                if status == "model" and not reacq:
+                if status == "model" and not recovering:
                     support_ref = fr.support if support_ref is None else 0.9 * support_ref + 0.1 * fr.support
                 if relocalised and status == "model":
                     status = "relocalised"
