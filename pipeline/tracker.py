@@ -148,11 +148,14 @@ class EdgeTracker:
         self.klt_pts: np.ndarray | None = None  # (M,2) px in prev frame
         self.klt_X: np.ndarray | None = None  # (M,3) model frame
         self.prev_gray: np.ndarray | None = None
+        self.sample_provider = None  # render-based edgelets (mst.pipeline.render_edges) instead of polygon edges
 
     # -------------------------------------------------------------- helpers
     def _samples(self, T, K, W, H):
         from mst.pipeline.visibility import visible_samples
 
+        if self.sample_provider is not None:
+            return self.sample_provider.samples(T, K, W, H)
         c = self.cfg
         return visible_samples(self.geom, T, K, W, H, c.sample_step, c.near_clip, c.far_clip, c.angle_appear,
                                c.angle_disappear, self.prev_faces, border_px=c.mask_size // 2 + 1,
@@ -386,7 +389,8 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
               init_pose_path: str | os.PathLike, out_traj: str | os.PathLike, config: TrackerConfig | None = None, *,
               frames: str | None = None, scale: float = 1.0, fps: float | None = None, overlay: str | None = None,
               slam: str = "off", depth_dir: str | os.PathLike | None = None, depth_camera_path=None,
-              depth_to_color_path=None, landmarks_path: str | os.PathLike | None = None, write_json: bool = False, progress=None, notes: list[str] | None = None) -> dict:
+              depth_to_color_path=None, landmarks_path: str | os.PathLike | None = None, write_json: bool = False, progress=None, notes: list[str] | None = None,
+              edges: str = "auto") -> dict:
     """Track a model through frames; write ``out_traj`` (TUM, tracked frames), ``.csv`` and ``.json``.
 
     ``init_pose_path``: the pose of the first selected frame (TUM line or 4x4 cMo). Returns the
@@ -432,6 +436,9 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
     aid, aid_mode = _make_aid(slam, cam, cfg, Path(depth_dir) if depth_dir else None, depth_camera, T_depth_color, notes)
 
     tracker = EdgeTracker(model, cam, cfg)
+    from mst.pipeline.render_edges import attach_render_edges
+
+    edges_used = attach_render_edges(tracker, model, model_path, edges, T0, notes)  # --edges auto|polygon|render
     out_traj = Path(out_traj)
     csv_path = out_traj.with_suffix(".csv")
     json_path = out_traj.with_suffix(".json") if write_json else None
@@ -528,7 +535,7 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
         "p95_ms": float(np.percentile(t_frames, 95)) if t_frames else None,
         "mean_residual_px": _mean_or_none([float(r[5]) for r in rows]),
         "mean_proj_error_deg": float(np.mean([float(r[6]) for r in rows])) if rows else None,
-        "aid": aid_mode, "traj": str(out_traj), "csv": str(csv_path), "notes": notes,
+        "aid": aid_mode, "edges": edges_used, "traj": str(out_traj), "csv": str(csv_path), "notes": notes,
         "camera": cam.to_dict(), "config": config_to_dict(cfg),
     }
     from mst.pipeline.poses import format_tum
