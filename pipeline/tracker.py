@@ -353,9 +353,13 @@ def check_pose_in_view(model, T_cam_model: np.ndarray, cam, path, near: float = 
     V = np.asarray(model.vertices)
     Xc = V @ T_cam_model[:3, :3].T + T_cam_model[:3, 3]
     cz = float(Xc[:, 2].mean())
+    ext = float(np.ptp(V, axis=0).max()) if len(V) else 0.0
+    units = (f"; the model spans {ext:.4g} units: is it in millimetres? mst expects metres" if ext > 50
+             and (-T_cam_model[:3, :3].T @ T_cam_model[:3, 3] > V.min(0)).all()
+             and (-T_cam_model[:3, :3].T @ T_cam_model[:3, 3] < V.max(0)).all() else "")
     if cz <= 0 or (Xc[:, 2] <= near).all():
         raise InputError(path, f"the pose puts the model behind the camera (model centre at z = {cz:.3g} m in the "
-                               "camera frame; expected a cMo / TUM camera pose looking at the model)")
+                               f"camera frame; expected a cMo / TUM camera pose looking at the model){units}")
     front = Xc[:, 2] > near
     uv = Xc[front, :2] / Xc[front, 2:3] * [cam.fx, cam.fy] + [cam.cx, cam.cy]
     inside = (uv[:, 0] >= 0) & (uv[:, 0] < cam.width) & (uv[:, 1] >= 0) & (uv[:, 1] < cam.height)
