@@ -16,19 +16,20 @@ Each candidate gets a 2D edge normal (silhouettes and occlusions: the gradient o
 inverse-depth map; creases: the image of the 3D crease direction ``n_a x n_b``). Candidates are then
 sampled evenly, **image buckets x 4 orientation sectors** (normal angle modulo 180 deg in 45-deg
 sectors), one per cell: the candidate nearest the cell centre, so that the set changes little from one
-render to the next. Only the kept few hundred are refined to sub-pixel precision: a bisection along
-the pixel pair (``refine_iters`` extra ray casts of the kept points: 8 iterations = 1/256 of a
-low-resolution pixel) on the candidate's own test (hit / miss, near / far depth, which normal);
+render to the next. Only the kept few hundred are refined to sub-pixel precision: a 16-section search along
+the pixel pair (``refine_rounds`` extra ray casts of 15 sub-samples per kept point: 2 rounds = 1/256
+of a low-resolution pixel) on the candidate's own test (hit / miss, near / far depth, which normal);
 the edgelet's 3D point is the surface hit on the near (or first) side of the bisected boundary, so its
 projection lies on the mesh's exact contour at the render pose whatever ``scale``.
 
 Per edgelet (model frame, metres): ``X_model`` the surface point, ``t_model`` a unit 3D tangent of the
 contour (creases: the crease direction; occluding contours: the direction in the viewing plane of the
-contour line, perpendicular to the view ray), and at the render pose the full-resolution pixel
+contour line, perpendicular to the view ray -- the true edge direction of a sharp silhouette, ``n_face x
+m``, gave 10 % larger errors on the box TIN orbit), and at the render pose the full-resolution pixel
 ``uv_px`` and unit 2D edge normal ``normal_px`` (image x right, y down). The local line
 ``X +- h t`` projects onto the contour's tangent line: the tracker's point-to-line distance.
 
-Cost: one ray per low-resolution pixel plus ``refine_iters`` rays per kept edgelet; all steps are
+Cost: one ray per low-resolution pixel plus ``15 refine_rounds`` rays per kept edgelet; all steps are
 array operations (no Python loop per pixel or per edgelet).
 """
 
@@ -152,7 +153,7 @@ def _plane_depth(X: np.ndarray, n: np.ndarray, ray: np.ndarray) -> np.ndarray:
 
 def extract_edgelets(renderer, T_cam_model: np.ndarray, K: np.ndarray, width: int, height: int, *,
                      scale: float = 0.5, crease_deg: float = 40.0, depth_jump: float = 0.03, budget: int = 300,
-                     refine_iters: int = 8, border_px: float = 4.0, near_m: float = 1e-3) -> Edgelets:
+                     refine_rounds: int = 2, border_px: float = 4.0, near_m: float = 1e-3) -> Edgelets:
     """Edgelets of the mesh in ``renderer`` seen from ``T_cam_model`` with intrinsics ``K`` (full image W x H px).
 
     ``scale`` render resolution (fraction of the image), ``crease_deg`` normal angle of a crease,
@@ -275,27 +276,34 @@ def extract_edgelets(renderer, T_cam_model: np.ndarray, K: np.ndarray, width: in
     na, nb = na[keep], nb[keep]
     za, zb = Z[pa[:, 0], pa[:, 1]], Z[pb[:, 0], pb[:, 1]]
 
-    # sub-pixel refinement: bisection between the pixel centres of side a (t=0) and side b (t=1)
+    # sub-pixel refinement: 16-section search between the pixel centres of side a (t=0) and side b (t=1)
     lo = np.zeros(len(keep))
     hi = np.ones(len(keep))
     ua, va = pa[:, 1].astype(np.float64), pa[:, 0].astype(np.float64)
     ub, vb = pb[:, 1].astype(np.float64), pb[:, 0].astype(np.float64)
     z_lo = za.copy()
-    n_lo = na.copy()
     zmid = 0.5 * (za + np.where(np.isfinite(zb), zb, za))
-    for _ in range(refine_iters):  # a few batched casts of the kept edgelets
-        t = 0.5 * (lo + hi)
-        u, v = ua + t * (ub - ua), va + t * (vb - va)
-        z, prim = _cast_px(renderer, T, Ks, u, v)
+    n_sub = 15  # sub-samples per round: each round divides the interval by 16 (2 rounds: 1/256 px)
+    frac = np.arange(1, n_sub + 1) / (n_sub + 1.0)
+    rows = np.arange(len(keep))
+    kk = kind[:, None]
+    for _ in range(refine_rounds):  # one batched cast of all kept edgelets' sub-samples per round
+        t = lo[:, None] + (hi - lo)[:, None] * frac[None, :]
+        u, v = ua[:, None] + t * (ub - ua)[:, None], va[:, None] + t * (vb - va)[:, None]
+        z, prim = _cast_px(renderer, T, Ks, u.ravel(), v.ravel())
+        nn = _normals_cam(renderer, T, Ks, prim, u.ravel(), v.ravel()).astype(np.float64).reshape(len(keep), n_sub, 3)
+        z = z.reshape(len(keep), n_sub)
         hit = np.isfinite(z)
-        nn = _normals_cam(renderer, T, Ks, prim, u, v).astype(np.float64)
-        side_a = np.where(kind == SILHOUETTE, hit,
-                          np.where(kind == OCCLUSION, hit & (z < zmid),
-                                   hit & ((nn * na).sum(1) >= (nn * nb).sum(1))))
-        lo = np.where(side_a, t, lo)
-        hi = np.where(side_a, hi, t)
-        z_lo = np.where(side_a, z, z_lo)
-        n_lo = np.where(side_a[:, None], nn, n_lo)
+        side_a = np.where(kk == SILHOUETTE, hit,
+                          np.where(kk == OCCLUSION, hit & (z < zmid[:, None]),
+                                   hit & ((nn * na[:, None]).sum(2) >= (nn * nb[:, None]).sum(2))))
+        nb_side = ~side_a
+        j = np.where(nb_side.any(1), nb_side.argmax(1), n_sub)  # first sub-sample on side b
+        jm = np.maximum(j - 1, 0)
+        new_lo = np.where(j > 0, t[rows, jm], lo)
+        hi = np.where(j < n_sub, t[rows, np.minimum(j, n_sub - 1)], hi)
+        z_lo = np.where(j > 0, z[rows, jm], z_lo)
+        lo = new_lo
     u, v = ua + lo * (ub - ua), va + lo * (vb - va)
     Xcam = np.column_stack([(u - Ks[0, 2]) / Ks[0, 0], (v - Ks[1, 2]) / Ks[1, 1], np.ones(len(u))]) * z_lo[:, None]
 
