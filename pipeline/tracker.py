@@ -544,6 +544,8 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
     }
     from mst.pipeline.poses import format_tum
 
+    if tracker.sample_provider is not None:
+        summary["render_edges"] = tracker.sample_provider.stats()
     if landmarks is not None:
         summary["landmarks"] = int(len(landmarks))
     with atomic_outputs(out_traj, csv_path, json_path, landmarks_path) as (tmp_traj, tmp_csv, tmp_json, tmp_lm):
