@@ -29,8 +29,9 @@ m``, gave 10 % larger errors on the box TIN orbit), and at the render pose the f
 ``uv_px`` and unit 2D edge normal ``normal_px`` (image x right, y down). The local line
 ``X +- h t`` projects onto the contour's tangent line: the tracker's point-to-line distance.
 
-Cost: one ray per low-resolution pixel plus ``15 refine_rounds`` rays per kept edgelet; all steps are
-array operations (no Python loop per pixel or per edgelet).
+Cost: one ray per low-resolution pixel of the window holding the mesh's projected bounding box
+(:func:`mesh_roi`) plus ``15 refine_rounds`` rays per kept edgelet; all steps are array operations (no
+Python loop per pixel or per edgelet).
 """
 
 from __future__ import annotations
@@ -114,20 +115,48 @@ def _image_dir(c: np.ndarray, X: np.ndarray, K: np.ndarray) -> np.ndarray:
     return np.stack([K[0, 0] * (c[:, 0] * X[:, 2] - X[:, 0] * c[:, 2]), K[1, 1] * (c[:, 1] * X[:, 2] - X[:, 1] * c[:, 2])], 1)
 
 
-def render_maps(renderer, T_cam_model: np.ndarray, K: np.ndarray, width: int, height: int, scale: float = 0.5):
+def mesh_roi(renderer, T_cam_model: np.ndarray, Ks: np.ndarray, w: int, h: int, margin: int = 6):
+    """``(i0, j0, h', w')`` low-resolution pixel window holding the projected bounding box of the mesh (+ margin);
+    the whole ``h x w`` image when a box corner is behind the camera; ``None`` when it is out of the image.
+    The margin keeps the smoothing of the inverse-depth map (sigma 1 px, 3x3 Sobel) off the window border."""
+    lo, hi = renderer.V.min(0), renderer.V.max(0)
+    C = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+    Cc = C @ T_cam_model[:3, :3].T + T_cam_model[:3, 3]
+    if (Cc[:, 2] <= 1e-6).any():
+        return 0, 0, h, w
+    u = Ks[0, 0] * Cc[:, 0] / Cc[:, 2] + Ks[0, 2]
+    v = Ks[1, 1] * Cc[:, 1] / Cc[:, 2] + Ks[1, 2]
+    j0, j1 = max(int(np.floor(u.min())) - margin, 0), min(int(np.ceil(u.max())) + margin, w - 1)
+    i0, i1 = max(int(np.floor(v.min())) - margin, 0), min(int(np.ceil(v.max())) + margin, h - 1)
+    if j1 < j0 + 1 or i1 < i0 + 1:
+        return None
+    return i0, j0, i1 - i0 + 1, j1 - j0 + 1
+
+
+def render_maps(renderer, T_cam_model: np.ndarray, K: np.ndarray, width: int, height: int, scale: float = 0.5,
+                roi: bool = False):
     """Low-resolution geometry maps of the mesh seen from ``T_cam_model``.
 
     Returns ``(Ks (3,3), Z (h,w) camera z-depth m, inf = background, N (h,w,3) float32 unit face normal
-    in the camera frame turned toward the camera (0 on background), prim (h,w) triangle id or -1)``,
-    ``h, w = ceil(H*s), ceil(W*s)``.
+    in the camera frame turned toward the camera (0 on background), prim (h,w) triangle id or -1, (i0, j0))``,
+    ``h, w = ceil(H*s), ceil(W*s)``; with ``roi`` only the window of :func:`mesh_roi` is cast (``Ks`` then has
+    its principal point shifted by ``(j0, i0)``; all maps are of the window; ``None`` when the mesh is out of view).
     """
     Ks = scaled_K(K, scale)
     w, h = int(np.ceil(width * scale)), int(np.ceil(height * scale))
+    i0 = j0 = 0
+    if roi:
+        r = mesh_roi(renderer, T_cam_model, Ks, w, h)
+        if r is None:
+            return None
+        i0, j0, h, w = r
+        Ks[0, 2] -= j0
+        Ks[1, 2] -= i0
     u = np.tile(np.arange(w, dtype=np.float64), h)
     v = np.repeat(np.arange(h, dtype=np.float64), w)
     Z, prim = _cast_px(renderer, T_cam_model, Ks, u, v)
     N = _normals_cam(renderer, T_cam_model, Ks, prim, u, v)
-    return Ks, Z.reshape(h, w), N.reshape(h, w, 3), prim.reshape(h, w)
+    return Ks, Z.reshape(h, w), N.reshape(h, w, 3), prim.reshape(h, w), (i0, j0)
 
 
 def _normals_cam(renderer, T, Ks, prim, u, v):
@@ -162,7 +191,10 @@ def extract_edgelets(renderer, T_cam_model: np.ndarray, K: np.ndarray, width: in
     """
     T = np.asarray(T_cam_model, np.float64)
     K = np.asarray(K, np.float64)
-    Ks, Z, N, prim_map = render_maps(renderer, T, K, width, height, scale)
+    maps = render_maps(renderer, T, K, width, height, scale, roi=True)  # only the mesh's window is cast
+    if maps is None:
+        return _empty(T)
+    Ks, Z, N, prim_map, (i0, j0) = maps
     h, w = Z.shape
     fg = np.isfinite(Z) & (Z > near_m)
     Z = np.where(fg, Z, np.inf)
@@ -249,8 +281,8 @@ def extract_edgelets(renderer, T_cam_model: np.ndarray, K: np.ndarray, width: in
 
     # full-resolution position of the candidate (pair midpoint) and border test
     s = scale
-    uf = (mid_u + 0.5) / s - 0.5
-    vf = (mid_v + 0.5) / s - 0.5
+    uf = (mid_u + j0 + 0.5) / s - 0.5
+    vf = (mid_v + i0 + 0.5) / s - 0.5
     ok &= (uf >= border_px) & (uf <= width - 1 - border_px) & (vf >= border_px) & (vf <= height - 1 - border_px)
     idx = np.nonzero(ok)[0]
     if not len(idx):
