@@ -617,7 +617,7 @@ def obj_text(model: PolygonModel) -> str:
     cur = None
     for f, name in zip(_output_loops(model), model.names):
         if name != cur:
-            out.append(f"g {_token(name) if name else 'default'}\n")
+            out.append(f"g {_token(name)}\n" if name else "g\n")  # bare g: no name (reads back as None)
             cur = name
         out.append("f " + " ".join(str(int(i) + 1) for i in f) + "\n")
     if len(model.lines):
@@ -1099,6 +1099,8 @@ class _CaoCursor:
         if n < 0 or n > _CAO_MAX_COUNT:
             raise InputError(self.path, f"line {self.ln + 1}: {n} {what} announced (must be 0..{_CAO_MAX_COUNT})")
         self.rest()
+        if n > len(self.lines) - self.ln:  # one line each at least
+            raise InputError(self.path, f"{n} {what} announced, the file has {len(self.lines) - self.ln} lines left (truncated)")
         return n
 
     def index(self, what: str, n: int) -> int:
