@@ -1314,6 +1314,14 @@ def merge_models(models: list[PolygonModel]) -> PolygonModel:
                         lines=np.concatenate(lines) if lines else np.zeros((0, 2), np.int64), cylinders=cyl, circles=circ)
 
 
+def _cao_name(name: str) -> str:
+    """A ``name=`` value as ViSP parses it: one token, or quoted when it holds blanks."""
+    name = str(name).replace('"', "'").replace("\n", " ").strip()
+    if not name:
+        return "_"
+    return f'"{name}"' if re.search(r"\s", name) or "=" in name else name
+
+
 def cao_text(model: PolygonModel) -> str:
     """ViSP ``.cao`` V1 text: points, lines, no faces from lines, faces from points (holes bridged,
     ``name=`` when named), cylinders, circles."""
@@ -1325,16 +1333,16 @@ def cao_text(model: PolygonModel) -> str:
     for f, name in zip(loops, model.names):
         s = f"{len(f)} " + " ".join(str(int(i)) for i in f)
         if name:
-            s += f" name={_token(name)}"
+            s += f" name={_cao_name(name)}"
         out.append(s + "\n")
     out += ["# 3D cylinders\n", f"{len(model.cylinders)}\n"]
     for c in model.cylinders:
         s = f"{int(c['p1'])} {int(c['p2'])} {_fmt_num(c['radius'])}"
-        out.append(s + (f" name={_token(c['name'])}" if c.get("name") else "") + "\n")
+        out.append(s + (f" name={_cao_name(c['name'])}" if c.get("name") else "") + "\n")
     out += ["# 3D circles\n", f"{len(model.circles)}\n"]
     for c in model.circles:
         s = f"{_fmt_num(c['radius'])} {int(c['center'])} {int(c['p1'])} {int(c['p2'])}"
-        out.append(s + (f" name={_token(c['name'])}" if c.get("name") else "") + "\n")
+        out.append(s + (f" name={_cao_name(c['name'])}" if c.get("name") else "") + "\n")
     return "".join(out)
 
 

@@ -336,3 +336,23 @@ def test_error_inside_a_loaded_file_names_that_file(tmp_path):
 def test_case_count():
     """The issue asks for at least 60 cases over these formats."""
     assert len(MODEL_CASES) + len(CLOUD_CASES) + len(MESH_FOR_C2M) >= 60
+
+
+@pytest.mark.parametrize("name", ["c.ply", "c.xyz", "c.pcd"])
+def test_nonfinite_cloud_rows_are_passed_through(tmp_path, name):
+    """Clouds keep cloud_io's rule: NaN/inf rows come back as they are (callers count and exclude
+    them, e.g. c2m's points_nonfinite), unlike meshes, where they are an error."""
+    from mst.eval.cloud_io import read_cloud
+
+    P = np.array([[0, 0, 0], [np.nan, 1, 2], [np.inf, 0, 1], [1, 2, 3]], np.float32)
+    p = tmp_path / name
+    if name.endswith(".ply"):
+        p.write_bytes(_ply_cloud(n="4", body=P.astype("<f4").tobytes()))
+    elif name.endswith(".pcd"):
+        p.write_bytes(_pcd(points="4", body="0 0 0\nnan 1 2\ninf 0 1\n1 2 3\n").replace(b"WIDTH 3", b"WIDTH 4"))
+    else:
+        p.write_text("0 0 0\nnan 1 2\ninf 0 1\n1 2 3\n")
+    Q = read_cloud(p)
+    assert Q.shape == (4, 3)
+    assert (~np.isfinite(Q).all(axis=1)).sum() == 2
+    np.testing.assert_array_equal(Q[[0, 3]], P[[0, 3]])

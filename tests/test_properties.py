@@ -15,6 +15,7 @@ enough that the whole module runs in a few seconds.
 from __future__ import annotations
 
 import itertools
+import re
 import tempfile
 import warnings
 from pathlib import Path
@@ -44,7 +45,7 @@ def _tmpfile(name: str) -> Path:
 
 # ====================================================================== strategies
 coords = st.floats(min_value=-1e6, max_value=1e6, allow_nan=False, allow_infinity=False, width=64)
-names = st.one_of(st.none(), st.from_regex(r"[A-Za-z][A-Za-z0-9_]{0,8}", fullmatch=True))
+names = st.one_of(st.none(), st.from_regex(r"[A-Za-z]([A-Za-z0-9_ ]{0,6}[A-Za-z0-9])?", fullmatch=True))
 
 
 @st.composite
@@ -224,7 +225,8 @@ def test_polygon_model_round_trip(suffix, model):
         np.testing.assert_array_equal(back.lines, model.lines)
         assert back.cylinders == model.cylinders and back.circles == model.circles
     elif suffix == ".obj":
-        assert back.names == model.names
+        # OBJ 'g a b' means two groups: a name is written as one token (blanks -> _)
+        assert back.names == [None if n is None else re.sub(r"\s+", "_", n) for n in model.names]
         np.testing.assert_array_equal(back.lines, model.lines)
     # writing what was read gives the same bytes
     q = _tmpfile(f"again{suffix}")
