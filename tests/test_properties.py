@@ -27,9 +27,20 @@ from hypothesis import strategies as st
 
 from mst import InputError
 from mst.eval.cloud_io import read_cloud, write_cloud
+from mst.eval.traj import read_trajectory
 from mst.meshtools import generate as gen
 from mst.meshtools.io import load_model, load_triangles, save_model, save_triangles
 from mst.meshtools.model import PolygonModel
+from mst.pipeline.poses import (
+    inv_T,
+    make_T,
+    read_pose_file,
+    read_rigid_transform,
+    read_tum,
+    so3_exp,
+    write_pose_file,
+    write_tum,
+)
 
 SETTINGS = dict(derandomize=True, deadline=None, database=None,
                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large, HealthCheck.filter_too_much])
@@ -134,7 +145,7 @@ def _seed_files() -> dict[str, bytes]:
             f"element face {len(F)}\nproperty list uchar int vertex_indices\nend_header\n")
     out["tin-ascii.ply"] = (head + "".join(f"{a} {b} {c}\n" for a, b, c in V)
                             + "".join(f"3 {a} {b} {c}\n" for a, b, c in F)).encode()
-    stl = ["solid s"] + [f"facet normal 0 0 1\nouter loop\n" + "".join(f"vertex {x} {y} {z}\n" for x, y, z in V[f])
+    stl = ["solid s"] + ["facet normal 0 0 1\nouter loop\n" + "".join(f"vertex {x} {y} {z}\n" for x, y, z in V[f])
                          + "endloop\nendfacet" for f in F[:6]] + ["endsolid s\n"]
     out["tin-ascii.stl"] = "\n".join(stl).encode()
     out["city.json"] = (
@@ -305,9 +316,6 @@ def test_cloud_round_trip_float32(cloud):
 
 # ====================================================================== poses and trajectories (readers owned by
 # pipeline/poses.py and eval/traj.py: tested here, not changed)
-from mst.eval.traj import read_trajectory  # noqa: E402
-from mst.pipeline.poses import (  # noqa: E402
-    inv_T, make_T, read_pose_file, read_rigid_transform, read_tum, so3_exp, write_pose_file, write_tum)
 
 
 @st.composite
