@@ -359,18 +359,34 @@ def _read_ply_ascii(p: Path, elems, start: int) -> tuple[np.ndarray, np.ndarray]
                 raise InputError(p, f"ascii PLY: vertex lines hold {A.size} numbers, {count} x {len(props)} expected")
             V = A.reshape(count, len(props))[:, cols]
         elif name == "face":
-            if not props or props[0][0] != "list":
-                raise InputError(p, "ascii PLY face element without a leading index list")
+            lists = [i for i, pr in enumerate(props) if pr[0] == "list"]
+            named = [i for i in lists if props[i][-1] in ("vertex_indices", "vertex_index")]
+            if not lists:
+                raise InputError(p, "ascii PLY face element without an index list")
+            which = (named or lists)[0]
             faces = []
             for j, r in enumerate(chunk):
                 t = r.split()
+                pos, idx = 0, None
                 try:
-                    n = int(t[0])
-                    idx = [int(x) for x in t[1:1 + n]]
+                    for i, pr in enumerate(props):  # one instance per line, properties in header order
+                        if pr[0] == "list":
+                            n = int(t[pos])
+                            vals = t[pos + 1:pos + 1 + n]
+                            if i == which:
+                                idx = [int(x) for x in vals]
+                                if n < 3 or len(idx) != n:
+                                    raise IndexError
+                            pos += 1 + n
+                        else:
+                            float(t[pos])
+                            pos += 1
                 except (ValueError, IndexError):
-                    raise InputError(p, f"ascii PLY: face {j} is not a list of integers ({r.strip()[:40]!r})") from None
-                if n < 3 or len(idx) != n or len(t) != 1 + n + len(props) - 1:
-                    raise InputError(p, f"ascii PLY: face {j} has {len(t) - 1} values for {n} indices ({r.strip()[:40]!r})")
+                    raise InputError(p, f"ascii PLY: face {j} is not a list of >= 3 integer indices with its "
+                                        f"properties ({r.strip()[:40]!r})") from None
+                if pos != len(t):
+                    raise InputError(p, f"ascii PLY: face {j} has {len(t)} values, its properties need {pos} "
+                                        f"({r.strip()[:40]!r})")
                 faces.append(np.array(idx, np.int64))
             F = _fan(faces)
     if V is None or F is None:

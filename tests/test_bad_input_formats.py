@@ -19,7 +19,7 @@ import pytest
 
 from mst import InputError
 from mst.meshtools import generate as gen
-from mst.meshtools.io import load_model, save_triangles
+from mst.meshtools.io import load_model, load_triangles, save_triangles
 
 TRI_OBJ = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 2 3 4\nf 1 4 3\n"
 
@@ -112,8 +112,9 @@ MODEL_CASES = [
     ("ply-announces-faces-it-lacks", "m.ply", _ply_bin(nf=9), "truncated"),
     ("ply-ascii-faces-missing", "m.ply", _ply_ascii(faces=[]), "truncated"),
     ("ply-ascii-vertex-word", "m.ply", _ply_ascii(verts=["0 0 0", "1 x 0", "0 1 0", "0 0 1"]), "not a number"),
-    ("ply-ascii-face-float", "m.ply", _ply_ascii(faces=["3 0 2 1", "3 0 1.5 3", "3 1 2 3", "3 0 3 2"]), "integers"),
-    ("ply-ascii-face-short", "m.ply", _ply_ascii(faces=["3 0 2 1", "3 0 1", "3 1 2 3", "3 0 3 2"]), "values for 3"),
+    ("ply-ascii-face-float", "m.ply", _ply_ascii(faces=["3 0 2 1", "3 0 1.5 3", "3 1 2 3", "3 0 3 2"]), "integer"),
+    ("ply-ascii-face-short", "m.ply", _ply_ascii(faces=["3 0 2 1", "3 0 1", "3 1 2 3", "3 0 3 2"]), "integer indices"),
+    ("ply-ascii-face-extra-value", "m.ply", _ply_ascii(faces=["3 0 2 1", "3 0 1 3 7", "3 1 2 3", "3 0 3 2"]), "need 4"),
     ("ply-ascii-negative-count", "m.ply", _ply_ascii(nf="-1"), "count must be an integer"),
     ("ply-no-end-header", "m.ply", b"ply\nformat ascii 1.0\nelement vertex 3\n", "end_header"),
     ("ply-unknown-format", "m.ply", _ply_bin().replace(b"binary_little_endian", b"binary_middle_endian"), "format"),
@@ -155,7 +156,7 @@ MODEL_CASES = [
     ("cao-face-index-out-of-range", "m.cao", CAO.replace("3 1 2 3", "3 1 2 7"), "out of range"),
     ("cao-negative-index", "m.cao", CAO.replace("3 1 2 3", "3 1 -2 3"), "out of range"),
     ("cao-coordinate-word", "m.cao", CAO.replace("1 0 0\n", "1 O 0\n"), "expected a point coordinate"),
-    ("cao-points-truncated", "m.cao", "V1\n8\n0 0 0\n1 0 0\n", "file ends|expected"),
+    ("cao-points-truncated", "m.cao", "V1\n8\n0 0 0\n1 0 0\n", "truncated|file ends"),
     ("cao-bad-version", "m.cao", CAO.replace("V1", "V7"), "version"),
     ("cao-face-fewer-indices", "m.cao", CAO.replace("3 1 2 3", "3 1 2"), "missing"),
     ("cao-count-negative", "m.cao", CAO.replace("4 # faces", "-4 # faces"), "announced"),
@@ -356,3 +357,13 @@ def test_nonfinite_cloud_rows_are_passed_through(tmp_path, name):
     assert Q.shape == (4, 3)
     assert (~np.isfinite(Q).all(axis=1)).sum() == 2
     np.testing.assert_array_equal(Q[[0, 3]], P[[0, 3]])
+
+
+def test_ascii_ply_with_colour_before_the_index_list(tmp_path):
+    """Face properties in any order (here a colour before the list) are parsed as declared."""
+    p = tmp_path / "c.ply"
+    p.write_text("ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\nproperty float z\n"
+                 "element face 2\nproperty uchar red\nproperty list uchar int vertex_indices\nproperty float q\n"
+                 "end_header\n0 0 0\n1 0 0\n1 1 0\n0 1 0\n255 3 0 1 2 0.5\n7 4 0 1 2 3 1\n")
+    V, F = load_triangles(p)
+    np.testing.assert_array_equal(F, [[0, 1, 2], [0, 1, 2], [0, 2, 3]])
