@@ -100,6 +100,8 @@ def _load_model(p: Path, suf: str) -> PolygonModel:
         raise
     except UnicodeDecodeError:
         raise InputError(p, f"not a text {suf} file (binary or wrong encoding)") from None
+    except RecursionError:
+        raise InputError(p, f"{suf} file nested too deeply") from None
     except (ValueError, IndexError, KeyError, TypeError, AttributeError, OverflowError) as e:
         raise InputError(p, f"corrupt {suf} file: {type(e).__name__}: {e}") from None
     _validate(m, p)

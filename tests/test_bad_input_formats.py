@@ -147,6 +147,7 @@ MODEL_CASES = [
     ("wrl-vrml1", "m.wrl", WRL.replace("V2.0", "V1.0"), "VRML 1.0"),
     ("wrl-point-word", "m.wrl", WRL.replace("1 0 0,", "1 zero 0,"), "non-numeric"),
     ("wrl-garbage", "m.wrl", GARBAGE, "VRML|text"),
+    ("wrl-nested-too-deep", "m.wrl", "#VRML V2.0 utf8\n" + "Transform { children [ " * 3000 + "] }" * 3000, "too deep"),
     # ---- ViSP .cao
     ("cao-load-missing", "m.cao", 'V1\nload("nope.cao", t=[0; 0; 0])\n' + CAO[3:], "nope.cao not found"),
     ("cao-load-self-cycle", "m.cao", 'V1\nload("m.cao")\n' + CAO[3:], "cycle"),
@@ -174,6 +175,8 @@ MODEL_CASES = [
     ("cityjson-solid-declared-multisolid", "m.json", _cityjson(geomtype="MultiSolid"), "nest"),
     ("cityjson-transform-no-scale", "m.json", _cityjson(transform={"translate": [0, 0, 0]}), "scale"),
     ("cityjson-vertices-pairs", "m.json", _cityjson(vertices=[[0, 0], [1, 1]]), "vertices"),
+    ("cityjson-nested-too-deep", "m.json", '{"type": "CityJSON", "vertices": ' + "[" * 100000 + "]" * 100000 + "}",
+     "too deep"),
     ("cityjson-not-json", "m.json", b'{"type": "CityJSON", "vertices": [', "not valid JSON"),
     ("cityjson-wrong-type", "m.json", _cityjson(type="FeatureCollection"), "not a CityJSON"),
     ("cityjson-index-string", "m.json", _cityjson(boundaries=[[[[0, 3, 2, 1]], [[0, "1", 4]]]]), "integer vertex"),
