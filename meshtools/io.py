@@ -1187,8 +1187,8 @@ def read_cao(p: Path, _stack: tuple[Path, ...] = ()) -> PolygonModel:
     between values), nested loads compose. A cycle raises :class:`mst.InputError` (ViSP warns and
     skips it); a file loaded twice from different places is loaded twice (ViSP keeps only the first).
 
-    Faces from lines become point loops. Lines used by no face-from-lines are kept in
-    ``model.lines`` (ViSP tracks them as 2-point polygons). Cylinders ``{p1, p2, radius, name}`` and
+    Faces from lines become point loops. Lines used by no face-from-lines, and faces from points
+    with only 2 points, are kept in ``model.lines`` (ViSP tracks both as 2-point polygons). Cylinders ``{p1, p2, radius, name}`` and
     circles ``{radius, center, p1, p2, name}`` cannot be polygon faces: they are kept as dicts
     (point indices into ``model.vertices``) and written back by :func:`cao_text`; mst's tracker
     does not use them.
@@ -1206,9 +1206,11 @@ def read_cao(p: Path, _stack: tuple[Path, ...] = ()) -> PolygonModel:
     c = _CaoCursor(text, p)
     version = 1
     if c.peek_char() in ("V", "v"):
-        c.col += 1
-        version = c.int("the .cao version after 'V'")
-        c.rest()
+        lno = c.ln + 1
+        mv = re.match(r"[Vv]\s*(\d+)", c.rest().strip())  # ViSP reads an int after 'V', then skips the line
+        if not mv:
+            raise InputError(p, f"line {lno}: bad version header (expected V1 or V2)")
+        version = int(mv.group(1))
         if version not in (0, 1, 2):
             raise InputError(p, f"unsupported .cao version V{version} (V1 or V2)")
     parts: list[PolygonModel] = []
@@ -1259,12 +1261,18 @@ def read_cao(p: Path, _stack: tuple[Path, ...] = ()) -> PolygonModel:
         used_lines[li] = True
         faces.append(_chain_lines(L[li], p, i))
         names.append(par.get("name") or None)
+    extra_lines: list[list[int]] = []
     for i in range(c.count("faces from points")):
         k = c.int("the number of points of a face")
-        if k < 3 or k > _CAO_MAX_COUNT:
-            raise InputError(p, f"line {c.ln + 1}: face from points {i} has {k} points (need at least 3)")
-        faces.append(np.array([c.index("point index", n) for _ in range(k)], np.int64))
-        names.append(c.params().get("name") or None)
+        if k < 2 or k > _CAO_MAX_COUNT:
+            raise InputError(p, f"line {c.ln + 1}: face from points {i} has {k} points (need at least 3, or 2 for a line)")
+        idx = [c.index("point index", n) for _ in range(k)]
+        par = c.params()
+        if k == 2:  # ViSP tracks a 2-point "face" as a line
+            extra_lines.append(idx)
+            continue
+        faces.append(np.array(idx, np.int64))
+        names.append(par.get("name") or None)
     cyl: list[dict] = []
     circ: list[dict] = []
     if not c.at_end():
@@ -1286,7 +1294,8 @@ def read_cao(p: Path, _stack: tuple[Path, ...] = ()) -> PolygonModel:
             circ.append({"radius": r, "center": ids[0], "p1": ids[1], "p2": ids[2],
                          "name": c.params().get("name") or None})
     # anything after the circles is ignored, as ViSP does (cube.cao carries its .init there)
-    own = PolygonModel(V, faces, names=names, lines=L[~used_lines], cylinders=cyl, circles=circ)
+    free_lines = np.concatenate([L[~used_lines], np.array(extra_lines, np.int64).reshape(-1, 2)])
+    own = PolygonModel(V, faces, names=names, lines=free_lines, cylinders=cyl, circles=circ)
     if not np.isfinite(V).all():
         own.check_finite(str(p))
     if not parts:

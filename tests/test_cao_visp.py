@@ -141,3 +141,12 @@ def test_write_read_keeps_everything(visp_model, tmp_path):
     assert back.names == m.names  # a name with blanks is written quoted, as ViSP reads it
     assert back.cylinders == m.cylinders and back.circles == m.circles
     np.testing.assert_array_equal(back.lines, m.lines)
+
+
+def test_two_point_face_is_a_line_and_version_text(tmp_path):
+    """ViSP reads an int after 'V' and skips the line; a 2-point face from points is a line."""
+    p = tmp_path / "l.cao"
+    p.write_text("V1.0 written by hand\n3\n0 0 0\n1 0 0\n0 1 0\n0\n0\n2\n3 0 1 2\n2 1 2 name=edge\n")
+    m = load_model(p)
+    assert m.n_faces == 1
+    np.testing.assert_array_equal(m.lines, [[1, 2]])
