@@ -150,3 +150,25 @@ def test_two_point_face_is_a_line_and_version_text(tmp_path):
     m = load_model(p)
     assert m.n_faces == 1
     np.testing.assert_array_equal(m.lines, [[1, 2]])
+
+
+def test_written_loops_start_at_the_widest_convex_corner():
+    """ViSP takes a face's normal from its points 0, 1, 2: every written loop starts so that
+    point 1 is the convex corner spanning the largest triangle with its neighbours (within the
+    1e-6 tie tolerance), whatever the loop's original start."""
+    from mst.meshtools.io import start_loops_at_convex_corners
+
+    rng = np.random.default_rng(5)
+    for _ in range(20):
+        k = int(rng.integers(4, 12))
+        ang = np.sort(rng.uniform(0, 2 * np.pi, k))
+        r = rng.uniform(0.5, 2.0, k)
+        V = np.column_stack([r * np.cos(ang), r * np.sin(ang), np.zeros(k)])  # star-shaped, CCW about +z
+        loop = np.arange(k)
+        n = np.array([[0.0, 0.0, 1.0]])
+        outs = [start_loops_at_convex_corners(V, [np.roll(loop, s)], n)[0] for s in range(k)]
+        assert all(np.array_equal(o, outs[0]) for o in outs)  # independent of the start
+        a, b = V[loop] - V[np.roll(loop, 1)], V[np.roll(loop, -1)] - V[loop]
+        turn = np.cross(a, b)[:, 2]
+        o = outs[0]
+        assert turn[o[1]] >= turn.max() * (1 - 1e-6)
