@@ -55,7 +55,7 @@ class CloudSource:
 
     def read_all(self) -> np.ndarray:
         """All coordinates as one float64 (N, 3) array."""
-        parts = list(self.chunks(max(self.count, 1)))
+        parts = list(self.chunks(min(max(self.count, 1), 1 << 20)))  # memory follows the data, not the header
         return np.concatenate(parts) if parts else np.zeros((0, 3))
 
 
@@ -276,8 +276,16 @@ def _open_las(p: Path) -> CloudSource:
     try:
         with laspy.open(p) as f:
             n = int(f.header.point_count)
+            start = int(f.header.offset_to_point_data)
+            rec = int(f.header.point_format.size)
+            compressed = bool(getattr(f.header, "are_points_compressed", p.suffix.lower() == ".laz"))
     except Exception as e:  # laspy raises several types for corrupt files
         raise InputError(p, f"cannot read LAS/LAZ header ({e})") from None
+    size = p.stat().st_size
+    # the header's count must fit the file (a corrupt count would make laspy allocate it); LAZ
+    # compresses, so only an absurd ratio is refused there (LASzip reaches ~10x on real clouds)
+    if (not compressed and start + n * rec > size) or (compressed and n * rec > 1000 * size):
+        raise InputError(p, f"LAS/LAZ header announces {n} points of {rec} bytes; the file has {size} bytes (truncated or corrupt)")
 
     def reader(size: int) -> Iterator[np.ndarray]:
         try:

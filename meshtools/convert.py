@@ -170,7 +170,7 @@ def tin_to_polygons(V: np.ndarray, F: np.ndarray, config: ConvertConfig | None =
     # ---- 5./6. outlines, then the planarity promise checked on the OUTPUT polygons
     faces, holes, ostats, face_region = outlines(X, F, region, n_regions, cr, E, col_tol, diag)
     n_replanarised = 0
-    for it in range(_PLANARITY_ROUNDS + 1):
+    for it in range(_PLANARITY_ROUNDS + 3):  # the last rounds split what still fails into triangles
         bad_reg = _nonplanar_regions(X, faces, holes, face_region, dist_tol, diag)
         if len(bad_reg) == 0:
             break

@@ -100,6 +100,8 @@ def _load_model(p: Path, suf: str) -> PolygonModel:
         raise
     except UnicodeDecodeError:
         raise InputError(p, f"not a text {suf} file (binary or wrong encoding)") from None
+    except RecursionError:
+        raise InputError(p, f"{suf} file nested too deeply") from None
     except (ValueError, IndexError, KeyError, TypeError, AttributeError, OverflowError) as e:
         raise InputError(p, f"corrupt {suf} file: {type(e).__name__}: {e}") from None
     _validate(m, p)
@@ -359,18 +361,34 @@ def _read_ply_ascii(p: Path, elems, start: int) -> tuple[np.ndarray, np.ndarray]
                 raise InputError(p, f"ascii PLY: vertex lines hold {A.size} numbers, {count} x {len(props)} expected")
             V = A.reshape(count, len(props))[:, cols]
         elif name == "face":
-            if not props or props[0][0] != "list":
-                raise InputError(p, "ascii PLY face element without a leading index list")
+            lists = [i for i, pr in enumerate(props) if pr[0] == "list"]
+            named = [i for i in lists if props[i][-1] in ("vertex_indices", "vertex_index")]
+            if not lists:
+                raise InputError(p, "ascii PLY face element without an index list")
+            which = (named or lists)[0]
             faces = []
             for j, r in enumerate(chunk):
                 t = r.split()
+                pos, idx = 0, None
                 try:
-                    n = int(t[0])
-                    idx = [int(x) for x in t[1:1 + n]]
+                    for i, pr in enumerate(props):  # one instance per line, properties in header order
+                        if pr[0] == "list":
+                            n = int(t[pos])
+                            vals = t[pos + 1:pos + 1 + n]
+                            if i == which:
+                                idx = [int(x) for x in vals]
+                                if n < 3 or len(idx) != n:
+                                    raise IndexError
+                            pos += 1 + n
+                        else:
+                            float(t[pos])
+                            pos += 1
                 except (ValueError, IndexError):
-                    raise InputError(p, f"ascii PLY: face {j} is not a list of integers ({r.strip()[:40]!r})") from None
-                if n < 3 or len(idx) != n or len(t) != 1 + n + len(props) - 1:
-                    raise InputError(p, f"ascii PLY: face {j} has {len(t) - 1} values for {n} indices ({r.strip()[:40]!r})")
+                    raise InputError(p, f"ascii PLY: face {j} is not a list of >= 3 integer indices with its "
+                                        f"properties ({r.strip()[:40]!r})") from None
+                if pos != len(t):
+                    raise InputError(p, f"ascii PLY: face {j} has {len(t)} values, its properties need {pos} "
+                                        f"({r.strip()[:40]!r})")
                 faces.append(np.array(idx, np.int64))
             F = _fan(faces)
     if V is None or F is None:
@@ -617,7 +635,7 @@ def obj_text(model: PolygonModel) -> str:
     cur = None
     for f, name in zip(_output_loops(model), model.names):
         if name != cur:
-            out.append(f"g {_token(name) if name else 'default'}\n")
+            out.append(f"g {_token(name)}\n" if name else "g\n")  # bare g: no name (reads back as None)
             cur = name
         out.append("f " + " ".join(str(int(i) + 1) for i in f) + "\n")
     if len(model.lines):
@@ -1099,6 +1117,8 @@ class _CaoCursor:
         if n < 0 or n > _CAO_MAX_COUNT:
             raise InputError(self.path, f"line {self.ln + 1}: {n} {what} announced (must be 0..{_CAO_MAX_COUNT})")
         self.rest()
+        if n > len(self.lines) - self.ln:  # one line each at least
+            raise InputError(self.path, f"{n} {what} announced, the file has {len(self.lines) - self.ln} lines left (truncated)")
         return n
 
     def index(self, what: str, n: int) -> int:
@@ -1167,8 +1187,8 @@ def read_cao(p: Path, _stack: tuple[Path, ...] = ()) -> PolygonModel:
     between values), nested loads compose. A cycle raises :class:`mst.InputError` (ViSP warns and
     skips it); a file loaded twice from different places is loaded twice (ViSP keeps only the first).
 
-    Faces from lines become point loops. Lines used by no face-from-lines are kept in
-    ``model.lines`` (ViSP tracks them as 2-point polygons). Cylinders ``{p1, p2, radius, name}`` and
+    Faces from lines become point loops. Lines used by no face-from-lines, and faces from points
+    with only 2 points, are kept in ``model.lines`` (ViSP tracks both as 2-point polygons). Cylinders ``{p1, p2, radius, name}`` and
     circles ``{radius, center, p1, p2, name}`` cannot be polygon faces: they are kept as dicts
     (point indices into ``model.vertices``) and written back by :func:`cao_text`; mst's tracker
     does not use them.
@@ -1186,9 +1206,11 @@ def read_cao(p: Path, _stack: tuple[Path, ...] = ()) -> PolygonModel:
     c = _CaoCursor(text, p)
     version = 1
     if c.peek_char() in ("V", "v"):
-        c.col += 1
-        version = c.int("the .cao version after 'V'")
-        c.rest()
+        lno = c.ln + 1
+        mv = re.match(r"[Vv]\s*(\d+)", c.rest().strip())  # ViSP reads an int after 'V', then skips the line
+        if not mv:
+            raise InputError(p, f"line {lno}: bad version header (expected V1 or V2)")
+        version = int(mv.group(1))
         if version not in (0, 1, 2):
             raise InputError(p, f"unsupported .cao version V{version} (V1 or V2)")
     parts: list[PolygonModel] = []
@@ -1239,12 +1261,18 @@ def read_cao(p: Path, _stack: tuple[Path, ...] = ()) -> PolygonModel:
         used_lines[li] = True
         faces.append(_chain_lines(L[li], p, i))
         names.append(par.get("name") or None)
+    extra_lines: list[list[int]] = []
     for i in range(c.count("faces from points")):
         k = c.int("the number of points of a face")
-        if k < 3 or k > _CAO_MAX_COUNT:
-            raise InputError(p, f"line {c.ln + 1}: face from points {i} has {k} points (need at least 3)")
-        faces.append(np.array([c.index("point index", n) for _ in range(k)], np.int64))
-        names.append(c.params().get("name") or None)
+        if k < 2 or k > _CAO_MAX_COUNT:
+            raise InputError(p, f"line {c.ln + 1}: face from points {i} has {k} points (need at least 3, or 2 for a line)")
+        idx = [c.index("point index", n) for _ in range(k)]
+        par = c.params()
+        if k == 2:  # ViSP tracks a 2-point "face" as a line
+            extra_lines.append(idx)
+            continue
+        faces.append(np.array(idx, np.int64))
+        names.append(par.get("name") or None)
     cyl: list[dict] = []
     circ: list[dict] = []
     if not c.at_end():
@@ -1266,7 +1294,8 @@ def read_cao(p: Path, _stack: tuple[Path, ...] = ()) -> PolygonModel:
             circ.append({"radius": r, "center": ids[0], "p1": ids[1], "p2": ids[2],
                          "name": c.params().get("name") or None})
     # anything after the circles is ignored, as ViSP does (cube.cao carries its .init there)
-    own = PolygonModel(V, faces, names=names, lines=L[~used_lines], cylinders=cyl, circles=circ)
+    free_lines = np.concatenate([L[~used_lines], np.array(extra_lines, np.int64).reshape(-1, 2)])
+    own = PolygonModel(V, faces, names=names, lines=free_lines, cylinders=cyl, circles=circ)
     if not np.isfinite(V).all():
         own.check_finite(str(p))
     if not parts:
@@ -1312,6 +1341,14 @@ def merge_models(models: list[PolygonModel]) -> PolygonModel:
                         lines=np.concatenate(lines) if lines else np.zeros((0, 2), np.int64), cylinders=cyl, circles=circ)
 
 
+def _cao_name(name: str) -> str:
+    """A ``name=`` value as ViSP parses it: one token, or quoted when it holds blanks."""
+    name = str(name).replace('"', "'").replace("\n", " ").strip()
+    if not name:
+        return "_"
+    return f'"{name}"' if re.search(r"\s", name) or "=" in name else name
+
+
 def cao_text(model: PolygonModel) -> str:
     """ViSP ``.cao`` V1 text: points, lines, no faces from lines, faces from points (holes bridged,
     ``name=`` when named), cylinders, circles."""
@@ -1323,16 +1360,16 @@ def cao_text(model: PolygonModel) -> str:
     for f, name in zip(loops, model.names):
         s = f"{len(f)} " + " ".join(str(int(i)) for i in f)
         if name:
-            s += f" name={_token(name)}"
+            s += f" name={_cao_name(name)}"
         out.append(s + "\n")
     out += ["# 3D cylinders\n", f"{len(model.cylinders)}\n"]
     for c in model.cylinders:
         s = f"{int(c['p1'])} {int(c['p2'])} {_fmt_num(c['radius'])}"
-        out.append(s + (f" name={_token(c['name'])}" if c.get("name") else "") + "\n")
+        out.append(s + (f" name={_cao_name(c['name'])}" if c.get("name") else "") + "\n")
     out += ["# 3D circles\n", f"{len(model.circles)}\n"]
     for c in model.circles:
         s = f"{_fmt_num(c['radius'])} {int(c['center'])} {int(c['p1'])} {int(c['p2'])}"
-        out.append(s + (f" name={_token(c['name'])}" if c.get("name") else "") + "\n")
+        out.append(s + (f" name={_cao_name(c['name'])}" if c.get("name") else "") + "\n")
     return "".join(out)
 
 
@@ -1474,9 +1511,12 @@ def start_loops_at_convex_corners(V: np.ndarray, loops: list[np.ndarray], normal
     the face's outward normal (ViSP computes face visibility from them). Vectorised over all loops.
 
     Among the corners whose turn about the face normal is clearly positive (sine > 1e-9), the one
-    with the smallest (vertex index, next vertex index) is chosen: the choice does not depend on
-    where the loop starts, so writing a model read back from our own file gives the same bytes.
-    Loops without such a corner (degenerate) are left as they are.
+    spanning the largest triangle with its two neighbours (``(b - a) x (c - b) . n``) is chosen, ties
+    by the smallest (vertex index, next vertex index): the plane of points 0, 1, 2 is then as well
+    conditioned as the loop allows (a short or nearly straight corner would tilt ViSP's normal; on the
+    real Rotterdam set the first-corner choice put vertices 71 mm off that plane at ``--dist-tol
+    0.01``). The choice does not depend on where the loop starts, so writing a model read back from
+    our own file gives the same bytes. Loops without such a corner (degenerate) are left as they are.
     """
     if not loops:
         return []
@@ -1496,11 +1536,16 @@ def start_loops_at_convex_corners(V: np.ndarray, loops: list[np.ndarray], normal
     scale = np.linalg.norm(a, axis=1) * np.linalg.norm(b, axis=1)
     convex = (turn > 1e-9 * scale) & (scale > 0) & (lens[lid] >= 3)
     big = np.iinfo(np.int64).max
-    k1 = np.where(convex, idx, big)
-    k2 = np.where(convex, nxt, big)
+    # near-ties (within 1e-6 of the loop's best turn: rounding depends on where the loop starts)
+    # are broken by vertex index, so the choice is the same for every rotation of the loop
+    best = np.full(L, -np.inf)
+    np.maximum.at(best, lid, np.where(convex, turn, -np.inf))
+    good = convex & (turn >= best[lid] * (1 - 1e-6))
+    k1 = np.where(good, idx, big)
+    k2 = np.where(good, nxt, big)
     order = np.lexsort((k2, k1, lid))
     first = order[np.concatenate([[0], np.flatnonzero(np.diff(lid[order])) + 1])]
-    shift = np.where(convex[first], (loc[first] - 1) % np.maximum(lens, 1), 0)
+    shift = np.where(good[first], (loc[first] - 1) % np.maximum(lens, 1), 0)
     rotated = idx[ls + (loc + shift[lid]) % ll]
     return np.split(rotated, starts[1:])
 

@@ -19,7 +19,7 @@ import pytest
 
 from mst import InputError
 from mst.meshtools import generate as gen
-from mst.meshtools.io import load_model, save_triangles
+from mst.meshtools.io import load_model, load_triangles, save_triangles
 
 TRI_OBJ = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 2 3 4\nf 1 4 3\n"
 
@@ -112,8 +112,9 @@ MODEL_CASES = [
     ("ply-announces-faces-it-lacks", "m.ply", _ply_bin(nf=9), "truncated"),
     ("ply-ascii-faces-missing", "m.ply", _ply_ascii(faces=[]), "truncated"),
     ("ply-ascii-vertex-word", "m.ply", _ply_ascii(verts=["0 0 0", "1 x 0", "0 1 0", "0 0 1"]), "not a number"),
-    ("ply-ascii-face-float", "m.ply", _ply_ascii(faces=["3 0 2 1", "3 0 1.5 3", "3 1 2 3", "3 0 3 2"]), "integers"),
-    ("ply-ascii-face-short", "m.ply", _ply_ascii(faces=["3 0 2 1", "3 0 1", "3 1 2 3", "3 0 3 2"]), "values for 3"),
+    ("ply-ascii-face-float", "m.ply", _ply_ascii(faces=["3 0 2 1", "3 0 1.5 3", "3 1 2 3", "3 0 3 2"]), "integer"),
+    ("ply-ascii-face-short", "m.ply", _ply_ascii(faces=["3 0 2 1", "3 0 1", "3 1 2 3", "3 0 3 2"]), "integer indices"),
+    ("ply-ascii-face-extra-value", "m.ply", _ply_ascii(faces=["3 0 2 1", "3 0 1 3 7", "3 1 2 3", "3 0 3 2"]), "need 4"),
     ("ply-ascii-negative-count", "m.ply", _ply_ascii(nf="-1"), "count must be an integer"),
     ("ply-no-end-header", "m.ply", b"ply\nformat ascii 1.0\nelement vertex 3\n", "end_header"),
     ("ply-unknown-format", "m.ply", _ply_bin().replace(b"binary_little_endian", b"binary_middle_endian"), "format"),
@@ -146,6 +147,7 @@ MODEL_CASES = [
     ("wrl-vrml1", "m.wrl", WRL.replace("V2.0", "V1.0"), "VRML 1.0"),
     ("wrl-point-word", "m.wrl", WRL.replace("1 0 0,", "1 zero 0,"), "non-numeric"),
     ("wrl-garbage", "m.wrl", GARBAGE, "VRML|text"),
+    ("wrl-nested-too-deep", "m.wrl", "#VRML V2.0 utf8\n" + "Transform { children [ " * 3000 + "] }" * 3000, "too deep"),
     # ---- ViSP .cao
     ("cao-load-missing", "m.cao", 'V1\nload("nope.cao", t=[0; 0; 0])\n' + CAO[3:], "nope.cao not found"),
     ("cao-load-self-cycle", "m.cao", 'V1\nload("m.cao")\n' + CAO[3:], "cycle"),
@@ -155,7 +157,7 @@ MODEL_CASES = [
     ("cao-face-index-out-of-range", "m.cao", CAO.replace("3 1 2 3", "3 1 2 7"), "out of range"),
     ("cao-negative-index", "m.cao", CAO.replace("3 1 2 3", "3 1 -2 3"), "out of range"),
     ("cao-coordinate-word", "m.cao", CAO.replace("1 0 0\n", "1 O 0\n"), "expected a point coordinate"),
-    ("cao-points-truncated", "m.cao", "V1\n8\n0 0 0\n1 0 0\n", "file ends|expected"),
+    ("cao-points-truncated", "m.cao", "V1\n8\n0 0 0\n1 0 0\n", "truncated|file ends"),
     ("cao-bad-version", "m.cao", CAO.replace("V1", "V7"), "version"),
     ("cao-face-fewer-indices", "m.cao", CAO.replace("3 1 2 3", "3 1 2"), "missing"),
     ("cao-count-negative", "m.cao", CAO.replace("4 # faces", "-4 # faces"), "announced"),
@@ -173,6 +175,8 @@ MODEL_CASES = [
     ("cityjson-solid-declared-multisolid", "m.json", _cityjson(geomtype="MultiSolid"), "nest"),
     ("cityjson-transform-no-scale", "m.json", _cityjson(transform={"translate": [0, 0, 0]}), "scale"),
     ("cityjson-vertices-pairs", "m.json", _cityjson(vertices=[[0, 0], [1, 1]]), "vertices"),
+    ("cityjson-nested-too-deep", "m.json", '{"type": "CityJSON", "vertices": ' + "[" * 100000 + "]" * 100000 + "}",
+     "too deep"),
     ("cityjson-not-json", "m.json", b'{"type": "CityJSON", "vertices": [', "not valid JSON"),
     ("cityjson-wrong-type", "m.json", _cityjson(type="FeatureCollection"), "not a CityJSON"),
     ("cityjson-index-string", "m.json", _cityjson(boundaries=[[[[0, 3, 2, 1]], [[0, "1", 4]]]]), "integer vertex"),
@@ -336,3 +340,33 @@ def test_error_inside_a_loaded_file_names_that_file(tmp_path):
 def test_case_count():
     """The issue asks for at least 60 cases over these formats."""
     assert len(MODEL_CASES) + len(CLOUD_CASES) + len(MESH_FOR_C2M) >= 60
+
+
+@pytest.mark.parametrize("name", ["c.ply", "c.xyz", "c.pcd"])
+def test_nonfinite_cloud_rows_are_passed_through(tmp_path, name):
+    """Clouds keep cloud_io's rule: NaN/inf rows come back as they are (callers count and exclude
+    them, e.g. c2m's points_nonfinite), unlike meshes, where they are an error."""
+    from mst.eval.cloud_io import read_cloud
+
+    P = np.array([[0, 0, 0], [np.nan, 1, 2], [np.inf, 0, 1], [1, 2, 3]], np.float32)
+    p = tmp_path / name
+    if name.endswith(".ply"):
+        p.write_bytes(_ply_cloud(n="4", body=P.astype("<f4").tobytes()))
+    elif name.endswith(".pcd"):
+        p.write_bytes(_pcd(points="4", body="0 0 0\nnan 1 2\ninf 0 1\n1 2 3\n").replace(b"WIDTH 3", b"WIDTH 4"))
+    else:
+        p.write_text("0 0 0\nnan 1 2\ninf 0 1\n1 2 3\n")
+    Q = read_cloud(p)
+    assert Q.shape == (4, 3)
+    assert (~np.isfinite(Q).all(axis=1)).sum() == 2
+    np.testing.assert_array_equal(Q[[0, 3]], P[[0, 3]])
+
+
+def test_ascii_ply_with_colour_before_the_index_list(tmp_path):
+    """Face properties in any order (here a colour before the list) are parsed as declared."""
+    p = tmp_path / "c.ply"
+    p.write_text("ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\nproperty float z\n"
+                 "element face 2\nproperty uchar red\nproperty list uchar int vertex_indices\nproperty float q\n"
+                 "end_header\n0 0 0\n1 0 0\n1 1 0\n0 1 0\n255 3 0 1 2 0.5\n7 4 0 1 2 3 1\n")
+    V, F = load_triangles(p)
+    np.testing.assert_array_equal(F, [[0, 1, 2], [0, 1, 2], [0, 2, 3]])
