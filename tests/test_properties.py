@@ -417,10 +417,7 @@ def test_pose_readers_raise_only_input_errors_ascii(kind, data):
     _only_input_errors(reader, p)
 
 
-@pytest.mark.parametrize("kind", sorted(set(POSE_SEEDS) - {"kitti"}))  # kitti (np.loadtxt) already refuses them
-@pytest.mark.xfail(strict=True, raises=UnicodeDecodeError,
-                   reason="issue 9 'non-UTF-8 bytes in pose, trajectory and matrix files': pipeline/poses.py "
-                          "and eval/traj.py read with read_text() and let UnicodeDecodeError escape (owners: others)")
+@pytest.mark.parametrize("kind", sorted(POSE_SEEDS))
 def test_pose_readers_non_utf8(kind):
     seed, reader = POSE_SEEDS[kind]
     p = _tmpfile(f"x.{'csv' if kind == 'csv' else 'txt'}")
