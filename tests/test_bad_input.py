@@ -334,6 +334,10 @@ add("eval-ref-duplicate-conflict", "eval", "gt", lambda p: p.write_text(
               + p.read_text().splitlines()[3:]) + "\n"))
 add("eval-kitti-11", "eval", "traj", m_text("1 0 0 0 0 1 0 0 0 0 1 0\n1 0 0 0 0 1 0 0 0 0 1\n"),
     extra=lambda f, o: ["--format", "kitti"])
+add("eval-kitti-zero-rotation", "eval", "traj", m_text("1 0 0 0 0 1 0 0 0 0 1 0\n0 0 0 1 0 0 0 2 0 0 0 3\n"),
+    extra=lambda f, o: ["--format", "kitti"])
+add("eval-kitti-reflection", "eval", "traj", m_text("1 0 0 0 0 1 0 0 0 0 1 0\n-1 0 0 0 0 1 0 0 0 0 1 0\n"),
+    extra=lambda f, o: ["--format", "kitti"])
 add("eval-kitti-nan", "eval", "traj", m_text("1 0 0 0 0 1 0 0 0 0 1 nan\n1 0 0 0 0 1 0 0 0 0 1 0\n"),
     extra=lambda f, o: ["--format", "kitti"])
 add("eval-kitti-non-utf8", "eval", "traj", lambda p: p.write_bytes(b"1 0 0 0 0 1 0 0 0 0 1 0\n\xff\xfe 0 0\n"),
@@ -425,6 +429,8 @@ add("track-depth-camera-bad", "track", "extrinsic", m_text('{"fx": -1}'),
     extra=lambda f, o: ["--depth-camera", f["extrinsic"], "--depth", f["depth"], "--slam", "rgbd"])
 add("track-depth-folder-missing", "track", "depth", lambda p: shutil.rmtree(p),
     extra=lambda f, o: ["--depth", f["depth"], "--slam", "rgbd"])
+add("init-from-pose-looking-away", "init", replace=lambda f, o, a: ["init", "--model", f["model"], "--camera", f["camera"],
+    "--from-pose", "5", "5", "5", "45", "0", "0", "-o", o / "pose.txt"], names=lambda f, o: ["--from-pose"])
 add("init-image-garbage", "init", "image", m_garbage, extra=lambda f, o: ["--image", f["image"]])
 add("init-image-missing", "init", "image", m_missing, extra=lambda f, o: ["--image", f["image"]])
 add("init-image-wrong-size", "init", "image",
