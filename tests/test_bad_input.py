@@ -840,3 +840,51 @@ def test_emit_json_writes_null_for_nan(capsys):
 
     emit_json({"a": float("nan"), "b": [1.0, np.float64("inf")], "c": np.array([np.nan, 2.0]), "d": "x"})
     assert json.loads(capsys.readouterr().out) == {"a": None, "b": [1.0, None], "c": [None, 2.0], "d": "x"}
+
+
+# ------------------------------------------------------------------ the atomic-output helper itself
+def test_atomic_outputs_disk_full_names_the_target(tmp_path):
+    from mst import InputError, atomic_outputs
+
+    a, b = tmp_path / "a.txt", tmp_path / "b.csv"
+    with pytest.raises(InputError) as ei:
+        with atomic_outputs(a, b) as (ta, tb):
+            ta.write_text("x")
+            raise OSError(errno.ENOSPC, "No space left on device", str(tb))
+    assert str(b) in str(ei.value) and "space" in str(ei.value)
+    assert list(tmp_path.iterdir()) == []  # no target, no temporary file left
+
+
+def test_atomic_outputs_rename_failure_names_the_target(tmp_path, monkeypatch):
+    from mst import InputError, atomic_outputs
+
+    def fail(src, dst):
+        raise PermissionError(errno.EACCES, "Permission denied", str(dst))
+
+    monkeypatch.setattr(os, "replace", fail)
+    with pytest.raises(InputError, match="a.txt: cannot write the output"):
+        with atomic_outputs(tmp_path / "a.txt") as (ta,):
+            ta.write_text("x")
+    monkeypatch.undo()
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("target", ["/dev/full", "/dev/null"])
+def test_atomic_outputs_refuse_a_device(target):
+    """Never rename a file over a device node (as root that would replace /dev/null itself)."""
+    from mst import InputError, atomic_outputs
+
+    if not Path(target).exists():
+        pytest.skip(f"{target} absent")
+    with pytest.raises(InputError, match="not a regular file"):
+        with atomic_outputs(target):
+            pass
+
+
+def test_other_oserrors_are_not_hidden(tmp_path):
+    """An OSError unrelated to the outputs (a bug, or an input problem) is not relabelled as one."""
+    from mst import atomic_outputs
+
+    with pytest.raises(OSError, match="unrelated"):
+        with atomic_outputs(tmp_path / "a.txt"):
+            raise OSError(errno.EINVAL, "unrelated", str(tmp_path / "input.bin"))
