@@ -888,3 +888,16 @@ def test_other_oserrors_are_not_hidden(tmp_path):
     with pytest.raises(OSError, match="unrelated"):
         with atomic_outputs(tmp_path / "a.txt"):
             raise OSError(errno.EINVAL, "unrelated", str(tmp_path / "input.bin"))
+
+
+def test_fuse_bad_landmarks_fail_before_any_frame(case_dir, monkeypatch):
+    f, o = case_dir
+    m_garbage(f["cloud"])
+    import mst.pipeline.fusion as fu
+
+    def no_frames(*a, **k):
+        raise AssertionError("a depth frame was read before the landmarks file was checked")
+
+    monkeypatch.setattr(fu, "read_depth", no_frames)
+    code, _, err = run_cli(fuse_args(f, o) + ["--landmarks", f["cloud"]])
+    assert_one_error(code, err, [str(f["cloud"])])
