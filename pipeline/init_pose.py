@@ -377,6 +377,8 @@ def run_init(model_path, camera_path, out, *, clicks_path=None, points_path=None
     from mst.pipeline.poses import write_pose_file
     from mst.pipeline.tracker import check_pose_in_view, load_polygon_model
 
+    if overlay_path is not None and image_path is None:
+        raise InputError(overlay_path, "--overlay needs --image (the frame to draw on)")
     model = load_polygon_model(model_path)
     cam = read_camera(camera_path)
     img = None

@@ -431,6 +431,8 @@ add("track-depth-folder-missing", "track", "depth", lambda p: shutil.rmtree(p),
     extra=lambda f, o: ["--depth", f["depth"], "--slam", "rgbd"])
 add("init-from-pose-looking-away", "init", replace=lambda f, o, a: ["init", "--model", f["model"], "--camera", f["camera"],
     "--from-pose", "5", "5", "5", "45", "0", "0", "-o", o / "pose.txt"], names=lambda f, o: ["--from-pose"])
+add("init-overlay-without-image", "init", extra=lambda f, o: ["--overlay", o / "ov.png"],
+    names=lambda f, o: [str(o / "ov.png"), "--image"])
 add("init-image-garbage", "init", "image", m_garbage, extra=lambda f, o: ["--image", f["image"]])
 add("init-image-missing", "init", "image", m_missing, extra=lambda f, o: ["--image", f["image"]])
 add("init-image-wrong-size", "init", "image",
