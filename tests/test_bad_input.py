@@ -405,7 +405,17 @@ DEPTH_BAD = {
     "npy-strings": ("000001.npy", lambda q: np.save(q, np.array(["a", "b"]))),
     "npy-truncated": ("000001.npy", lambda q: q.write_bytes(_npy_bytes()[:200])),
     "exr-garbage": ("000001.exr", b"v/1\x01 not an exr"),
+    "npy-huge-header": ("000001.npy", lambda q: q.write_bytes(_npy_header((300000, 300000)) + b"\x00" * 64)),
+    "npy-short-body": ("000001.npy", lambda q: q.write_bytes(_npy_header((120, 160)) + b"\x00" * 64)),
 }
+
+
+def _npy_header(shape) -> bytes:
+    import io as _io
+
+    b = _io.BytesIO()
+    np.lib.format.write_array_header_1_0(b, {"descr": "<f4", "fortran_order": False, "shape": shape})
+    return b.getvalue()
 
 
 def _npy_bytes() -> bytes:
