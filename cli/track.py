@@ -19,9 +19,9 @@ from mst.cli.common import POSITIVE, emit_json, info, json_option, progress_bar,
 @click.option("--frames", "frame_range", default=None, help="Frame selection a:b:step (b exclusive).")
 @click.option("--scale", type=POSITIVE, default=1.0, show_default=True, help="Resize frames by this factor (intrinsics follow).")
 @click.option("--fps", type=POSITIVE, default=None, help="Frame rate for time stamps (default: the video's; image sequences: t = index).")
-@click.option("--range", "search_range", type=click.IntRange(1, 1000), default=None, help="Moving-edge search range, px each side (overrides settings).")
-@click.option("--step", "sample_step", type=POSITIVE, default=None, help="Sample step along edges, px (overrides settings).")
-@click.option("--pyramid", "pyramid_levels", type=click.IntRange(1, 8), default=None, help="Coarse-to-fine levels (1 = none, 2 = half resolution first).")
+@click.option("--range", "search_range", type=int, default=None, help="Moving-edge search range, px each side (overrides settings).")
+@click.option("--step", "sample_step", type=float, default=None, help="Sample step along edges, px (overrides settings).")
+@click.option("--pyramid", "pyramid_levels", type=int, default=None, help="Coarse-to-fine levels (1 = none, 2 = half resolution first).")
 @click.option("--constant-velocity", is_flag=True, help="Predict each pose by repeating the last motion (no SLAM aid).")
 @click.option("--klt/--no-klt", default=False, show_default=True, help="Add KLT points inside visible faces (ViSP hybrid tracker).")
 @click.option("--overlay", default=None, type=click.Path(), help="Write an overlay video (.mp4) or a folder of PNGs.")
@@ -55,13 +55,21 @@ def track(frames_src, model_path, camera_path, init_path, out, settings_path, fr
     """
     from pathlib import Path
 
-    from mst.pipeline.settings import TrackerConfig, read_tracker_xml
+    from mst import InputError
+    from mst.pipeline.settings import TrackerConfig, check_setting, read_tracker_xml
     from mst.pipeline.tracker import run_track
 
+    # options are bounded by the same table as the XML settings (settings.BOUNDS), named as options
+    for name, value, label in (("search_range", search_range, "--range"), ("sample_step", sample_step, "--step"),
+                               ("pyramid_levels", pyramid_levels, "--pyramid")):
+        problem = check_setting(name, value, label)
+        if problem:
+            raise InputError(None, f"bad option: {problem}")
     out_p = Path(out)
     frames_p = Path(frames_src)
     # the trajectory, its side outputs (traj.csv, traj.json) and the others must not replace an input
-    check_outputs([out_p, out_p.with_suffix(".csv"), out_p.with_suffix(".json") if as_json else None, landmarks_path,
+    check_outputs([out_p, out_p.with_suffix(".csv"), out_p.with_suffix(".cov.csv"),
+                   out_p.with_suffix(".json") if as_json else None, landmarks_path,
                    overlay],
                   [frames_p if frames_p.exists() else None, model_path, camera_path, init_path, settings_path,
                    depth_camera, depth_to_color, depth_dir])

@@ -270,6 +270,23 @@ def terrain(size: float = 400.0, cells: int = 100, n_creases: int = 6, slope: fl
     return V, F, z_of
 
 
+def uneven_arc(sagitta: float = 0.013, length: float = 2.0, width: float = 1.0, coarse: int = 2, dense: int = 40):
+    """A gently curved sheet ``z = -sagitta * (2x/length)^2`` over ``x in [-length/2, length/2]``,
+    ``y in [0, width]`` (metres), meshed unevenly: ``coarse`` steps on the left half, ``dense`` on
+    the right. Its area-weighted plane and the least-squares plane of its boundary vertices differ
+    (the dense half pulls the latter), the case where checking a region against one plane does not
+    bound the distances to the output polygon's own plane. Returns ``(V, F)``, normals up."""
+    h = length / 2
+    xs = np.concatenate([np.linspace(-h, 0, coarse + 1)[:-1], np.linspace(0, h, dense + 1)])
+    ys = np.array([0.0, width])
+    X, Y = np.meshgrid(xs, ys, indexing="ij")
+    V = np.column_stack([X.ravel(), Y.ravel(), (-sagitta * (X / h) ** 2).ravel()])
+    idx = np.arange(len(V)).reshape(len(xs), 2)
+    a, b, c, d = idx[:-1, 0], idx[1:, 0], idx[1:, 1], idx[:-1, 1]
+    F = np.concatenate([np.column_stack([a, b, c]), np.column_stack([a, c, d])]).astype(np.int64)
+    return V, F
+
+
 def city_block(n_triangles: int = 1_000_000, buildings: int = 64, seed: int = 0, size: float = 400.0):
     """A city block TIN: a piecewise-planar terrain plus ``buildings`` closed buildings (boxes,
     L-shapes, courtyards with a hole, gabled houses) standing on lots of a regular grid, their

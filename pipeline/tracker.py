@@ -24,7 +24,7 @@ import numpy as np
 
 from mst import InputError, atomic_outputs
 from mst.pipeline.overlay import OverlayWriter, draw_overlay
-from mst.pipeline.settings import TrackerConfig, config_to_dict
+from mst.pipeline.settings import NEAR_CLIP_REL, TrackerConfig, config_to_dict, lod_thresholds
 
 #: on re-acquisition (the model back after a SLAM-only stretch) an edge pose is healthy only when its
 #: gradient support is at least this fraction of its running mean over the model frames (measured
@@ -148,15 +148,36 @@ class EdgeTracker:
         self.klt_pts: np.ndarray | None = None  # (M,2) px in prev frame
         self.klt_X: np.ndarray | None = None  # (M,3) model frame
         self.prev_gray: np.ndarray | None = None
+        self.near_m: float | None = cfg.near_clip  # None: set from the scene depth at the first pose
+        self.lod = lod_thresholds(cfg)
 
     # -------------------------------------------------------------- helpers
+    def near(self, T_cam_model: np.ndarray) -> float:
+        """Near clipping distance (m): the configured one, else ``NEAR_CLIP_REL`` x the median depth
+        of the model vertices in front of the camera at the first pose seen (fixed from then on)."""
+        if self.near_m is None:
+            z = self.geom.vertices @ T_cam_model[2, :3] + T_cam_model[2, 3]
+            z = z[z > 0]
+            self.near_m = float(NEAR_CLIP_REL * np.median(z)) if len(z) else 1e-3
+            self.near_m = max(self.near_m, 1e-6)
+        return self.near_m
+
     def _samples(self, T, K, W, H):
         from mst.pipeline.visibility import visible_samples
 
         c = self.cfg
-        return visible_samples(self.geom, T, K, W, H, c.sample_step, c.near_clip, c.far_clip, c.angle_appear,
+        lod_line, lod_face = self.lod
+        s = K[0, 0] / self.K[0, 0]  # coarse pyramid levels: the thresholds scale with the image
+        return visible_samples(self.geom, T, K, W, H, c.sample_step, self.near(T), c.far_clip, c.angle_appear,
                                c.angle_disappear, self.prev_faces, border_px=c.mask_size // 2 + 1,
-                               hidden_lines=c.hidden_lines, zbuffer_scale=c.zbuffer_scale, max_samples=c.max_samples)
+                               hidden_lines=c.hidden_lines, zbuffer_scale=c.zbuffer_scale, max_samples=c.max_samples,
+                               lod_min_line_px=lod_line * s, lod_min_face_px2=lod_face * s * s)
+
+    def explain(self, S) -> str:
+        """Why the samples ``S`` of a pose are too few (see :func:`visibility.explain_no_samples`)."""
+        from mst.pipeline.visibility import explain_no_samples
+
+        return explain_no_samples(S.stats, self.near_m or 0.0, self.cfg.far_clip, self.lod)
 
     def _edge_pass(self, img, K, T, search_range, ref_img, ref_T, klt=None, min_mad_px=None):
         from mst.pipeline.moving_edges import canonical_normals, reference_contrast, search_edges
@@ -166,6 +187,7 @@ class EdgeTracker:
         H, W = img.shape
         S = self._samples(T, K, W, H)
         if len(S) < 6:
+            self._fail = self.explain(S)
             return None, S, None, None
         normal, midx = canonical_normals(S.normal, c.n_masks)
         ref = None
@@ -184,6 +206,12 @@ class EdgeTracker:
                              min_mad_px=c.min_mad_px if min_mad_px is None else min_mad_px, tukey_c=c.tukey_c, klt_X_model=kx, klt_uv=ku,
                              klt_weight=c.klt_weight)
         except ValueError:
+            n_m = int(np.isfinite(cand[..., 0]).any(axis=1).sum())
+            self._fail = (f"pose solver failed: only {n_m} of {len(S)} edge samples found a moving edge within "
+                          f"{int(search_range)} px (need 6; no image edge near the projected model)")
+            return None, S, m, None
+        if not np.isfinite(res.T_cam_model).all() or not np.isfinite(res.W).all():
+            self._fail = "pose solver failed: the optimisation diverged (non-finite pose)"
             return None, S, m, None
         return res, S, m, cand
 
@@ -197,7 +225,7 @@ class EdgeTracker:
         fv = self.prev_faces if self.prev_faces is not None else np.ones(len(self.geom.faces), bool)
         from mst.pipeline.visibility import inverse_depth_buffer
 
-        best, _ = inverse_depth_buffer(self.geom, T, self.K, W, H, fv, c.near_clip, 1.0)  # 1/z of the front surface
+        best, _ = inverse_depth_buffer(self.geom, T, self.K, W, H, fv, self.near(T), 1.0)  # 1/z of the front surface
         mask = (best > 0).astype(np.uint8) * 255
         mask = cv2.erode(mask, np.ones((2 * c.klt_border + 1,) * 2, np.uint8))
         ys, xs = np.nonzero(mask[::8, ::8])
@@ -270,6 +298,7 @@ class EdgeTracker:
         # first frame / after a loss: several passes, tolerant (wide robust scale) first, then tighter
         passes = 3 if (first or recover) else c.passes
         res = S = S_p = None
+        self._fail = "too few visible edge samples"
         for ps in range(passes):
             rng = R if ps == 0 else max(3, int(round(R / 2 ** ps)))
             mad = max(c.min_mad_px, rng / 3.0) if (first or recover) and ps < passes - 1 else None
@@ -283,10 +312,10 @@ class EdgeTracker:
             T = res.T_cam_model
         if res is None:
             return FrameResult(None, False, 0 if S_p is None else len(S_p), 0, float("nan"), 90.0, None, None,
-                               reason="too few visible edge samples")
+                               reason=self._fail)
         # health: projection error (gradient vs model normal) at the final pose, inlier ratio
         Xc = S.X_model @ T[:3, :3].T + T[:3, 3]
-        ok_z = Xc[:, 2] > c.near_clip * 0.5
+        ok_z = Xc[:, 2] > self.near(T) * 0.5
         z = np.where(ok_z, Xc[:, 2], 1.0)
         uv = np.stack([self.K[0, 0] * Xc[:, 0] / z + self.K[0, 2], self.K[1, 1] * Xc[:, 1] / z + self.K[1, 2]], 1)
         Ae = S.A_model @ T[:3, :3].T + T[:3, 3]
@@ -311,7 +340,8 @@ class EdgeTracker:
         min_ratio = max(c.min_inlier_ratio, 0.5) if recover else c.min_inlier_ratio
         healthy = bool(n_s >= c.min_samples and ratio >= min_ratio and proj_err <= max_pe
                        and support >= c.min_support and np.isfinite(T).all() and ok_z.all())
-        reason = "" if healthy else (f"samples {n_s}" if n_s < c.min_samples else f"inliers {ratio:.0%}"
+        reason = "" if healthy else ("the solved pose puts the model behind the camera" if not ok_z.all()
+                                     else self.explain(S) if n_s < c.min_samples else f"inliers {ratio:.0%}"
                                      if ratio < min_ratio else f"gradient support {support:.0%}"
                                      if support < c.min_support else f"projection error {proj_err:.1f} deg")
         if klt is not None and res.klt_inlier is not None:
@@ -361,6 +391,27 @@ def check_pose_in_view(model, T_cam_model: np.ndarray, cam, path, near: float = 
 
 
 # ---------------------------------------------------------------------------- the stage
+#: ``<stem>.cov.csv``: per frame the 6x6 covariance of the edge (VVS) pose, for frames whose output
+#: pose is the edge pose (status ``model``; empty otherwise): the twist ``xi = (v, w)`` of the left
+#: perturbation ``T_cam_model' = exp(xi) T_cam_model`` (v metres, w radians, camera frame),
+#: ``sigma^2 (J^T W J)^-1``; and derived 1-sigma values: the camera position in the model frame
+#: (``std_x_m .. std_z_m``, covariance ``R^T C_vv R``) and the rotation (``std_rot_deg``, the
+#: square root of the largest eigenvalue of ``C_ww``).
+COV_HEADER = (["frame", "status", "std_x_m", "std_y_m", "std_z_m", "std_rot_deg"]
+              + [f"c{i}{j}" for i in range(6) for j in range(6)])
+
+
+def _cov_row(idx: int, status: str, cov: np.ndarray | None, T_cam_model: np.ndarray | None) -> list:
+    """One ``.cov.csv`` row (see :data:`COV_HEADER`)."""
+    if status != "model" or cov is None or T_cam_model is None or not np.isfinite(cov).all():
+        return [idx, status] + [""] * (len(COV_HEADER) - 2)
+    R = T_cam_model[:3, :3]
+    C_pos = R.T @ cov[:3, :3] @ R  # camera centre c = -R^T t moves by -R^T v
+    std = np.sqrt(np.maximum(np.diag(C_pos), 0.0))
+    rot = np.degrees(np.sqrt(max(float(np.linalg.eigvalsh(0.5 * (cov[3:, 3:] + cov[3:, 3:].T)).max()), 0.0)))
+    return [idx, status, *(f"{x:.6g}" for x in std), f"{rot:.6g}", *(f"{x:.6g}" for x in cov.ravel())]
+
+
 def _mean_or_none(vals: list[float]) -> float | None:
     """Mean of the finite values (None when there is none: JSON has no NaN)."""
     a = np.asarray(vals, float)
@@ -434,6 +485,8 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
     tracker = EdgeTracker(model, cam, cfg)
     out_traj = Path(out_traj)
     csv_path = out_traj.with_suffix(".csv")
+    cov_path = out_traj.with_suffix(".cov.csv")
+    cov_rows: list[list] = []
     json_path = out_traj.with_suffix(".json") if write_json else None
     rows, times, poses = [], [], []
     ov = OverlayWriter(Path(overlay), src.fps or 30.0) if overlay else None
@@ -499,6 +552,7 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
                 rows.append([idx, f"{t_s:.6f}", status, fr.n_samples, fr.n_inliers,
                              f"{fr.residual_px:.4f}" if np.isfinite(fr.residual_px) else "nan",
                              f"{fr.proj_error_deg:.3f}", f"{ms:.3f}"])
+                cov_rows.append(_cov_row(idx, status, fr.cov, T_out))
                 if T_out is not None:
                     times.append(t_s)
                     poses.append(inv_T(T_out))
@@ -518,8 +572,15 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
     if n_tr == 0:
         if ov is not None:
             ov.close(commit=False)
+        reason = first_reason or "lost"
+        if "far clipping plane" in reason:
+            # the setting is to blame, not the pose
+            raise InputError(cfg.source, f"no frame could be tracked: frame {rows[0][0]}: {reason}; raise or remove "
+                                         "<far_clipping> (default: no far plane)")
+        hint = ("the model is too far or too small for this camera" if "too small" in reason
+                else "check the pose, the camera and the model units")
         raise InputError(init_pose_path, f"no frame could be tracked from this initial pose (frame {rows[0][0]}: "
-                                         f"{first_reason or 'lost'}); check the pose, the camera and the model units")
+                                         f"{reason}); {hint}")
     statuses = [r[2] for r in rows]
     summary = {
         "frames": n, "tracked": n_tr, "frames_tracked": n_tr, "lost": statuses.count("lost"), "model": statuses.count("model"),
@@ -528,14 +589,15 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
         "p95_ms": float(np.percentile(t_frames, 95)) if t_frames else None,
         "mean_residual_px": _mean_or_none([float(r[5]) for r in rows]),
         "mean_proj_error_deg": float(np.mean([float(r[6]) for r in rows])) if rows else None,
-        "aid": aid_mode, "traj": str(out_traj), "csv": str(csv_path), "notes": notes,
+        "aid": aid_mode, "traj": str(out_traj), "csv": str(csv_path), "cov_csv": str(cov_path), "notes": notes,
         "camera": cam.to_dict(), "config": config_to_dict(cfg),
     }
     from mst.pipeline.poses import format_tum
 
     if landmarks is not None:
         summary["landmarks"] = int(len(landmarks))
-    with atomic_outputs(out_traj, csv_path, json_path, landmarks_path) as (tmp_traj, tmp_csv, tmp_json, tmp_lm):
+    with atomic_outputs(out_traj, csv_path, cov_path, json_path, landmarks_path) as (tmp_traj, tmp_csv, tmp_cov, tmp_json,
+                                                                                  tmp_lm):
         if tmp_lm is not None:
             from mst.pipeline.fusion import write_ply
 
@@ -547,6 +609,11 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
         w.writerow(["frame", "time", "status", "samples", "inliers", "residual_px", "health", "ms"])
         w.writerows(rows)
         tmp_csv.write_text(buf.getvalue())
+        buf = io.StringIO()
+        w = csv.writer(buf, lineterminator="\n")
+        w.writerow(COV_HEADER)
+        w.writerows(cov_rows)
+        tmp_cov.write_text(buf.getvalue())
         if tmp_json is not None:
             import json
 
