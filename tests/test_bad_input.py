@@ -809,9 +809,13 @@ def test_interrupt_exits_130(case_dir, monkeypatch):
     assert code == 130 and err.strip() == "mst init: interrupted"
 
 
-def test_usage_error_exit_code_in_a_subprocess(mst, tmp_path):
+def test_usage_error_exit_code_in_a_subprocess(tmp_path):
     """The console entry point itself (not only in-process): an invalid choice exits 1, one line."""
-    r = mst("eval", "traj", tmp_path / "a.txt", tmp_path / "b.txt", "--align", "bogus", check=False)
+    import subprocess
+    import sys
+
+    r = subprocess.run([sys.executable, "-m", "mst.cli.main", "eval", "traj", str(tmp_path / "a.txt"),
+                        str(tmp_path / "b.txt"), "--align", "bogus"], capture_output=True, text=True)
     assert r.returncode == 1 and len(r.stderr.strip().splitlines()) == 1 and "--align" in r.stderr
 
 
