@@ -917,3 +917,12 @@ def test_fuse_bad_landmarks_fail_before_any_frame(case_dir, monkeypatch):
     monkeypatch.setattr(fu, "read_depth", no_frames)
     code, _, err = run_cli(fuse_args(f, o) + ["--landmarks", f["cloud"]])
     assert_one_error(code, err, [str(f["cloud"])])
+
+
+def test_output_beside_the_frames_is_not_an_input(case_dir):
+    """Only the frames of an input folder are inputs: a trajectory written into it (a rerun) is fine."""
+    f, o = case_dir
+    (f["frames"] / "traj.txt").write_text("old run\n")
+    code, _, err = run_cli(_swap_output(lambda f, o: f["frames"] / "traj.txt")(f, o, track_args(f, o)))
+    assert code == 0, err
+    assert (f["frames"] / "traj.txt").read_text() != "old run\n"
