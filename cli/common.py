@@ -11,6 +11,7 @@ from typing import Any
 
 import click
 
+
 class FiniteFloat(click.FloatRange):
     """A float option that must be finite (NaN and inf refused) and optionally within a range.
 

@@ -7,7 +7,16 @@ from pathlib import Path
 import click
 
 from mst import atomic_output, check_outputs
-from mst.cli.common import FINITE, NON_NEGATIVE, POSITIVE, emit_json, info, json_option, print_table, quiet_option
+from mst.cli.common import (
+    FINITE,
+    NON_NEGATIVE,
+    POSITIVE,
+    emit_json,
+    info,
+    json_option,
+    print_table,
+    quiet_option,
+)
 
 
 @click.group("eval")

@@ -5,7 +5,16 @@ from __future__ import annotations
 import click
 
 from mst import check_outputs
-from mst.cli.common import NON_NEGATIVE, POSITIVE, FiniteFloat, emit_json, info, json_option, progress_bar, quiet_option
+from mst.cli.common import (
+    NON_NEGATIVE,
+    POSITIVE,
+    FiniteFloat,
+    emit_json,
+    info,
+    json_option,
+    progress_bar,
+    quiet_option,
+)
 
 
 @click.command("fuse")

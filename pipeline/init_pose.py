@@ -22,7 +22,6 @@ import numpy as np
 
 from mst import InputError
 
-
 #: largest accepted model coordinate (metres) and pixel coordinate of a click: beyond these the
 #: values are corrupt (PnP would overflow or return a camera 1e12 m away)
 MAX_COORD_M = 1e9

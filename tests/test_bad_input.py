@@ -15,10 +15,10 @@ from __future__ import annotations
 
 import errno
 import hashlib
-import re
 import json
 import os
 import pathlib
+import re
 import shutil
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -429,10 +429,10 @@ def _npy_bytes() -> bytes:
 for name, (fname, data) in DEPTH_BAD.items():
     fname = fname.replace("000001", "000000")
     add(f"fuse-depth-{name}", "fuse", "depth", _one_depth(fname, data),
-        names=(lambda fname: lambda f, o: [str(f["depth"] / fname)])(fname))
+        names=lambda f, o, fname=fname: [str(f["depth"] / fname)])
 
-add("track-video-garbage", "track", replace=lambda f, o, a: [_garbage_file(f["model"].parent / "v.mp4")] + a[1:] if False
-    else ["track", _garbage_file(f["model"].parent / "v.mp4")] + a[2:], names=lambda f, o: [str(f["model"].parent / "v.mp4")])
+add("track-video-garbage", "track", replace=lambda f, o, a: ["track", _garbage_file(f["model"].parent / "v.mp4")] + a[2:],
+    names=lambda f, o: [str(f["model"].parent / "v.mp4")])
 add("track-frames-missing", "track", "frames", lambda p: shutil.rmtree(p))
 add("track-frames-empty-folder", "track", "frames", lambda p: [q.unlink() for q in p.iterdir()])
 add("track-depth-camera-bad", "track", "extrinsic", m_text('{"fx": -1}'),
@@ -501,8 +501,8 @@ OPTION_BAD = [
     ("convert-model", ["--dist-tol", "nan"], "--dist-tol"), ("convert-model", ["--weld-tol", "-1e-6"], "--weld-tol"),
 ]
 for cmd, opt, name in OPTION_BAD:
-    add(f"{cmd}-option-{name.strip('-')}-{opt[1]}", cmd, extra=(lambda opt: lambda f, o: opt)(opt),
-        names=(lambda name: lambda f, o: [name])(name))
+    add(f"{cmd}-option-{name.strip('-')}-{opt[1]}", cmd, extra=lambda f, o, opt=opt: opt,
+        names=lambda f, o, name=name: [name])
 
 # ---- usage errors: every error exits 1 (click's own code 2 included)
 USAGE_BAD = [
@@ -520,7 +520,7 @@ USAGE_BAD = [
     ("fuse-depth-without-traj", "fuse", lambda f, o, a: [x for x in a if x not in ("--traj", f["traj"])], "--traj"),
 ]
 for cid, cmd, rep, name in USAGE_BAD:
-    add(f"usage-{cid}", cmd, replace=rep, names=(lambda name: lambda f, o: [name])(name))
+    add(f"usage-{cid}", cmd, replace=rep, names=lambda f, o, name=name: [name])
 
 
 # ---- output equal to an input (or to another output): refused, input untouched
@@ -600,7 +600,7 @@ def _link(src: Path, dst: Path, symbolic: bool) -> Path:
 
 
 for cid, cmd, rep, key in SAME:
-    add(f"same-{cid}", cmd, replace=rep, names=(lambda key: lambda f, o: [str(f[key])] if key else [])(key))
+    add(f"same-{cid}", cmd, replace=rep, names=lambda f, o, key=key: [str(f[key])] if key else [])
 
 
 # ---- unwritable outputs
@@ -644,14 +644,14 @@ UNWRITABLE = {
 }
 for cmd in ("init", "track", "fuse", "convert-model"):
     for name, where in UNWRITABLE.items():
-        add(f"unwritable-{cmd}-{name}", cmd, replace=(lambda where: lambda f, o, a: _swap_output(where)(f, o, a))(where),
-            names=(lambda where: lambda f, o: [str(where(f, o))])(where))
+        add(f"unwritable-{cmd}-{name}", cmd, replace=lambda f, o, a, where=where: _swap_output(where)(f, o, a),
+            names=lambda f, o, where=where: [str(where(f, o))])
 for name, where in UNWRITABLE.items():
-    add(f"unwritable-eval-plot-{name}", "eval", replace=(lambda where: lambda f, o, a: a + ["--plot", where(f, o)])(where),
-        names=(lambda where: lambda f, o: [str(where(f, o))])(where))
+    add(f"unwritable-eval-plot-{name}", "eval", replace=lambda f, o, a, where=where: a + ["--plot", where(f, o)],
+        names=lambda f, o, where=where: [str(where(f, o))])
     add(f"unwritable-c2m-markdown-{name}", "c2m",
-        replace=(lambda where: lambda f, o, a: a + ["--markdown", where(f, o)])(where),
-        names=(lambda where: lambda f, o: [str(where(f, o))])(where))
+        replace=lambda f, o, a, where=where: a + ["--markdown", where(f, o)],
+        names=lambda f, o, where=where: [str(where(f, o))])
 for cmd in ("init", "track", "convert-model"):
     add(f"unwritable-{cmd}-readonly-folder", cmd, monkey=_readonly, names=lambda f, o: [str(o)])
 for cmd in ("init", "track"):
@@ -827,7 +827,7 @@ def test_no_runtime_warning_before_the_error_line(case_dir):
     from mst.cli import main as climain
 
     def noisy(*a, **k):
-        warnings.warn("overflow encountered in multiply", RuntimeWarning)
+        warnings.warn("overflow encountered in multiply", RuntimeWarning, stacklevel=2)
         raise __import__("mst").InputError(f["traj"], "bad")
 
     import mst.eval.traj as et

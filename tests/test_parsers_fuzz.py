@@ -23,7 +23,15 @@ from mst.eval.traj import read_trajectory
 from mst.pipeline.camera import Camera, read_camera, write_camera
 from mst.pipeline.depth_io import read_depth
 from mst.pipeline.init_pose import read_clicks, read_init_points
-from mst.pipeline.poses import format_tum, inv_T, look_at, read_pose_file, read_rigid_transform, read_tum, write_pose_file
+from mst.pipeline.poses import (
+    format_tum,
+    inv_T,
+    look_at,
+    read_pose_file,
+    read_rigid_transform,
+    read_tum,
+    write_pose_file,
+)
 
 SETTINGS = settings(max_examples=60, deadline=None, derandomize=True,
                     suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
