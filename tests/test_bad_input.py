@@ -231,6 +231,8 @@ POSE_BAD = {
     "last_row": m_text("1 0 0 0\n0 1 0 0\n0 0 1 1\n0 0 1 1\n"),
     "behind_camera": m_text("1 0 0 0\n0 1 0 0\n0 0 1 -5\n0 0 0 1\n"),
     "denormal_quat": m_text("0 0.1 0.2 1.0 1e-310 0 0 0\n"),
+    "two_tum_lines": m_text("0 0.1 0.2 1.0 0 0 0 1\n1 0.1 0.2 1.0 0 0 0 1\n"),
+    "trajectory": m_text("".join(f"{k} 0.1 0.2 1.0 0 0 0 1\n" for k in range(3))),
 }
 for name, mut in POSE_BAD.items():
     add(f"track-pose-{name}", "track", "pose", mut)
