@@ -23,10 +23,11 @@ from mst.cli.common import POSITIVE, emit_json, info, json_option, progress_bar,
 @click.option("--step", "sample_step", type=float, default=None, help="Sample step along edges, px (overrides settings).")
 @click.option("--pyramid", "pyramid_levels", type=int, default=None, help="Coarse-to-fine levels (1 = none, 2 = half resolution first).")
 @click.option("--constant-velocity", is_flag=True, help="Predict each pose by repeating the last motion (no SLAM aid).")
-@click.option("--klt/--no-klt", default=False, show_default=True, help="Add KLT points inside visible faces (ViSP hybrid tracker).")
+@click.option("--klt/--no-klt", default=None,
+              help="Add KLT points inside visible faces (ViSP hybrid tracker); default: on with --slam auto without --depth, else off.")
 @click.option("--overlay", default=None, type=click.Path(), help="Write an overlay video (.mp4) or a folder of PNGs.")
 @click.option("--slam", type=click.Choice(["auto", "mono", "rgbd", "off"]), default="auto", show_default=True,
-              help="SLAM aid: auto = rgbd with --depth, else mono; off = edges only.")
+              help="SLAM aid: auto = rgbd with --depth, else edges + KLT with the mono aid switched on only when the edges weaken; off = edges only.")
 @click.option("--depth", "depth_dir", type=click.Path(file_okay=False), default=None, help="Depth frames folder (for --slam rgbd).")
 @click.option("--depth-camera", "depth_camera", type=click.Path(dir_okay=False), default=None, help="Depth camera file (default: the colour camera).")
 @click.option("--landmarks", "landmarks_path", type=click.Path(dir_okay=False), default=None,
@@ -51,7 +52,9 @@ def track(frames_src, model_path, camera_path, init_path, out, settings_path, fr
     \b
     Outputs: traj.txt (TUM: t tx ty tz qx qy qz qw, camera pose in the model frame, tracked frames
     only), traj.csv (frame, time, status, samples, inliers, residual_px, health = mean gradient /
-    model-normal angle in degrees, ms), traj.json with --json (also printed on stdout).
+    model-normal angle in degrees, ms, score = calibrated health score: 1 typical, <= 0 rejected,
+    aid = SLAM aid on/standby, reason = why the edge pose was not used), traj.json with --json
+    (also printed on stdout).
     """
     from pathlib import Path
 
@@ -80,19 +83,20 @@ def track(frames_src, model_path, camera_path, init_path, out, settings_path, fr
         cfg = read_tracker_xml(settings_path)
     elif Path(camera_path).is_file() and "<ecm>" in Path(camera_path).read_text(errors="replace"):
         cfg = read_tracker_xml(camera_path)
-    cfg = cfg.updated(search_range=search_range, sample_step=sample_step, pyramid_levels=pyramid_levels, use_klt=klt or None,
+    cfg = cfg.updated(search_range=search_range, sample_step=sample_step, pyramid_levels=pyramid_levels,
                       constant_velocity=constant_velocity or None)
-    if slam == "auto":
-        slam = "rgbd" if depth_dir else "mono"
     notes: list[str] = []
     summary = run_track(frames_src, model_path, camera_path, init_path, out, cfg, frames=frame_range, scale=scale,
                         fps=fps, overlay=overlay, slam=slam, depth_dir=depth_dir, depth_camera_path=depth_camera,
-                        depth_to_color_path=depth_to_color, landmarks_path=landmarks_path, write_json=as_json, notes=notes,
+                        depth_to_color_path=depth_to_color, landmarks_path=landmarks_path, write_json=as_json, notes=notes, klt=klt,
                         progress=lambda total: progress_bar(total, "tracking", quiet))
     for nt in notes:
         info(f"note: {nt}", quiet)
     res = summary["mean_residual_px"]
-    info(f"tracked {summary['tracked']}/{summary['frames']} frames ({summary['lost']} lost), median "
+    sc = summary["status_counts"]
+    info(f"tracked {summary['tracked']}/{summary['frames']} frames (model {sc['model']}, slam {sc['slam']}, relocalised "
+         f"{sc['relocalised']}, lost {sc['lost']}; {summary['health_score_rejects']} edge poses rejected by the health "
+         f"score" + (f"; SLAM aid switched on {summary['aid_wakes']}x" if summary.get("aid_wakes") else "") + "), median "
          f"{summary['median_ms']:.1f} ms/frame, mean residual {'-' if res is None else f'{res:.2f}'} px -> {out}", quiet)
     if as_json:
         emit_json(summary)

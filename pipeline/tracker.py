@@ -112,6 +112,10 @@ class FrameResult:
     klt_uv: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
     reason: str = ""
     support: float = 0.0
+    evidence: PoseEvidence | None = None  #: the image evidence at the final pose
+    klt_agree: float | None = None        #: share of the KLT points that are robust inliers
+    n_klt: int = 0
+    score: float = float("nan")           #: calibrated health score (HealthMonitor), 1 typical, <= 0 rejected
 
 
 def _sobel_at(img: np.ndarray, uv: np.ndarray) -> np.ndarray:
@@ -125,6 +129,188 @@ def _sobel_at(img: np.ndarray, uv: np.ndarray) -> np.ndarray:
     gx = (p[2] + 2 * p[5] + p[8]) - (p[0] + 2 * p[3] + p[6])
     gy = (p[6] + 2 * p[7] + p[8]) - (p[0] + 2 * p[1] + p[2])
     return np.stack([gx, gy], 1)
+
+
+@dataclass
+class PoseEvidence:
+    """What one image says about one pose ``T_cam_model`` (see :meth:`EdgeTracker.evidence`).
+
+    tex_idx / tex_val: the model's fixed surface points (:attr:`EdgeTracker.surf_X`) seen at this
+    pose and the image there (3x3 mean, gray levels).
+    edge (N,) model edge index (into ``ModelGeometry.edges``) of each visible sample; sign (N,) int8
+    polarity of the image gradient along the projected model normal at the best position within
+    +-1 px (0: no gradient of at least the moving-edge contrast there); oriented (N,) that gradient is
+    within ``ORIENT_TOL_DEG`` of the model normal; offset_px (N,) distance along the normal to the
+    nearest moving edge within the search range (NaN: none).
+    """
+
+    edge: np.ndarray
+    sign: np.ndarray
+    oriented: np.ndarray
+    offset_px: np.ndarray
+    tex_idx: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))  #: visible surface points
+    tex_val: np.ndarray = field(default_factory=lambda: np.zeros(0))             #: their 3x3-mean gray levels
+
+    @property
+    def n(self) -> int:
+        return len(self.edge)
+
+    @property
+    def found(self) -> float:
+        """Share of samples with a moving edge within the search range."""
+        return float(np.isfinite(self.offset_px).mean()) if self.n else 0.0
+
+    @property
+    def residual_px(self) -> float:
+        """Median distance to the nearest moving edge (px; inf without any)."""
+        f = self.offset_px[np.isfinite(self.offset_px)]
+        return float(np.median(np.abs(f))) if len(f) else float("inf")
+
+
+#: spread floor of the moving-edge residual: whole-pixel positions along the normal, std 1/sqrt(12) px
+RESIDUAL_FLOOR_PX = 0.29
+
+#: orientation tolerance of a matching edge: the Sobel orientation of a straight step is within a
+#: few degrees; 30 deg leaves room for blur and corners, and still rejects random texture (which
+#: falls inside +-30 deg one time in three)
+ORIENT_TOL_DEG = 30.0
+
+
+class HealthMonitor:
+    """One calibrated health score per frame, thresholds learned from the sequence's healthy frames.
+
+    Signals (each "higher is better" after the sign flip of the residual):
+
+    * ``match``: share of visible samples with an image edge within +-1 px of the projected model
+      edge, of the model edge's orientation (``ORIENT_TOL_DEG``) and of the **polarity** that edge
+      had in the healthy frames so far (bright/dark side; an edge whose polarity flips between
+      healthy frames, e.g. a silhouette over a varying background, is not checked for it);
+    * ``found``: share of samples with a moving edge within the search range;
+    * ``residual``: the median distance (px) to the nearest moving edge (negated);
+    * ``klt``: share of the tracked KLT points that agree with the pose (its robust inliers);
+    * ``texture``: normalised cross-correlation of the image at the model's surface points with
+      their appearance learned in the healthy frames (catches what edges alone cannot: the
+      object's mirror image, a shadow or a background pattern of the object's outline).
+
+    For each signal the reference is the median over the last ``window`` accepted frames and the
+    spread 1.4826 x their MAD, floored by the signal's own sampling noise: binomial
+    ``sqrt(p (1 - p) / n)`` for a share, where the samples of one model edge share its background
+    and blur, so n = the number of visible model edges, and KLT points move in clusters, so n = their
+    count / 10; ``RESIDUAL_FLOOR_PX`` for the residual (moving edges sit on whole pixels along the
+    normal: a uniform +-0.5 px quantisation, std 0.29 px); ``(1 - r^2) / sqrt(n)`` (at least 0.02)
+    for a correlation r over n points. The
+    deficit ``z = (ref - value) / spread`` of the worst signal gives ``score = 1 - z / z_reject``:
+    1 = a typical healthy frame, <= 0 = rejected. Until ``min_calib`` frames are accepted the
+    spreads are doubled (a looser test while the statistics are young). The first frame (the
+    user's pose) is accepted as the first reference.
+    """
+
+    SIGNALS = ("match", "found", "residual", "klt", "texture")
+
+    def __init__(self, n_edges: int, n_surface: int = 0, window: int = 50, z_reject: float = 4.0, min_calib: int = 5):
+        from collections import deque
+
+        self.pol_sum = np.zeros(max(n_edges, 1))
+        self.pol_n = np.zeros(max(n_edges, 1))
+        self.tex_ref = np.zeros(max(n_surface, 1))
+        self.tex_n = np.zeros(max(n_surface, 1))
+        self.hist = {k: deque(maxlen=window) for k in self.SIGNALS}
+        self.z_reject, self.min_calib = z_reject, min_calib
+        self.n_learned = 0
+
+    def features(self, ev: PoseEvidence, klt_agree: float | None = None, n_klt: int = 0) -> dict:
+        """The signal values of one frame (and the sample counts behind them)."""
+        known = self.pol_n[ev.edge] >= 2
+        p = np.where(known, self.pol_sum[ev.edge] / np.maximum(self.pol_n[ev.edge], 1), 0.0)
+        checked = known & (np.abs(p) >= 0.5)  # a stable polarity
+        pol_ok = ~checked | (ev.sign == np.sign(p))
+        match = float((ev.oriented & (ev.sign != 0) & pol_ok).mean()) if ev.n else 0.0
+        res = ev.residual_px
+        tex, n_tex = float("nan"), 0
+        if len(ev.tex_idx):
+            seen = self.tex_n[ev.tex_idx] > 0
+            n_tex = int(seen.sum())
+            if n_tex >= 20:
+                a, b = ev.tex_val[seen], self.tex_ref[ev.tex_idx[seen]]
+                sa, sb = a.std(), b.std()
+                if sb > 1e-6:  # no correlation with a structured reference = none (a flat shadow, a blank wall)
+                    tex = float(((a - a.mean()) * (b - b.mean())).mean() / (sa * sb)) if sa > 1e-6 else 0.0
+        return {"match": match, "found": ev.found, "residual": -res if np.isfinite(res) else -np.inf,
+                "klt": float(klt_agree) if klt_agree is not None and n_klt > 0 else float("nan"),
+                "texture": tex, "n": ev.n, "n_edges": int(len(np.unique(ev.edge))), "n_klt": n_klt, "n_tex": n_tex}
+
+    def score(self, f: dict) -> tuple[float, str]:
+        """``(score, worst signal)`` of a frame's features (score 1 with no history yet)."""
+        worst, name = -np.inf, ""
+        loose = 2.0 if self.n_learned < self.min_calib else 1.0
+        for k in self.SIGNALS:
+            v, h = f[k], self.hist[k]
+            if not np.isfinite(v) and v != -np.inf:
+                continue
+            if not len(h):
+                continue
+            a = np.asarray(h, float)
+            ref = float(np.median(a))
+            spread = 1.4826 * float(np.median(np.abs(a - ref)))
+            if k == "residual":
+                floor = RESIDUAL_FLOOR_PX
+            elif k == "texture":
+                floor = max((1.0 - min(ref * ref, 1.0)) / np.sqrt(max(f["n_tex"], 1)), 0.02)
+            else:
+                n = f["n_klt"] / 10.0 if k == "klt" else f["n_edges"]
+                floor = np.sqrt(max(ref * (1 - ref), 0.01) / max(n, 1))
+            z = (ref - v) / (loose * max(spread, floor)) if np.isfinite(v) else np.inf
+            if z > worst:
+                worst, name = z, k
+        if worst == -np.inf:
+            return 1.0, ""
+        return float(np.clip(1.0 - worst / self.z_reject, -1.0, 1.0)), name
+
+    def learn(self, ev: PoseEvidence, f: dict) -> None:
+        """Add an accepted frame: its signals and its edges' polarities."""
+        for k in self.SIGNALS:
+            if np.isfinite(f[k]):
+                self.hist[k].append(f[k])
+        s = ev.sign != 0
+        np.add.at(self.pol_sum, ev.edge[s], ev.sign[s].astype(float))
+        np.add.at(self.pol_n, ev.edge[s], 1.0)
+        if len(ev.tex_idx):
+            # appearance: running mean over the first 10 sightings, then an exponential one (slow light changes)
+            i = ev.tex_idx
+            w = 1.0 / np.minimum(self.tex_n[i] + 1.0, 10.0)
+            self.tex_ref[i] += w * (ev.tex_val - self.tex_ref[i])
+            self.tex_n[i] += 1.0
+        self.n_learned += 1
+
+
+def _surface_points(model, n_points: int = 400, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Fixed random points on the model's faces (area-uniform): (M,3) model frame m, (M,) face index."""
+    try:
+        V, F, fid = model.triangulate(return_index=True)
+    except (AttributeError, ValueError, TypeError):
+        return np.zeros((0, 3)), np.zeros(0, np.int64)
+    V, F, fid = np.asarray(V, float), np.asarray(F, np.int64).reshape(-1, 3), np.asarray(fid, np.int64)
+    if not len(F):
+        return np.zeros((0, 3)), np.zeros(0, np.int64)
+    A = 0.5 * np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1)
+    if A.sum() <= 0:
+        return np.zeros((0, 3)), np.zeros(0, np.int64)
+    rng = np.random.default_rng(seed)
+    t = rng.choice(len(F), n_points, p=A / A.sum())
+    r1, r2 = rng.random(n_points), rng.random(n_points)
+    flip = r1 + r2 > 1
+    r1, r2 = np.where(flip, 1 - r1, r1), np.where(flip, 1 - r2, r2)
+    X = V[F[t, 0]] + r1[:, None] * (V[F[t, 1]] - V[F[t, 0]]) + r2[:, None] * (V[F[t, 2]] - V[F[t, 0]])
+    return X, fid[t]
+
+
+def image_noise_sigma(gray: np.ndarray) -> float:
+    """Gray-level noise std of an image (Immerkaer 1996: mean |Laplacian-difference| response)."""
+    import cv2
+
+    M = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], np.float32)
+    r = cv2.filter2D(gray.astype(np.float32), -1, M)[1:-1, 1:-1]
+    return float(np.sqrt(np.pi / 2.0) / 6.0 * np.abs(r).mean()) if r.size else 0.0
 
 
 class EdgeTracker:
@@ -150,6 +336,8 @@ class EdgeTracker:
         self.prev_gray: np.ndarray | None = None
         self.near_m: float | None = cfg.near_clip  # None: set from the scene depth at the first pose
         self.lod = lod_thresholds(cfg)
+        self.health_score = True  #: compute the image evidence of each final pose (HealthMonitor)
+        self.surf_X, self.surf_face = _surface_points(model)  # (M,3) model frame, (M,) face index
 
     # -------------------------------------------------------------- helpers
     def near(self, T_cam_model: np.ndarray) -> float:
@@ -238,7 +426,22 @@ class EdgeTracker:
                                       useHarrisDetector=False, k=c.klt_harris)
         if pts is None:
             return None, None
-        pts = pts.reshape(-1, 2) + [x0, y0]
+        pts = pts.reshape(-1, 2)
+        # texture gate: goodFeaturesToTrack's quality is relative to the strongest corner, so on a
+        # textureless face it returns noise. Keep a corner only when the weakest-direction RMS
+        # gradient over the KLT window clearly exceeds what the image noise alone gives there
+        # (Sobel derivative of noise sigma: std 0.43 sigma per axis; 3x that)
+        roi = gray[y0:y1, x0:x1]
+        win = 2 * c.klt_window + 1
+        lam = cv2.cornerMinEigenVal(roi, win, 3)  # = 4 lambda_g / 255^2 (OpenCV's 8-bit scaling)
+        ij = np.clip(np.rint(pts).astype(int), 0, [roi.shape[1] - 1, roi.shape[0] - 1])
+        g_min = 127.5 * np.sqrt(np.maximum(lam[ij[:, 1], ij[:, 0]], 0))  # gray levels / px
+        sigma = image_noise_sigma(roi)
+        self._klt_gate = (g_min, sigma)
+        pts = pts[g_min >= 3.0 * 0.43 * sigma]
+        if not len(pts):
+            return None, None
+        pts = pts + [x0, y0]
         pts = pts.astype(np.float64)
         ix, iy = np.rint(pts[:, 0]).astype(int), np.rint(pts[:, 1]).astype(int)
         iz = best[iy, ix].astype(np.float64)
@@ -266,6 +469,78 @@ class EdgeTracker:
         if ok.sum() < 4:
             return None
         return self.klt_X[ok], p1.reshape(-1, 2)[ok].astype(np.float64)
+
+    # -------------------------------------------------------------- image evidence of a pose
+    def evidence(self, gray: np.ndarray, T_cam_model: np.ndarray, S=None) -> PoseEvidence:
+        """What ``gray`` (H, W) uint8 says about the pose ``T_cam_model``, without moving it.
+
+        At the visible samples of the pose: the Sobel gradient at -1, 0, +1 px along the projected
+        model normal (the strongest kept: its polarity, and whether it is at least the moving-edge
+        contrast and within ``ORIENT_TOL_DEG`` of the normal), and the nearest moving edge within the
+        search range (ViSP's oriented masks, no contrast reference).
+        """
+        from mst.pipeline.moving_edges import canonical_normals, search_edges
+
+        c = self.cfg
+        H, W = gray.shape
+        if S is None:
+            S = self._samples(T_cam_model, self.K, W, H)
+        if len(S) == 0 or S.model_edge is None:
+            z = np.zeros(0)
+            return PoseEvidence(z.astype(np.int64), z.astype(np.int8), z.astype(bool), z)
+        Xc = S.X_model @ T_cam_model[:3, :3].T + T_cam_model[:3, 3]
+        z = np.maximum(Xc[:, 2], 1e-9)
+        uv = np.stack([self.K[0, 0] * Xc[:, 0] / z + self.K[0, 2], self.K[1, 1] * Xc[:, 1] / z + self.K[1, 2]], 1)
+        Ae = S.A_model @ T_cam_model[:3, :3].T + T_cam_model[:3, 3]
+        Be = S.B_model @ T_cam_model[:3, :3].T + T_cam_model[:3, 3]
+        f = np.array([self.K[0, 0], self.K[1, 1]])
+        d = (Be[:, :2] / Be[:, 2:3] - Ae[:, :2] / Ae[:, 2:3]) * f
+        d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
+        n = np.stack([-d[:, 1], d[:, 0]], 1)[S.edge]  # fixed by the model edge's direction A -> B
+        g = np.stack([_sobel_at(gray, uv + k * n) for k in (-1.0, 0.0, 1.0)])  # (3, N, 2)
+        proj = (g * n[None]).sum(2)
+        j = np.argmax(np.abs(proj), axis=0)
+        ii = np.arange(len(uv))
+        pb, gb = proj[j, ii], g[j, ii]
+        strong = np.abs(pb) >= 2.0 * c.edge_threshold
+        oriented = np.abs(pb) >= np.cos(np.radians(ORIENT_TOL_DEG)) * np.linalg.norm(gb, axis=1)
+        sign = np.where(strong, np.sign(pb), 0).astype(np.int8)
+        normal, midx = canonical_normals(n, c.n_masks)
+        m = search_edges(gray, uv, normal, None, search_range=int(c.search_range), threshold=c.edge_threshold,
+                         mu1=c.mu1, mu2=c.mu2, size=c.mask_size, n_masks=c.n_masks, n_candidates=c.n_candidates,
+                         mask_idx=midx, edge=S.edge)
+        off = np.abs(m.offset)
+        off = np.where(np.isfinite(off), off, np.inf).min(1) if off.ndim == 2 and off.shape[1] else np.full(len(uv), np.inf)
+        off = np.where(np.isfinite(off), off, np.nan)
+        ti, tv = self._surface_values(gray, T_cam_model, S.face_visible)
+        return PoseEvidence(S.model_edge[S.edge], sign, oriented & strong, off, ti, tv)
+
+    def _surface_values(self, gray, T, face_visible):
+        """Indices of the surface points seen at pose T (front faces, inside the image, not hidden)
+        and the image's 3x3 mean gray level there."""
+        if not len(self.surf_X) or face_visible is None:
+            return np.zeros(0, np.int64), np.zeros(0)
+        H, W = gray.shape
+        idx = np.flatnonzero(face_visible[self.surf_face])
+        Xc = self.surf_X[idx] @ T[:3, :3].T + T[:3, 3]
+        ok = Xc[:, 2] > self.cfg.near_clip
+        idx, Xc = idx[ok], Xc[ok]
+        uv = Xc[:, :2] / Xc[:, 2:3] * [self.K[0, 0], self.K[1, 1]] + self.K[:2, 2]
+        ix, iy = np.rint(uv[:, 0]).astype(np.int64), np.rint(uv[:, 1]).astype(np.int64)
+        ok = (ix >= 1) & (iy >= 1) & (ix < W - 1) & (iy < H - 1)
+        idx, ix, iy, iz = idx[ok], ix[ok], iy[ok], 1.0 / Xc[ok, 2]
+        if not self.geom.convex and len(idx):
+            from mst.pipeline.visibility import inverse_depth_buffer
+
+            buf, sc = inverse_depth_buffer(self.geom, T, self.K, W, H, face_visible, self.cfg.near_clip, 0.5)
+            bx = np.clip(np.round((ix + 0.5) * sc - 0.5).astype(np.int64), 0, buf.shape[1] - 1)
+            by = np.clip(np.round((iy + 0.5) * sc - 0.5).astype(np.int64), 0, buf.shape[0] - 1)
+            vis = iz >= buf[by, bx] * (1.0 - 1e-2)
+            idx, ix, iy = idx[vis], ix[vis], iy[vis]
+        f = gray.ravel().astype(np.float32)
+        b = iy * W + ix
+        val = sum(f[b + dy * W + dx] for dy in (-1, 0, 1) for dx in (-1, 0, 1)) / 9.0
+        return idx, val.astype(np.float64)
 
     # -------------------------------------------------------------- main entry
     def track(self, gray: np.ndarray, T_init: np.ndarray, recover: bool = False, first: bool = False) -> FrameResult:
@@ -348,6 +623,10 @@ class EdgeTracker:
             self._klt_next = (klt[0][res.klt_inlier], klt[1][res.klt_inlier])
         out = FrameResult(T, healthy, n_s, n_in, res.rms_px, proj_err, res.W, res.cov, uv, res.inlier,
                           S.edge_uv[np.unique(S.edge)], np.zeros((0, 2)) if klt is None else klt[1], reason, support)
+        if self.health_score:
+            out.evidence = self.evidence(img, T, S)  # the last pass's samples, re-projected at T
+        if klt is not None and res.klt_inlier is not None:
+            out.klt_agree, out.n_klt = float(np.mean(res.klt_inlier)), int(len(res.klt_inlier))
         return out
 
     def accept(self, gray: np.ndarray, T_cam_model: np.ndarray) -> None:
@@ -423,23 +702,31 @@ def _make_aid(mode: str, cam, config: TrackerConfig, depth_dir, depth_camera, T_
     if mode == "off":
         return None, "off"
     if mode == "auto":
-        mode = "rgbd" if depth_dir is not None else "mono"
+        # with depth: the rgbd aid always on; without: the mono aid on standby (see StandbyAid)
+        mode = "rgbd" if depth_dir is not None else "standby"
     try:
         from mst.pipeline import slam
     except ImportError:
         notes.append(f"SLAM aid '{mode}' unavailable (mst.pipeline.slam not installed): edges only")
         return None, "off"
     aid = slam.make_aid(mode, cam, config_to_dict(config), depth_dir, depth_camera, T_depth_color)
-    return aid, mode
+    return aid, "mono-standby" if mode == "standby" else mode
 
 
 def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, camera_path: str | os.PathLike,
               init_pose_path: str | os.PathLike, out_traj: str | os.PathLike, config: TrackerConfig | None = None, *,
               frames: str | None = None, scale: float = 1.0, fps: float | None = None, overlay: str | None = None,
               slam: str = "off", depth_dir: str | os.PathLike | None = None, depth_camera_path=None,
-              depth_to_color_path=None, landmarks_path: str | os.PathLike | None = None, write_json: bool = False, progress=None, notes: list[str] | None = None) -> dict:
+              depth_to_color_path=None, landmarks_path: str | os.PathLike | None = None, write_json: bool = False, progress=None, notes: list[str] | None = None,
+              klt: bool | None = None, health_score: bool = True, relocalise: bool = True) -> dict:
     """Track a model through frames; write ``out_traj`` (TUM, tracked frames), ``.csv`` and ``.json``.
 
+    ``slam``: ``'auto'`` = ``'rgbd'`` with ``depth_dir``, else edges + KLT with the mono aid on
+    standby (:class:`mst.pipeline.slam.StandbyAid`); ``klt``: KLT points in the edge optimisation
+    (None: on for that default, else ``config.use_klt``). ``health_score``: reject poses whose
+    calibrated :class:`HealthMonitor` score is <= 0 (on top of the absolute tests). ``relocalise``:
+    learn the object's keypoints and re-acquire a lost pose without clicks
+    (:mod:`mst.pipeline.relocalise`, status ``relocalised``).
     ``init_pose_path``: the pose of the first selected frame (TUM line or 4x4 cMo). Returns the
     summary dict (also written as ``<stem>.json`` when ``write_json``). ``progress``: optional
     ``progress(total) -> context manager yielding advance()`` (called after the input checks). Raises :class:`mst.InputError` for bad input before
@@ -453,6 +740,10 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
     from mst.pipeline.settings import validate_config
 
     cfg = config or TrackerConfig()
+    if klt is None and slam == "auto" and depth_dir is None:
+        klt = True  # the default mode: edges + KLT (measured best on teabox.mp4, README tracking section)
+    if klt is not None:
+        cfg = cfg.updated(use_klt=bool(klt))
     validate_config(cfg)
     notes = notes if notes is not None else []
     model = load_polygon_model(model_path)
@@ -497,6 +788,27 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
     first = True
     prev_status = "model"
     support_ref: float | None = None  # running mean of the gradient support of model frames
+    tracker.health_score = health_score
+    reloc = None
+    if relocalise:
+        from mst.pipeline.relocalise import Relocaliser
+
+        reloc = Relocaliser(tracker)
+    monitor = HealthMonitor(len(tracker.geom.edges), len(tracker.surf_X)) if health_score else None
+    n_score_rejects = 0
+
+    def judge(fr: FrameResult, first_frame: bool) -> FrameResult:
+        """The calibrated health score on top of the tracker's absolute tests."""
+        nonlocal n_score_rejects
+        if monitor is None or fr.evidence is None:
+            return fr
+        fr._feat = monitor.features(fr.evidence, fr.klt_agree, fr.n_klt)
+        fr.score, worst = monitor.score(fr._feat)
+        if fr.healthy and not first_frame and fr.score <= 0:
+            fr.healthy = False
+            fr.reason = f"health score {fr.score:.2f} ({worst})"
+            n_score_rejects += 1
+        return fr
     t_frames = []
     import contextlib
 
@@ -518,13 +830,31 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
                 # pose must look like a full fit (gradient support near its usual value), since a
                 # pose locked onto floor/texture edges passes the absolute tests
                 reacq = aid is not None and prev_status == "slam" and lost_streak == 0 and not first
-                fr = tracker.track(gray, T_start, recover=lost_streak > 0, first=first)
+                fr = judge(tracker.track(gray, T_start, recover=lost_streak > 0, first=first), first)
+                if aid is not None and getattr(aid, "standby", False) and not first and aid.needs_wake(fr.healthy, fr.W):
+                    # the default aid wakes on a weak or unhealthy edge pose: its prediction may
+                    # rescue this frame (fast motion), else the edge pose goes to its gate as usual
+                    T_wake = aid.wake(idx, gray, T_prev)
+                    if T_wake is not None and not fr.healthy:
+                        fr_s = judge(tracker.track(gray, T_wake, recover=lost_streak > 0), False)
+                        if fr_s.healthy:
+                            fr = fr_s
                 if reacq:
                     # also the widened search; keep the better fit (healthy, then gradient support)
-                    fr_w = tracker.track(gray, T_start, recover=True)
+                    fr_w = judge(tracker.track(gray, T_start, recover=True), False)
                     if (fr_w.healthy, fr_w.support) > (fr.healthy, fr.support):
                         fr = fr_w
                         tracker._klt_next = None  # the KLT inliers were those of the discarded fit
+                relocalised = False
+                if (reloc is not None and lost_streak > 0 and not fr.healthy
+                        and (lost_streak - 1) % reloc.cfg.every == 0):
+                    # lost: search the learned keypoints, refine with the edges, accept only if healthy
+                    T_r = reloc.relocalise(gray)
+                    if T_r is not None:
+                        fr_r = judge(tracker.track(gray, T_r, first=True), False)  # no contrast reference, no coarse pass
+                        if fr_r.healthy:
+                            fr, relocalised = fr_r, True
+                            tracker._klt_next = None
                 healthy = fr.healthy
                 if healthy and reacq and support_ref is not None and fr.support < REACQUIRE_SUPPORT_RATIO * support_ref:
                     healthy = False
@@ -535,7 +865,16 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
                     T_out, status = (fr.T_cam_model, "model") if healthy else (None, "lost")
                 if status == "model" and not reacq:
                     support_ref = fr.support if support_ref is None else 0.9 * support_ref + 0.1 * fr.support
+                if relocalised and status == "model":
+                    status = "relocalised"
+                    if aid is not None and getattr(aid, "standby", None) is False:
+                        aid.close()  # the default's map belongs to the lost stretch: back to standby
                 prev_status = status
+                if monitor is not None and status in ("model", "relocalised") and healthy and fr.evidence is not None:
+                    monitor.learn(fr.evidence, fr._feat)
+                if (reloc is not None and status == "model" and healthy and (first or fr.score >= 0.5)
+                        and reloc.should_learn(idx, fr.T_cam_model)):
+                    reloc.learn(idx, gray, fr.T_cam_model)
                 if T_out is not None and status != "lost":
                     tracker.accept(gray, T_out)
                     T_prev2 = T_prev if lost_streak == 0 and not first else None
@@ -549,9 +888,12 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
                 first = False
                 ms = (time.perf_counter() - t0) * 1000.0
                 t_frames.append(ms)
+                aid_state = "" if aid is None else ("standby" if getattr(aid, "standby", False) else "on")
                 rows.append([idx, f"{t_s:.6f}", status, fr.n_samples, fr.n_inliers,
                              f"{fr.residual_px:.4f}" if np.isfinite(fr.residual_px) else "nan",
-                             f"{fr.proj_error_deg:.3f}", f"{ms:.3f}"])
+                             f"{fr.proj_error_deg:.3f}", f"{ms:.3f}",
+                             f"{fr.score:.3f}" if np.isfinite(fr.score) else "nan", aid_state,
+                             "" if status in ("model", "relocalised") else (fr.reason or "edge pose not used")])
                 cov_rows.append(_cov_row(idx, status, fr.cov, T_out))
                 if T_out is not None:
                     times.append(t_s)
@@ -582,6 +924,8 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
         raise InputError(init_pose_path, f"no frame could be tracked from this initial pose (frame {rows[0][0]}: "
                                          f"{reason}); {hint}")
     statuses = [r[2] for r in rows]
+    scores = np.array([float(r[8]) for r in rows])
+    scores = scores[np.isfinite(scores)]
     summary = {
         "frames": n, "tracked": n_tr, "frames_tracked": n_tr, "lost": statuses.count("lost"), "model": statuses.count("model"),
         "slam": statuses.count("slam"), "first_lost_frame": next((r[0] for r in rows if r[2] == "lost"), None),
@@ -589,6 +933,10 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
         "p95_ms": float(np.percentile(t_frames, 95)) if t_frames else None,
         "mean_residual_px": _mean_or_none([float(r[5]) for r in rows]),
         "mean_proj_error_deg": float(np.mean([float(r[6]) for r in rows])) if rows else None,
+        "status_counts": {k: statuses.count(k) for k in ("model", "slam", "relocalised", "lost")},
+        "health_score_rejects": n_score_rejects,
+        "health_score_median": float(np.median(scores)) if len(scores) else None,
+        "health_score_min": float(scores.min()) if len(scores) else None,
         "aid": aid_mode, "traj": str(out_traj), "csv": str(csv_path), "cov_csv": str(cov_path), "notes": notes,
         "camera": cam.to_dict(), "config": config_to_dict(cfg),
     }
@@ -596,6 +944,17 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
 
     if landmarks is not None:
         summary["landmarks"] = int(len(landmarks))
+    if reloc is not None:
+        st = reloc.stats
+        summary["relocalisation"] = {"keyframes": st["keyframes"], "attempts": st["attempts"], "pnp_poses": st["pnp_poses"],
+                                     "ms_per_attempt": st["ms_attempts"] / st["attempts"] if st["attempts"] else None,
+                                     "ms_learn_total": st["ms_learn"]}
+    if aid is not None and "wakes" in getattr(aid, "stats", {}):
+        # the default aid: how often (and where) the mono SLAM was switched on, its replay cost
+        summary["aid_wakes"] = int(aid.stats["wakes"])
+        summary["aid_wake_frames"] = list(aid.stats["wake_frames"])
+        summary["aid_active_frames"] = int(aid.stats["frames_active"])
+        summary["aid_wake_ms"] = float(aid.timing_ms["wake"])
     with atomic_outputs(out_traj, csv_path, cov_path, json_path, landmarks_path) as (tmp_traj, tmp_csv, tmp_cov, tmp_json,
                                                                                   tmp_lm):
         if tmp_lm is not None:
@@ -606,7 +965,8 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
                             + (format_tum(np.array(times), np.array(poses)) if poses else ""))
         buf = io.StringIO()
         w = csv.writer(buf, lineterminator="\n")
-        w.writerow(["frame", "time", "status", "samples", "inliers", "residual_px", "health", "ms"])
+        w.writerow(["frame", "time", "status", "samples", "inliers", "residual_px", "health", "ms", "score", "aid",
+                    "reason"])
         w.writerows(rows)
         tmp_csv.write_text(buf.getvalue())
         buf = io.StringIO()

@@ -162,6 +162,7 @@ class Samples:
     face_visible: np.ndarray
     #: how many candidate edges each step removed (see :func:`explain_no_samples`)
     stats: dict = field(default_factory=dict)
+    model_edge: np.ndarray | None = None  #: (E',) index of each clipped edge into ``geom.edges``
 
     def __len__(self) -> int:
         return len(self.uv)
@@ -453,6 +454,7 @@ def visible_samples(geom: ModelGeometry, T_cam_model: np.ndarray, K: np.ndarray,
     ev_big = ((ef[:, 0] >= 0) & fv_big[np.maximum(ef[:, 0], 0)]) | ((ef[:, 1] >= 0) & fv_big[np.maximum(ef[:, 1], 0)])
     ev_big |= (ef[:, 0] < 0) & (ef[:, 1] < 0)
     E = geom.edges[ev]
+    eid = np.flatnonzero(ev)
     small_face = ~ev_big[ev]
     stats = {"candidates": int(len(E)) + sum(culled.values())}
     A = Xv[E[:, 0]]
@@ -463,7 +465,7 @@ def visible_samples(geom: ModelGeometry, T_cam_model: np.ndarray, K: np.ndarray,
     stats["z_min_m"] = float(np.minimum(A[front, 2], B[front, 2]).min()) if front.any() else None
     A, B, keep, _, _ = _clip_near_far(A, B, near, far)
     stats["beyond_far"] = int((~keep & ~behind).sum()) + culled.get("beyond_far", 0)
-    A, B, small_face = A[keep], B[keep], small_face[keep]
+    A, B, small_face, eid = A[keep], B[keep], small_face[keep], eid[keep]
     ua = _mat3(A, K)
     ua = ua[:, :2] / ua[:, 2:3]
     ub = _mat3(B, K)
@@ -471,10 +473,10 @@ def visible_samples(geom: ModelGeometry, T_cam_model: np.ndarray, K: np.ndarray,
     if lod_min_line_px > 0 or lod_min_face_px2 > 0:
         big = ~small_face & (np.linalg.norm(ub - ua, axis=1) >= lod_min_line_px)
         stats["lod"] = int((~big).sum())
-        A, B, ua, ub = A[big], B[big], ua[big], ub[big]
+        A, B, ua, ub, eid = A[big], B[big], ua[big], ub[big], eid[big]
     s0, s1, k2 = _clip_rect(ua, ub, border_px, border_px, width - 1 - border_px, height - 1 - border_px)
     stats["outside"] = int((~k2).sum()) + culled.get("outside", 0)
-    A, B, ua, ub, s0, s1 = A[k2], B[k2], ua[k2], ub[k2], s0[k2], s1[k2]
+    A, B, ua, ub, s0, s1, eid = A[k2], B[k2], ua[k2], ub[k2], s0[k2], s1[k2], eid[k2]
     izA, izB = 1.0 / A[:, 2], 1.0 / B[:, 2]
     # clipped 2D endpoints and their inverse depths (1/z is affine along the projected segment)
     d2 = ub - ua
@@ -486,7 +488,7 @@ def visible_samples(geom: ModelGeometry, T_cam_model: np.ndarray, K: np.ndarray,
     n_s = np.floor(L / step).astype(np.int64)
     good = n_s >= 1
     stats["short"] = int((~good).sum())
-    pa, pb, iza, izb, L, n_s = pa[good], pb[good], iza[good], izb[good], L[good], n_s[good]
+    pa, pb, iza, izb, L, n_s, eid = pa[good], pb[good], iza[good], izb[good], L[good], n_s[good], eid[good]
     Ka = (pa - K[:2, 2]) / np.array([K[0, 0], K[1, 1]])
     Kb = (pb - K[:2, 2]) / np.array([K[0, 0], K[1, 1]])
     Ac = np.column_stack([Ka, np.ones(len(Ka))]) / iza[:, None]  # camera-frame clipped endpoints
@@ -526,4 +528,4 @@ def visible_samples(geom: ModelGeometry, T_cam_model: np.ndarray, K: np.ndarray,
         zf = zf[zf >= near]
         if len(zf):
             stats["z_min_m"] = float(zf.min()) if stats["z_min_m"] is None else min(stats["z_min_m"], float(zf.min()))
-    return Samples(uv, nrm, X_model, edge_id, A_model, B_model, np.stack([pa, pb], 1), fv, stats)
+    return Samples(uv, nrm, X_model, edge_id, A_model, B_model, np.stack([pa, pb], 1), fv, stats=stats, model_edge=eid)

@@ -58,12 +58,15 @@ def test_corridor_rgbd_carries_the_pose_while_the_model_is_away(corridor, tmp_pa
     assert np.nanmax(e["rel"][hidden]) < 0.01          # drift while away: < 1 % of the distance
     assert np.nanmax(e["rel"][ret + 5:]) < 0.008       # 320x240 edge-tracker noise level
     assert recovery_frames(e["rel"], hidden, bound=0.008) <= 5
-    # the edge tracker alone does far worse on the same frames
+    # the edge tracker alone does far worse on the same frames: it loses them, and (health score)
+    # it reports them lost instead of outputting poses locked onto the floor/wall texture
     assert (e_off["status"] == "lost").sum() + np.nansum(e_off["rel"] > 0.05) > 10
-    assert np.nanmean(e["rel"]) < 0.2 * np.nanmean(e_off["rel"])
+    assert np.nanmax(e_off["rel"]) < 0.01 and np.nanmax(e_off["deg"]) < 2.0  # the issue's bound: 1 % or 2 deg
+    assert np.nanmean(e["rel"]) <= np.nanmean(e_off["rel"])
 
 
-def test_corridor_mono_rejects_wrong_edge_poses_on_the_return(corridor, tmp_path):
+@pytest.mark.parametrize("mode", ["mono", "auto"])
+def test_corridor_mono_rejects_wrong_edge_poses_on_the_return(corridor, tmp_path, mode):
     """Mono on the same corridor: the model comes back into a drifted SLAM prediction.
 
     Starting from it, the edge tracker converges onto floor/wall-texture edges for several frames
@@ -75,21 +78,25 @@ def test_corridor_mono_rejects_wrong_edge_poses_on_the_return(corridor, tmp_path
     import csv
 
     hidden = out_of_view(corridor)
-    summ, e = _track(corridor, "mono", tmp_path / "mono.txt")
+    summ, e = _track(corridor, mode, tmp_path / "mono.txt")
     st = e["status"]
-    assert summ["aid"] == "mono" and not (st == "lost").any()
+    assert summ["aid"] == {"mono": "mono", "auto": "mono-standby"}[mode] and not (st == "lost").any()
+    if mode == "auto":  # the default: the mono aid woke before the model left the view
+        assert summ["aid_wakes"] >= 1 and min(summ["aid_wake_frames"]) < np.flatnonzero(hidden)[0]
     assert (st[hidden] == "slam").all()
     ret = np.flatnonzero(hidden)[-1] + 1
     rows = list(csv.DictReader(open(tmp_path / "mono.csv")))
-    # the edge tracker did run on the returning model (edge samples found) ...
-    assert sum(int(r["samples"]) > 50 for r in rows[ret:]) >= 10
+    # the edge tracker did run on the returning model (edge samples found) ... (mono: the default's
+    # map, replayed from 20 frames when it woke, drifts differently; its return may fall outside)
+    if mode == "mono":
+        assert sum(int(r["samples"]) > 50 for r in rows[ret:]) >= 10
     # ... and every pose output as a model pose after the return is a correct one (320x240 edge noise)
     after = np.arange(len(st)) >= ret
     assert np.all(e["rel"][after & (st == "model")] < 0.01)
 
 
 @pytest.mark.parametrize("drop", [8, 10])
-@pytest.mark.parametrize("mode", ["rgbd", "mono"])
+@pytest.mark.parametrize("mode", ["rgbd", "mono", "auto"])
 def test_fast_orbit_every_frame_tracked(fast, tmp_path, drop, mode):
     seq = fast[drop]
     summ, e = _track(seq, mode, tmp_path / f"{mode}.txt")

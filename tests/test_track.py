@@ -39,6 +39,11 @@ def test_teabox_all_frames_tracked(teabox_run):
     assert [r["status"] for r in rows] == ["model"] * 39
     assert all(float(r["health"]) < 20.0 for r in rows)  # mean gradient/normal angle, degrees
     assert all(int(r["inliers"]) > 150 for r in rows)
+    # calibrated health score per frame: every frame accepted (> 0), the first one is the reference (1)
+    assert float(rows[0]["score"]) == 1.0 and all(0 < float(r["score"]) <= 1 for r in rows)
+    assert all(r["aid"] == "standby" and r["reason"] == "" for r in rows)  # the default's aid never woke
+    assert s["status_counts"] == {"model": 39, "slam": 0, "relocalised": 0, "lost": 0}
+    assert s["health_score_rejects"] == 0 and s["aid_wakes"] == 0
     assert json.loads(out.with_suffix(".json").read_text())["tracked"] == 39
     assert len(list((d / "ov").glob("*.png"))) == 39
     # the camera moves smoothly: no jump above 2 cm between frames
@@ -257,8 +262,9 @@ def test_slam_aid_hook_contract(shared_data, tmp_path, monkeypatch):
     write_pose_file(tmp_path / "p0.txt", init_from_clicks(X, uv, read_camera(t / "teabox.xml").K).T_cam_model)
     out = tmp_path / "traj.txt"
     s = run_track(t / "teabox.mp4", t / "teabox.cao", t / "teabox.xml", tmp_path / "p0.txt", out, frames="0:6", slam="auto")
-    assert made == {"mode": "mono", "w": 640, "cfg": True, "depth_dir": None}  # auto without --depth = mono
-    assert s["tracked"] == 6 and s["slam"] == 1 and s["aid"] == "mono"
+    # auto without --depth = the mono aid on standby (edges + KLT until the edges weaken)
+    assert made == {"mode": "standby", "w": 640, "cfg": True, "depth_dir": None}
+    assert s["tracked"] == 6 and s["slam"] == 1 and s["aid"] == "mono-standby" and s["config"]["use_klt"]
     ups = [c for c in calls if c[0] == "update"]
     assert [c[1] for c in ups] == list(range(6)) and all(c[2] == (6, 6) and c[3] and c[4] > 0 and c[5] for c in ups)
     assert calls[-1] == ("close",)

@@ -1,0 +1,125 @@
+"""Re-acquisition without clicks (``pipeline/relocalise.py``, status ``relocalised``).
+
+The object is tracked, the camera is covered (black frames), and it comes back at a pose the
+edge tracker cannot reach from its last pose by its widened search. With the relocaliser (default)
+the pose is found again from the keypoints learned on the model's surfaces while it was tracked,
+refined by the edges and accepted through the health score; without it the frames stay ``lost``.
+Bounds: the issue's (every output pose within 1 % of the distance and 2 deg), re-acquired within
+``RelocConfig.every`` frames of the object being back in view.
+"""
+
+from __future__ import annotations
+
+import csv
+
+import cv2
+import numpy as np
+import pytest
+from synth_helpers import look_at, render_textured
+
+from mst.pipeline.camera import Camera, write_camera
+from mst.pipeline.poses import inv_T, pose_error, read_tum, write_pose_file
+from mst.pipeline.relocalise import RelocConfig
+
+
+def _statuses(out):
+    return [r["status"] for r in csv.DictReader(open(out.with_suffix(".csv")))]
+
+
+@pytest.fixture(scope="module")
+def covered_box(tmp_path_factory):
+    """Textured box orbit (10 frames), 3 black frames, then the camera 5 m to the side (~80 px jump)."""
+    from mst.meshtools.generate import box_model
+    from mst.meshtools.io import save_model
+
+    d = tmp_path_factory.mktemp("reloc_box")
+    (d / "rgb").mkdir()
+    m = box_model((10.0, 6.0, 4.0))
+    cam = Camera(300, 300, 159.5, 119.5, 320, 240)
+    c = m.vertices.mean(0)
+    angs = [-50 + 1.5 * k for k in range(10)] + [None] * 3 + [-36.5 + 1.5 * k for k in range(8)]
+    poses = []
+    for k, a in enumerate(angs):
+        if a is None:
+            poses.append(None)
+            continue
+        T_model_cam = inv_T(look_at(c + [18 * np.cos(np.radians(a)), 18 * np.sin(np.radians(a)), 7.0], c))
+        if k >= 13:
+            T_model_cam[:3, 3] += 5.0 * T_model_cam[:3, 0]  # moved along the camera's x axis
+        poses.append(inv_T(T_model_cam))
+    imgs = iter(render_textured(m, cam, [p for p in poses if p is not None]))
+    for k, p in enumerate(poses):
+        cv2.imwrite(str(d / "rgb" / f"{k:06d}.png"), next(imgs) if p is not None else np.zeros((240, 320), np.uint8))
+    save_model(d / "model.obj", m)
+    write_camera(d / "camera.json", cam)
+    write_pose_file(d / "p0.txt", poses[0])
+    return d, poses
+
+
+@pytest.mark.parametrize("slam", ["auto", "off"])
+def test_synthetic_reacquired_after_covered_camera(covered_box, tmp_path, slam):
+    from mst.pipeline.tracker import run_track
+
+    d, poses = covered_box
+    back = 13
+    out0 = tmp_path / "noreloc.txt"
+    run_track(d / "rgb", d / "model.obj", d / "camera.json", d / "p0.txt", out0, slam=slam, relocalise=False)
+    assert all(s == "lost" for s in _statuses(out0)[back:])  # beyond the edge tracker's own recovery
+    out = tmp_path / "reloc.txt"
+    s = run_track(d / "rgb", d / "model.obj", d / "camera.json", d / "p0.txt", out, slam=slam)
+    st = _statuses(out)
+    assert st[:10] == ["model"] * 10 and st[10:back] == ["lost"] * 3
+    first = st.index("relocalised")
+    assert back <= first < back + RelocConfig().every
+    assert all(x in ("model", "relocalised") for x in st[first:])
+    assert s["status_counts"]["relocalised"] >= 1 and s["relocalisation"]["keyframes"] >= 1
+    t, P = read_tum(out)
+    dt, dr = pose_error(P, np.array([inv_T(poses[int(k)]) for k in t]))
+    dist = 18.0
+    assert dt.max() < 0.01 * dist and dr.max() < 2.0  # every output pose (the issue's bound)
+
+
+def test_teabox_reacquired_after_jump(shared_data, tmp_path):
+    """Real video: frames 0-38, 4 black frames, then frames 0-11 again (the camera 'jumps back')."""
+    from mst.pipeline.camera import read_camera
+    from mst.pipeline.init_pose import init_from_clicks, read_clicks
+    from mst.pipeline.settings import read_tracker_xml
+    from mst.pipeline.tracker import load_polygon_model, run_track
+
+    t = shared_data / "visp-teabox"
+    cap = cv2.VideoCapture(str(t / "teabox.mp4"))
+    frames = []
+    while True:
+        ok, f = cap.read()
+        if not ok:
+            break
+        frames.append(f)
+    seq = frames + [np.zeros_like(frames[0])] * 4 + frames[:12]
+    (tmp_path / "rgb").mkdir()
+    for i, f in enumerate(seq):
+        cv2.imwrite(str(tmp_path / "rgb" / f"{i:06d}.png"), f)
+    cam = read_camera(t / "teabox.xml")
+    X, uv = read_clicks(t / "teabox.clicks", t / "teabox.init")
+    write_pose_file(tmp_path / "p0.txt", init_from_clicks(X, uv, cam.K).T_cam_model)
+    cfg = read_tracker_xml(t / "teabox.xml")
+    out = tmp_path / "traj.txt"
+    s = run_track(tmp_path / "rgb", t / "teabox.cao", t / "teabox.xml", tmp_path / "p0.txt", out, cfg)
+    st = _statuses(out)
+    n, back = len(frames), len(frames) + 4
+    assert st[:n] == ["model"] * n and st[n:back] == ["lost"] * 4
+    first = st.index("relocalised")
+    assert back <= first < back + RelocConfig().every
+    assert all(x in ("model", "relocalised") for x in st[first:])
+    # the re-acquired poses equal those of the first pass over the same images: within one pixel
+    # (the pixel size; forward-backward consistency on this video is 0.2-0.3 px)
+    ts, P = read_tum(out)
+    by_t = {int(round(k)): inv_T(p) for k, p in zip(ts, P)}
+    K, V = cam.K, np.asarray(load_polygon_model(t / "teabox.cao").vertices, float)
+
+    def corners(T):
+        Xc = V @ T[:3, :3].T + T[:3, 3]
+        return Xc[:, :2] / Xc[:, 2:3] * [K[0, 0], K[1, 1]] + K[:2, 2]
+
+    err = [np.linalg.norm(corners(by_t[k]) - corners(by_t[k - back]), axis=1).mean() for k in range(first, len(seq))]
+    assert max(err) < 1.0, err
+    assert s["relocalisation"]["attempts"] >= 1
