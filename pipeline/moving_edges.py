@@ -181,7 +181,10 @@ def search_edges(img: np.ndarray, uv: np.ndarray, normal: np.ndarray, ref: np.nd
         b = (x2 * x2 * (y0 - y1) + x1 * x1 * (y2 - y0) + x0 * x0 * (y1 - y2)) / den
         xv = -b / (2.0 * a)
     fit = np.isfinite(xv) & (a < 0) & (x0 < x1) & (x1 < x2)
-    off = np.where(fit, np.clip(xv, x0, x2), x1)
+    # the vertex of a parabola through a maximum lies within half a spacing of it; where a neighbour
+    # read is not lower (no maximum at this spacing) it is clipped there (clipping to [x0, x2] let
+    # such peaks jump by up to 1.4 px: teabox forward-backward 0.28 -> 0.38 px with KLT)
+    off = np.where(fit, np.clip(xv, x1 - 0.5 * (x1 - x0), x1 + 0.5 * (x2 - x1)), x1)
     valid = np.isfinite(ts)
     off = np.where(valid, off, np.nan)
     return EdgeMatches(off, np.where(valid, ts, 0.0), normal, np.where(valid[:, 0], conv[np.arange(N), top[:, 0]], 0.0))

@@ -523,7 +523,7 @@ class EdgeTracker:
         H, W = gray.shape
         idx = np.flatnonzero(face_visible[self.surf_face])
         Xc = self.surf_X[idx] @ T[:3, :3].T + T[:3, 3]
-        ok = Xc[:, 2] > self.cfg.near_clip
+        ok = Xc[:, 2] > self.near(T)
         idx, Xc = idx[ok], Xc[ok]
         uv = Xc[:, :2] / Xc[:, 2:3] * [self.K[0, 0], self.K[1, 1]] + self.K[:2, 2]
         ix, iy = np.rint(uv[:, 0]).astype(np.int64), np.rint(uv[:, 1]).astype(np.int64)
@@ -532,7 +532,7 @@ class EdgeTracker:
         if not self.geom.convex and len(idx):
             from mst.pipeline.visibility import inverse_depth_buffer
 
-            buf, sc = inverse_depth_buffer(self.geom, T, self.K, W, H, face_visible, self.cfg.near_clip, 0.5)
+            buf, sc = inverse_depth_buffer(self.geom, T, self.K, W, H, face_visible, self.near(T), 0.5)
             bx = np.clip(np.round((ix + 0.5) * sc - 0.5).astype(np.int64), 0, buf.shape[1] - 1)
             by = np.clip(np.round((iy + 0.5) * sc - 0.5).astype(np.int64), 0, buf.shape[0] - 1)
             vis = iz >= buf[by, bx] * (1.0 - 1e-2)
