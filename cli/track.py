@@ -33,10 +33,14 @@ from mst.cli.common import POSITIVE, emit_json, info, json_option, progress_bar,
 @click.option("--landmarks", "landmarks_path", type=click.Path(dir_okay=False), default=None,
               help="Write the SLAM map points (model frame) as PLY, e.g. for `mst fuse --landmarks` (mono).")
 @click.option("--depth-to-color", "depth_to_color", type=click.Path(dir_okay=False), default=None, help="4x4 depth-to-colour transform file.")
+@click.option("--edges", type=click.Choice(["auto", "polygon", "render"]), default="auto", show_default=True,
+              help="Edges to track: polygon = the model's polygon edges; render = contours and creases from CPU renders "
+                   "of the mesh (curved objects, raw TINs); auto = polygon for .cao/.wrl and small planar meshes, "
+                   "render for triangle meshes with many faces or curved parts.")
 @json_option
 @quiet_option
 def track(frames_src, model_path, camera_path, init_path, out, settings_path, frame_range, scale, fps, search_range,
-          sample_step, pyramid_levels, constant_velocity, klt, overlay, slam, depth_dir, depth_camera, depth_to_color, landmarks_path, as_json, quiet):
+          sample_step, pyramid_levels, constant_velocity, klt, overlay, slam, depth_dir, depth_camera, depth_to_color, landmarks_path, edges, as_json, quiet):
     """Track MODEL through FRAMES (video, image folder, glob or printf pattern) from an initial pose.
 
     Per frame: visible model edges are sampled, moving edges searched along their normals (ViSP's
@@ -89,7 +93,7 @@ def track(frames_src, model_path, camera_path, init_path, out, settings_path, fr
     summary = run_track(frames_src, model_path, camera_path, init_path, out, cfg, frames=frame_range, scale=scale,
                         fps=fps, overlay=overlay, slam=slam, depth_dir=depth_dir, depth_camera_path=depth_camera,
                         depth_to_color_path=depth_to_color, landmarks_path=landmarks_path, write_json=as_json, notes=notes, klt=klt,
-                        progress=lambda total: progress_bar(total, "tracking", quiet))
+                        progress=lambda total: progress_bar(total, "tracking", quiet), edges=edges)
     for nt in notes:
         info(f"note: {nt}", quiet)
     res = summary["mean_residual_px"]

@@ -338,6 +338,7 @@ class EdgeTracker:
         self.lod = lod_thresholds(cfg)
         self.health_score = True  #: compute the image evidence of each final pose (HealthMonitor)
         self.surf_X, self.surf_face = _surface_points(model)  # (M,3) model frame, (M,) face index
+        self.sample_provider = None  # render-based edgelets (mst.pipeline.render_edges) instead of polygon edges
 
     # -------------------------------------------------------------- helpers
     def near(self, T_cam_model: np.ndarray) -> float:
@@ -353,6 +354,8 @@ class EdgeTracker:
     def _samples(self, T, K, W, H):
         from mst.pipeline.visibility import visible_samples
 
+        if self.sample_provider is not None:
+            return self.sample_provider.samples(T, K, W, H)
         c = self.cfg
         lod_line, lod_face = self.lod
         s = K[0, 0] / self.K[0, 0]  # coarse pyramid levels: the thresholds scale with the image
@@ -659,9 +662,13 @@ def check_pose_in_view(model, T_cam_model: np.ndarray, cam, path, near: float = 
     V = np.asarray(model.vertices)
     Xc = V @ T_cam_model[:3, :3].T + T_cam_model[:3, 3]
     cz = float(Xc[:, 2].mean())
+    ext = float(np.ptp(V, axis=0).max()) if len(V) else 0.0
+    units = (f"; the model spans {ext:.4g} units: is it in millimetres? mst expects metres" if ext > 50
+             and (-T_cam_model[:3, :3].T @ T_cam_model[:3, 3] > V.min(0)).all()
+             and (-T_cam_model[:3, :3].T @ T_cam_model[:3, 3] < V.max(0)).all() else "")
     if cz <= 0 or (Xc[:, 2] <= near).all():
         raise InputError(path, f"the pose puts the model behind the camera (model centre at z = {cz:.3g} m in the "
-                               "camera frame; expected a cMo / TUM camera pose looking at the model)")
+                               f"camera frame; expected a cMo / TUM camera pose looking at the model){units}")
     front = Xc[:, 2] > near
     uv = Xc[front, :2] / Xc[front, 2:3] * [cam.fx, cam.fy] + [cam.cx, cam.cy]
     inside = (uv[:, 0] >= 0) & (uv[:, 0] < cam.width) & (uv[:, 1] >= 0) & (uv[:, 1] < cam.height)
@@ -718,7 +725,8 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
               frames: str | None = None, scale: float = 1.0, fps: float | None = None, overlay: str | None = None,
               slam: str = "off", depth_dir: str | os.PathLike | None = None, depth_camera_path=None,
               depth_to_color_path=None, landmarks_path: str | os.PathLike | None = None, write_json: bool = False, progress=None, notes: list[str] | None = None,
-              klt: bool | None = None, health_score: bool = True, relocalise: bool = True) -> dict:
+              klt: bool | None = None, health_score: bool = True, relocalise: bool = True,
+              edges: str = "auto") -> dict:
     """Track a model through frames; write ``out_traj`` (TUM, tracked frames), ``.csv`` and ``.json``.
 
     ``slam``: ``'auto'`` = ``'rgbd'`` with ``depth_dir``, else edges + KLT with the mono aid on
@@ -774,6 +782,9 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
     aid, aid_mode = _make_aid(slam, cam, cfg, Path(depth_dir) if depth_dir else None, depth_camera, T_depth_color, notes)
 
     tracker = EdgeTracker(model, cam, cfg)
+    from mst.pipeline.render_edges import attach_render_edges
+
+    edges_used = attach_render_edges(tracker, model, model_path, edges, T0, notes)  # --edges auto|polygon|render
     out_traj = Path(out_traj)
     csv_path = out_traj.with_suffix(".csv")
     cov_path = out_traj.with_suffix(".cov.csv")
@@ -856,14 +867,18 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
                             fr, relocalised = fr_r, True
                             tracker._klt_next = None
                 healthy = fr.healthy
-                if healthy and reacq and support_ref is not None and fr.support < REACQUIRE_SUPPORT_RATIO * support_ref:
+                # the same guard after a loss (edges only, or the aid lost too): a pose found by the
+                # widened search on its first frame back has too little history for the health score
+                # (few edges in view: wide binomial floors) and can lock onto texture edges
+                recovering = reacq or lost_streak > 0
+                if healthy and recovering and support_ref is not None and fr.support < REACQUIRE_SUPPORT_RATIO * support_ref:
                     healthy = False
                     fr.reason = f"gradient support {fr.support:.0%} (usual {support_ref:.0%})"
                 if aid is not None:
                     T_out, status = aid.update(idx, gray, fr.T_cam_model, fr.W, healthy)
                 else:
                     T_out, status = (fr.T_cam_model, "model") if healthy else (None, "lost")
-                if status == "model" and not reacq:
+                if status == "model" and not recovering:
                     support_ref = fr.support if support_ref is None else 0.9 * support_ref + 0.1 * fr.support
                 if relocalised and status == "model":
                     status = "relocalised"
@@ -937,11 +952,13 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
         "health_score_rejects": n_score_rejects,
         "health_score_median": float(np.median(scores)) if len(scores) else None,
         "health_score_min": float(scores.min()) if len(scores) else None,
-        "aid": aid_mode, "traj": str(out_traj), "csv": str(csv_path), "cov_csv": str(cov_path), "notes": notes,
+        "aid": aid_mode, "edges": edges_used, "traj": str(out_traj), "csv": str(csv_path), "cov_csv": str(cov_path), "notes": notes,
         "camera": cam.to_dict(), "config": config_to_dict(cfg),
     }
     from mst.pipeline.poses import format_tum
 
+    if tracker.sample_provider is not None:
+        summary["render_edges"] = tracker.sample_provider.stats()
     if landmarks is not None:
         summary["landmarks"] = int(len(landmarks))
     if reloc is not None:
