@@ -85,13 +85,15 @@ def _same_file(a: Path, b: Path) -> bool:
     return os.path.normcase(os.path.abspath(a.resolve())) == os.path.normcase(os.path.abspath(b.resolve()))
 
 
-def check_outputs(outputs: Iterable[str | os.PathLike | None], inputs: Iterable[str | os.PathLike | None] = (),
+def check_outputs(outputs: Iterable[str | os.PathLike | None],
+                  inputs: Iterable[str | os.PathLike | tuple[str | os.PathLike, Iterable[str]] | None] = (),
                   writable: bool = True) -> None:
     """Refuse outputs that would overwrite an input, or each other, before anything is computed.
 
     ``outputs`` are the files a command will write, side outputs included (e.g. ``traj.csv`` beside
     ``traj.txt``); ``inputs`` the files it reads. ``None`` entries are skipped; input folders (a
-    depth or frames folder) only refuse an output that already exists in them (a frame).
+    depth or frames folder) are given as ``(folder, suffixes)``: an existing output in the folder with
+    one of those suffixes is one of its frames and is refused; a bare folder is skipped.
     Paths are compared resolved (symbolic links, ``..``) and with ``os.path.samefile`` when both
     exist (hard links). Raises :class:`InputError` naming the output and the input it would replace.
     With ``writable`` each output's folder is also checked now, before any work: it must exist and
@@ -99,12 +101,18 @@ def check_outputs(outputs: Iterable[str | os.PathLike | None], inputs: Iterable[
     missing one fails before minutes of computation, not after.
     """
     outs = [Path(o) for o in outputs if o is not None]
-    ins = [Path(i) for i in inputs if i is not None]
+    ins: list[tuple[Path, tuple[str, ...] | None]] = []
+    for i in inputs:
+        if isinstance(i, tuple):  # (folder, suffixes of the files it contributes)
+            ins.append((Path(i[0]), tuple(s.lower() for s in i[1])))
+        elif i is not None:
+            ins.append((Path(i), None))
     for k, o in enumerate(outs):
-        for i in ins:
+        for i, suffixes in ins:
             if i.is_dir():
-                if o.is_file() and _same_file(o.parent, i):
-                    raise InputError(o, f"output would overwrite a file of the input folder {i}")
+                if (suffixes is not None and o.suffix.lower() in suffixes and o.is_file()
+                        and _same_file(o.parent, i)):
+                    raise InputError(o, f"output would overwrite a frame of the input folder {i}")
             elif _same_file(o, i):
                 raise InputError(o, f"output would overwrite the input {i}")
         for o2 in outs[:k]:

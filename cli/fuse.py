@@ -90,11 +90,11 @@ def fuse(traj, depth, camera, output, depth_to_color, depth_scale, min_depth, ma
         raise click.UsageError("give --depth (with --traj and --camera) or --landmarks")
     if min_depth >= max_depth:
         raise click.BadParameter(f"{max_depth:g} m is not beyond --min-depth {min_depth:g} m", param_hint="--max-depth")
-    from pathlib import Path
+    from mst.pipeline.depth_io import DEPTH_SUFFIXES, IMAGE_SUFFIXES
 
     check_outputs([output], [traj, camera, depth_to_color, color_camera, landmarks,
-                             depth if depth is not None and Path(depth).is_dir() else None,
-                             color if color is not None and Path(color).is_dir() else None])
+                             (depth, DEPTH_SUFFIXES) if depth is not None else None,
+                             (color, IMAGE_SUFFIXES) if color is not None else None])
     if voxel is None:
         voxel = 0.01 if tsdf else 0.005
     cfg = FuseConfig(depth_scale=depth_scale, min_depth=min_depth, max_depth=max_depth, edge_k=edge_k,

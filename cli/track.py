@@ -63,6 +63,7 @@ def track(frames_src, model_path, camera_path, init_path, out, settings_path, fr
     from pathlib import Path
 
     from mst import InputError
+    from mst.pipeline.depth_io import DEPTH_SUFFIXES, IMAGE_SUFFIXES
     from mst.pipeline.settings import TrackerConfig, check_setting, read_tracker_xml
     from mst.pipeline.tracker import run_track
 
@@ -78,8 +79,9 @@ def track(frames_src, model_path, camera_path, init_path, out, settings_path, fr
     check_outputs([out_p, out_p.with_suffix(".csv"), out_p.with_suffix(".cov.csv"),
                    out_p.with_suffix(".json") if as_json else None, landmarks_path,
                    overlay],
-                  [frames_p if frames_p.exists() else None, model_path, camera_path, init_path, settings_path,
-                   depth_camera, depth_to_color, depth_dir])
+                  [(frames_p, IMAGE_SUFFIXES) if frames_p.is_dir() else frames_p if frames_p.exists() else None,
+                   model_path, camera_path, init_path, settings_path, depth_camera, depth_to_color,
+                   (depth_dir, DEPTH_SUFFIXES) if depth_dir else None])
     cfg = TrackerConfig()
     if settings_path:
         cfg = read_tracker_xml(settings_path)

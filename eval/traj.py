@@ -103,6 +103,14 @@ def read_trajectory(path: str | os.PathLike, fmt: str = "auto", csv_columns: str
         check_pose_rows(p, a, np.asarray(lines), quat_cols=None, pos_cols=slice(3, 12, 4))
         T = np.tile(np.eye(4), (len(a), 1, 1))
         T[:, :3, :] = a.reshape(-1, 3, 4)
+        # KITTI prints >= 6 significant digits: a rotation block off by more than 1e-2 (or a
+        # reflection) is not a rotation; it must not be re-orthonormalised into an arbitrary one
+        R = T[:, :3, :3]
+        with np.errstate(over="ignore", invalid="ignore"):  # entries of 1e308 overflow: not a rotation
+            off = np.abs(np.swapaxes(R, 1, 2) @ R - np.eye(3)).max(axis=(1, 2))
+            bad = ~(off <= 1e-2) | ~(np.linalg.det(R) > 0)
+        if bad.any():
+            raise InputError(p, f"line {lines[int(np.argmax(bad))]}: the 3x3 rotation block is not a rotation")
         U, _, Vt = np.linalg.svd(T[:, :3, :3])
         T[:, :3, :3] = U @ Vt
         t = np.arange(len(a), dtype=np.float64) / (fps or 1.0)

@@ -376,6 +376,8 @@ def run_init(model_path, camera_path, out, *, clicks_path=None, points_path=None
     from mst.pipeline.poses import write_pose_file
     from mst.pipeline.tracker import check_pose_in_view, load_polygon_model
 
+    if overlay_path is not None and image_path is None:
+        raise InputError(overlay_path, "--overlay needs --image (the frame to draw on)")
     model = load_polygon_model(model_path)
     cam = read_camera(camera_path)
     img = None
@@ -416,7 +418,7 @@ def run_init(model_path, camera_path, out, *, clicks_path=None, points_path=None
         if clicks_path:
             raise InputError(clicks_path, "give either --clicks or --from-pose, not both")
         T = pose_from_gps(np.array(from_pose[:3]), *from_pose[3:], mount_ypr_deg=tuple(mount), mount_offset_m=tuple(mount_offset))
-        check_pose_in_view(model, T, cam, out)
+        check_pose_in_view(model, T, cam, "--from-pose")  # the option is wrong, not the output file
         summary["source"] = "from-pose"
     else:
         if not clicks_path:

@@ -365,6 +365,11 @@ def read_pose_file(path: str | os.PathLike) -> np.ndarray:
         raise InputError(p, "pose file does not exist")
     a = _read_numbers(p, "pose file")
     if len(a) in (16, 12):
+        from mst import read_text
+
+        widths = [len(ln.split("#", 1)[0].replace(",", " ").split()) for ln in read_text(p, "pose file").splitlines()]
+        if [w for w in widths if w] == [8, 8]:  # two TUM lines are 16 numbers too: not a matrix
+            raise InputError(p, "holds 2 TUM poses: give one pose (the first frame's), or a 4x4 cMo matrix")
         return _rigid_from_rows(a, p)
     if len(a) in (7, 8):
         check_pose_rows(p, a[None, -7:], None)

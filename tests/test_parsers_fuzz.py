@@ -21,6 +21,7 @@ from hypothesis import strategies as st
 from mst import InputError
 from mst.eval.traj import read_trajectory
 from mst.pipeline.camera import Camera, read_camera, write_camera
+from mst.pipeline.depth_io import read_depth
 from mst.pipeline.init_pose import read_clicks, read_init_points
 from mst.pipeline.poses import (
     format_tum,
@@ -45,7 +46,15 @@ def valid(tmp_path_factory) -> dict[str, bytes]:
     kitti.write_text("".join(" ".join(f"{v:.6f}" for v in t[:3].ravel()) + "\n" for t in T))
     csv = d / "t.csv"
     csv.write_text("t,x,y,z,qx,qy,qz,qw\n0,1,2,3,0,0,0,1\n1,1.1,2,3,0,0,0.0998,0.995\n")
-    return {k: f[k].read_bytes() for k in ("pose", "traj", "extrinsic", "clicks", "points", "camera")} | {
+    import cv2
+
+    rng = np.random.default_rng(3)
+    depth_mm = rng.integers(0, 5000, (12, 16)).astype(np.uint16)
+    cv2.imwrite(str(d / "d.png"), depth_mm)
+    (d / "d.bin").write_bytes(np.array([12, 16], "<u4").tobytes() + depth_mm.astype("<u2").tobytes())
+    np.save(d / "d.npy", depth_mm.astype(np.float32) / 1000)
+    depth = {f"depth-{s}": (d / f"d.{s}").read_bytes() for s in ("png", "bin", "npy")}
+    return depth | {k: f[k].read_bytes() for k in ("pose", "traj", "extrinsic", "clicks", "points", "camera")} | {
         "kitti": kitti.read_bytes(), "csv": csv.read_bytes(), "uv": f["uv"].read_bytes()}
 
 
@@ -74,6 +83,8 @@ def _parse(kind: str, p: Path, valid: dict[str, bytes]):
         return read_clicks(p, pts)
     if kind == "camera":
         return read_camera(p)
+    if kind.startswith("depth-"):
+        return read_depth(p)
     if kind == "kitti":
         return read_trajectory(p, "kitti")[:2]
     if kind == "csv":
@@ -111,19 +122,24 @@ def mutated(draw, data: bytes) -> bytes:
     return bytes(b)
 
 
-KINDS = ["pose", "traj", "extrinsic", "clicks", "points", "uv", "camera", "kitti", "csv"]
+def _name(kind: str) -> str:
+    return "f.csv" if kind == "csv" else (f"f.{kind[6:]}" if kind.startswith("depth-") else "f.txt")
+
+
+KINDS = ["pose", "traj", "extrinsic", "clicks", "points", "uv", "camera", "kitti", "csv", "depth-png", "depth-bin",
+         "depth-npy"]
 
 
 @pytest.mark.parametrize("kind", KINDS)
 def test_valid_files_parse(kind, valid, tmp_path):
-    p = tmp_path / ("f.csv" if kind == "csv" else "f.txt")
+    p = tmp_path / _name(kind)
     p.write_bytes(valid[kind])
     assert _finite(_parse(kind, p, valid))
 
 
 @pytest.mark.parametrize("kind", KINDS)
 def test_mutations_raise_only_input_error(kind, valid, tmp_path):
-    p = tmp_path / ("f.csv" if kind == "csv" else "f.txt")
+    p = tmp_path / _name(kind)
 
     @settings(SETTINGS, max_examples=120)
     @given(data=mutated(valid[kind]))

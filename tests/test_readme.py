@@ -43,7 +43,8 @@ def _code_commands(text: str) -> list[str]:
 def _mst_parts(s: str) -> list[str]:
     """Every `mst <known command> ...` inside a line (also after `# =`), cut at the next comment."""
     out = []
-    for m in re.finditer(r"(?:^|[\s=;(])mst ((?:%s)\b[^#]*)" % "|".join(map(re.escape, COMMANDS)), s):
+    names = "|".join(map(re.escape, COMMANDS))
+    for m in re.finditer(r"(?:^|[\s=;(])mst ((?:" + names + r")\b[^#]*)", s):
         out.append(m.group(1).strip())
     return out
 
@@ -82,8 +83,8 @@ def test_documented_options_exist(cmd):
     path, opts = _options(cmd)
     text = _help(path)
     for o in opts:
-        assert re.search(r"(?<![\w-])%s(?![\w-])" % re.escape(o), text), f"README: `mst {cmd}`: {o} is not an " \
-                                                                         f"option of `mst {path}`"
+        found = re.search(r"(?<![\w-])" + re.escape(o) + r"(?![\w-])", text)
+        assert found, f"README: `mst {cmd}`: {o} is not an option of `mst {path}`"
 
 
 JQ = [(m.group(1), m.group(2)) for c in DOCUMENTED for m in [re.search(r"^(\S+).*--json \| jq \.(\w+)", c)] if m]
