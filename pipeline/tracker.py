@@ -406,6 +406,23 @@ def check_pose_in_view(model, T_cam_model: np.ndarray, cam, path, near: float = 
 
 
 # ---------------------------------------------------------------------------- the stage
+def _shift_px(tracker: EdgeTracker, T_a: np.ndarray, T_b: np.ndarray) -> float:
+    """Largest image displacement (px) between two poses of up to ~200 model vertices in front of
+    both cameras (all of them when fewer)."""
+    V = tracker.geom.vertices
+    V = V[:: max(1, len(V) // 200)]
+    K = tracker.K
+    uv = []
+    for T in (T_a, T_b):
+        Xc = V @ T[:3, :3].T + T[:3, 3]
+        uv.append(Xc)
+    ok = (uv[0][:, 2] > 0) & (uv[1][:, 2] > 0)
+    if not ok.any():
+        return float("inf")
+    p = [X[ok, :2] / X[ok, 2:3] * [K[0, 0], K[1, 1]] for X in uv]
+    return float(np.linalg.norm(p[0] - p[1], axis=1).max())
+
+
 #: ``<stem>.cov.csv``: per frame the 6x6 covariance of the edge (VVS) pose, for frames whose output
 #: pose is the edge pose (status ``model``; empty otherwise): the twist ``xi = (v, w)`` of the left
 #: perturbation ``T_cam_model' = exp(xi) T_cam_model`` (v metres, w radians, camera frame),
@@ -527,6 +544,13 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
                 if T_pred is None and cfg.constant_velocity and T_prev2 is not None and lost_streak == 0:
                     T_pred = (T_prev @ inv_T(T_prev2)) @ T_prev  # constant velocity (camera-frame motion)
                 T_start = T_pred if T_pred is not None else T_prev
+                if (aid is not None and T_pred is not None and prev_status == "model" and lost_streak == 0
+                        and not first and _shift_px(tracker, T_pred, T_prev) < 0.5 * cfg.search_range):
+                    # slow motion: the edges' own last pose is inside the search range already; the
+                    # SLAM pose (its map triangulated from earlier edge poses) would only pass its
+                    # error on along the edges' weakly observed direction (250 m flyover: 2.5-3.9 m
+                    # predictions, the edges followed). The aid predicts where the motion is large
+                    T_start = T_prev
                 # re-acquisition: the model comes back after a SLAM-only stretch (or after a loss).
                 # The SLAM prediction has drifted (mono: ~1 deg = several pixels), the previous image
                 # holds no model edges to take contrasts from: widened coarse-to-fine search, and the
