@@ -50,15 +50,14 @@ def track(frames_src, model_path, camera_path, init_path, out, settings_path, fr
     \b
     Outputs: traj.txt (TUM: t tx ty tz qx qy qz qw, camera pose in the model frame, tracked frames
     only), traj.csv (frame, time, status, samples, inliers, residual_px, health = mean gradient /
-    model-normal angle in degrees, ms), traj.json with --json (also printed on stdout).
+    model-normal angle in degrees, ms), traj.cov.csv (per model frame the 6x6 pose covariance and
+    the camera-position / rotation 1-sigma), traj.json with --json (also printed on stdout).
     """
     from pathlib import Path
 
-    from mst.pipeline.settings import TrackerConfig, read_tracker_xml
-    from mst.pipeline.tracker import run_track
-
     from mst import InputError
-    from mst.pipeline.settings import check_setting
+    from mst.pipeline.settings import TrackerConfig, check_setting, read_tracker_xml
+    from mst.pipeline.tracker import run_track
 
     # options are bounded like the XML settings, and named as options (not blamed on a file)
     for name, value, label in (("search_range", search_range, "--range"), ("sample_step", sample_step, "--step"),
