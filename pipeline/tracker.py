@@ -401,6 +401,21 @@ class EdgeTracker:
             self._fail = (f"pose solver failed: only {n_m} of {len(S)} edge samples found a moving edge within "
                           f"{int(search_range)} px (need 6; no image edge near the projected model)")
             return None, S, m, None
+        if (min_mad_px is None and c.fine_mad_px < c.min_mad_px and res.sigma_px <= c.min_mad_px
+                and np.isfinite(res.T_cam_model).all()):
+            # the floor binds (the fit's own robust scale is below it): a fine stage from the
+            # converged pose, same matches, a tighter floor. The coarse floor must admit the whole
+            # inter-frame motion at the start (with the fine one from the start a translating
+            # camera's samples were all rejected and it stood still). Real video (MAD above the
+            # floor) skips it
+            try:
+                fine = solve_pose(res.T_cam_model, K, S.X_model, S.edge, S.A_model, S.B_model, cand, iters=c.vvs_iters,
+                                  lm_mu=c.lm_mu, min_mad_px=c.fine_mad_px, tukey_c=c.tukey_c, klt_X_model=kx,
+                                  klt_uv=ku, klt_weight=c.klt_weight)
+                if np.isfinite(fine.T_cam_model).all() and np.isfinite(fine.W).all():
+                    res = fine
+            except ValueError:
+                pass
         if not np.isfinite(res.T_cam_model).all() or not np.isfinite(res.W).all():
             self._fail = "pose solver failed: the optimisation diverged (non-finite pose)"
             return None, S, m, None
@@ -677,6 +692,23 @@ def check_pose_in_view(model, T_cam_model: np.ndarray, cam, path, near: float = 
 
 
 # ---------------------------------------------------------------------------- the stage
+def _shift_px(tracker: EdgeTracker, T_a: np.ndarray, T_b: np.ndarray) -> float:
+    """Largest image displacement (px) between two poses of up to ~200 model vertices in front of
+    both cameras (all of them when fewer)."""
+    V = tracker.geom.vertices
+    V = V[:: max(1, len(V) // 200)]
+    K = tracker.K
+    uv = []
+    for T in (T_a, T_b):
+        Xc = V @ T[:3, :3].T + T[:3, 3]
+        uv.append(Xc)
+    ok = (uv[0][:, 2] > 0) & (uv[1][:, 2] > 0)
+    if not ok.any():
+        return float("inf")
+    p = [X[ok, :2] / X[ok, 2:3] * [K[0, 0], K[1, 1]] for X in uv]
+    return float(np.linalg.norm(p[0] - p[1], axis=1).max())
+
+
 #: ``<stem>.cov.csv``: per frame the 6x6 covariance of the edge (VVS) pose, for frames whose output
 #: pose is the edge pose (status ``model``; empty otherwise): the twist ``xi = (v, w)`` of the left
 #: perturbation ``T_cam_model' = exp(xi) T_cam_model`` (v metres, w radians, camera frame),
@@ -835,6 +867,13 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
                 if T_pred is None and cfg.constant_velocity and T_prev2 is not None and lost_streak == 0:
                     T_pred = (T_prev @ inv_T(T_prev2)) @ T_prev  # constant velocity (camera-frame motion)
                 T_start = T_pred if T_pred is not None else T_prev
+                if (aid is not None and T_pred is not None and prev_status == "model" and lost_streak == 0
+                        and not first and _shift_px(tracker, T_pred, T_prev) < 0.5 * cfg.search_range):
+                    # slow motion: the edges' own last pose is inside the search range already; the
+                    # SLAM pose (its map triangulated from earlier edge poses) would only pass its
+                    # error on along the edges' weakly observed direction (250 m flyover: 2.5-3.9 m
+                    # predictions, the edges followed). The aid predicts where the motion is large
+                    T_start = T_prev
                 # re-acquisition: the model comes back after a SLAM-only stretch (or after a loss).
                 # The SLAM prediction has drifted (mono: ~1 deg = several pixels), the previous image
                 # holds no model edges to take contrasts from: widened coarse-to-fine search, and the

@@ -411,7 +411,9 @@ def explain_no_samples(stats: dict, near: float, far: float | None, lod: tuple[f
     if worst == "behind":
         return "the pose puts the model behind the camera (every candidate edge is behind the near plane)"
     if worst == "beyond_far":
-        return (f"the model is beyond the far clipping plane (nearest edge at {z:.4g} m, far plane {far:g} m)")
+        near_txt = f"nearest edge at {z:.4g} m, " if z is not None else ""
+        far_txt = f"far plane {far:g} m" if far is not None else "far plane"
+        return f"the model is beyond the far clipping plane ({near_txt}{far_txt})"
     if worst == "lod" or worst == "short":
         return (f"the model is too small in the image ({steps['lod'] + steps['short']} of {n} edges shorter than "
                 f"{max(lod[0], 1.0):g} px or on faces smaller than {lod[1]:g} px^2; nearest edge at "

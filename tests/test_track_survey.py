@@ -41,7 +41,10 @@ def flyover(request, shared_data, tmp_path_factory):
     seq = d / "seq"
     # 320x240 is enough at 40 m; at 120/250 m the buildings need 640x480 to give edges of a few samples
     w, hgt = (320, 240) if h <= 40 else (640, 480)
-    _cli("synth", "flyover", "--model", shared_data / "cityjson/rotterdam_subset.json", "-o", seq, "--frames", 6,
+    # 10 frames at 250 m: that pass starts where hidden edges leaking past tiny far buildings once
+    # locked frame 0 24 m off (a z-buffer without conservative coverage)
+    n = 10 if h >= 250 else 6
+    _cli("synth", "flyover", "--model", shared_data / "cityjson/rotterdam_subset.json", "-o", seq, "--frames", n,
          "--distance", h, "--width", w, "--height", hgt, "--no-depth", "--aa", 4, "--texture-size", 512, "-q")
     _cli("convert-model", seq / "model.obj", "-o", d / "m.wrl", "-q")
     _cli("init", "--model", d / "m.wrl", "--camera", seq / "camera.json", "--clicks", seq / "clicks.txt",
@@ -67,7 +70,7 @@ def test_flyover_band_default_mode_tracks_every_frame_as_well_as_edges_only(flyo
     h, dist, runs = flyover
     (s_def, ate_def, _), (s_off, ate_off, sig_off) = runs["auto"], runs["off"]
     # the ViSP 100 m far plane stopped the 211 m flyover at frame 0: no far plane by default
-    assert s_def["tracked"] == s_def["frames"] == 6 and s_off["tracked"] == 6
+    assert s_def["tracked"] == s_def["frames"] == s_off["tracked"] == s_off["frames"]
     # error budget: the edge pose's own covariance (the .cov.csv side output: 0.3-0.5 px residual
     # over ~600 samples). It treats the samples as independent, while neighbouring samples of one
     # edge share that edge's error (observed errors were 0.8-2.6 sigma on 6-10 frame runs at

@@ -16,6 +16,7 @@ def _reference(geom, T, Ks, W, H, faces, near):
     pts = np.column_stack([uu.ravel(), vv.ravel()])
     rays = np.column_stack([pts, np.ones(len(pts))]) @ np.linalg.inv(Ks).T  # camera z = 1
     best = np.zeros(len(pts))
+    ids = np.full(len(pts), -1)
     for f in np.flatnonzero(faces):
         loops = [geom.faces[f], *geom.holes[f]]
         Xc = [geom.vertices[lp] @ R.T + t for lp in loops]
@@ -27,8 +28,10 @@ def _reference(geom, T, Ks, W, H, faces, near):
             inside ^= Path(uv[:, :2] / uv[:, 2:3]).contains_points(pts)
         n_c, p_c = R @ geom.face_normals[f], R @ geom.face_point[f] + t
         iz = (rays @ n_c) / (n_c @ p_c)
-        best = np.where(inside & (iz > best), iz, best)
-    return best.reshape(H, W)
+        win = inside & (iz > best)
+        best = np.where(win, iz, best)
+        ids = np.where(win, f, ids)
+    return best.reshape(H, W), ids.reshape(H, W)
 
 
 @pytest.fixture(scope="module")
@@ -43,9 +46,11 @@ def courtyard(tmp_path_factory):
 
 @pytest.mark.parametrize("azimuth_deg", [20.0, 110.0, 200.0, 290.0])
 def test_inverse_depth_buffer_matches_ray_cast(courtyard, azimuth_deg):
-    """A courtyard building (a face with a hole, non-convex) from four sides: both use the
-    pixel-centre rule, so they agree to float32 rounding except where a pixel centre lies on a face
-    outline to rounding (0 of ~4500 covered pixels measured): at most 1 %."""
+    """A courtyard building (a face with a hole, non-convex) from four sides. The buffer's coverage
+    is conservative (pixel centres within half a pixel of a face, like cv2.fillPoly's), so: no
+    pixel is farther than the ray cast (a nearer surface is never lost), and it differs from the ray
+    cast only on pixels next to an outline of the ray-cast image (3x3 neighbourhood), exact to
+    float32 rounding elsewhere."""
     from mst.meshtools.io import load_model
     from mst.pipeline.poses import inv_T, look_at
     from mst.pipeline.visibility import ModelGeometry, face_visibility, inverse_depth_buffer
@@ -60,11 +65,17 @@ def test_inverse_depth_buffer_matches_ray_cast(courtyard, azimuth_deg):
     Ks = K.copy()
     Ks[:2] *= sc
     Ks[:2, 2] = (K[:2, 2] + 0.5) * sc - 0.5
-    ref = _reference(geom, T, Ks, buf.shape[1], buf.shape[0], fv, 0.1)
-    covered = (ref > 0) | (buf > 0)
-    assert covered.sum() > 500
+    ref, ids = _reference(geom, T, Ks, buf.shape[1], buf.shape[0], fv, 0.1)
+    import cv2
+
+    assert (ref > 0).sum() > 500
+    assert (buf >= ref * (1 - 1e-5)).all()  # conservative: never farther, never missing
+    # outline pixels of the ray-cast image: a 3x3 neighbour shows another face (or none)
+    k = np.ones((3, 3), np.uint8)
+    id32 = ids.astype(np.float32)
+    outline = cv2.dilate(id32, k) != cv2.erode(id32, k)
     differ = ~np.isclose(buf, ref, rtol=1e-5, atol=0)
-    assert differ.sum() <= 0.01 * covered.sum(), (differ.sum(), covered.sum())
+    assert not (differ & ~outline).any(), int((differ & ~outline).sum())
 
 
 @pytest.mark.parametrize("azimuth_deg", [0.0, 135.0])
