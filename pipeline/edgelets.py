@@ -313,7 +313,8 @@ def extract_edgelets(renderer, T_cam_model: np.ndarray, K: np.ndarray, width: in
     hi = np.ones(len(keep))
     ua, va = pa[:, 1].astype(np.float64), pa[:, 0].astype(np.float64)
     ub, vb = pb[:, 1].astype(np.float64), pb[:, 0].astype(np.float64)
-    z_lo = za.copy()
+    z_lo, z_hi = za.copy(), zb.copy()
+    n_lo, n_hi = na.copy(), nb.copy()
     zmid = 0.5 * (za + np.where(np.isfinite(zb), zb, za))
     n_sub = 15  # sub-samples per round: each round divides the interval by 16 (2 rounds: 1/256 px)
     frac = np.arange(1, n_sub + 1) / (n_sub + 1.0)
@@ -332,10 +333,19 @@ def extract_edgelets(renderer, T_cam_model: np.ndarray, K: np.ndarray, width: in
         nb_side = ~side_a
         j = np.where(nb_side.any(1), nb_side.argmax(1), n_sub)  # first sub-sample on side b
         jm = np.maximum(j - 1, 0)
+        jh = np.minimum(j, n_sub - 1)
         new_lo = np.where(j > 0, t[rows, jm], lo)
-        hi = np.where(j < n_sub, t[rows, np.minimum(j, n_sub - 1)], hi)
+        hi = np.where(j < n_sub, t[rows, jh], hi)
         z_lo = np.where(j > 0, z[rows, jm], z_lo)
+        z_hi = np.where(j < n_sub, z[rows, jh], z_hi)
+        n_lo = np.where((j > 0)[:, None], nn[rows, jm], n_lo)
+        n_hi = np.where((j < n_sub)[:, None], nn[rows, jh], n_hi)
         lo = new_lo
+    # a true occlusion or crease is still a jump 1/256 px apart; a continuous surface at a grazing angle
+    # (a false occlusion) or a smoothly curved one (a false crease) is not: drop those
+    with np.errstate(invalid="ignore"):
+        real = np.where(kind == OCCLUSION, np.abs(z_hi - z_lo) > 0.5 * depth_jump * z_lo,
+                        np.where(kind == CREASE, (n_lo * n_hi).sum(1) < np.cos(np.radians(0.5 * crease_deg)), True))
     u, v = ua + lo * (ub - ua), va + lo * (vb - va)
     Xcam = np.column_stack([(u - Ks[0, 2]) / Ks[0, 0], (v - Ks[1, 2]) / Ks[1, 1], np.ones(len(u))]) * z_lo[:, None]
 
@@ -354,7 +364,7 @@ def extract_edgelets(renderer, T_cam_model: np.ndarray, K: np.ndarray, width: in
     t_model = tan @ R
     # the exact image of each edgelet and of its local line at the render pose
     uv, nrm_px = project_lines(X_model, t_model, T, K, 0.01 * Xcam[:, 2])
-    good = np.isfinite(uv).all(1) & np.isfinite(nrm_px).all(1)
+    good = np.isfinite(uv).all(1) & np.isfinite(nrm_px).all(1) & real
     return Edgelets(X_model[good], t_model[good], uv[good], nrm_px[good], Xcam[good, 2], kind[good], T.copy(), n_cand)
 
 
