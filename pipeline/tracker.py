@@ -35,62 +35,30 @@ REACQUIRE_SUPPORT_RATIO = 0.8
 
 # ---------------------------------------------------------------------------- model loading
 def load_polygon_model(path: str | os.PathLike):
-    """Load a polygon model with :func:`mst.meshtools.io.load_model` (fallback: a small .cao/.obj reader)."""
+    """Load a polygon model with :func:`mst.meshtools.io.load_model` and check it can be tracked.
+
+    Raises :class:`mst.InputError` naming the file for a missing file, a model without faces or
+    lines, non-finite vertices, or degenerate geometry (all vertices at one point or on one line:
+    no edge of it constrains a pose)."""
+    from mst.meshtools.io import load_model
+
     p = Path(path)
     if not p.is_file():
         raise InputError(p, "model file does not exist")
-    try:
-        from mst.meshtools.io import load_model
-    except ImportError:
-        load_model = _fallback_load_model
     model = load_model(p)
     if not len(model.faces) and not len(getattr(model, "lines", [])):
         raise InputError(p, "model has no faces")
     model.check_finite(str(p))
+    V = np.asarray(model.vertices, float).reshape(-1, 3)
+    used = np.unique(np.concatenate([np.asarray(f, np.int64).ravel() for f in model.faces]
+                                    + [np.asarray(getattr(model, "lines", []), np.int64).ravel()]))
+    X = V[used[(used >= 0) & (used < len(V))]]
+    ext = float(np.ptp(X, axis=0).max()) if len(X) else 0.0
+    # rank of the centred vertices: 0 = one point, 1 = one line (relative to the model's size)
+    sv = np.linalg.svd(X - X.mean(0), compute_uv=False) if len(X) >= 2 else np.zeros(1)
+    if ext <= 0.0 or sv.size < 2 or sv[1] <= 1e-9 * max(sv[0], 1e-300):
+        raise InputError(p, "model is degenerate: its vertices lie at one point or on one line")
     return model
-
-
-def _fallback_load_model(p: Path):
-    from mst.meshtools.model import PolygonModel
-
-    text = p.read_text(errors="replace")
-    if p.suffix.lower() == ".obj":
-        V, F = [], []
-        for line in text.splitlines():
-            s = line.split()
-            if not s:
-                continue
-            if s[0] == "v":
-                V.append([float(x) for x in s[1:4]])
-            elif s[0] == "f":
-                F.append([int(x.split("/")[0]) - 1 for x in s[1:]])
-        return PolygonModel(np.array(V), F)
-    if p.suffix.lower() != ".cao":
-        raise InputError(p, "model format not readable without mst.meshtools.io (use .cao or .obj)")
-    toks = []
-    for line in text.splitlines():
-        s = line.split("#", 1)[0].strip()
-        if s and not s.startswith("V1") and not s.startswith("load("):
-            toks.extend(s.split())
-    it = iter(toks)
-    try:
-        nv = int(next(it))
-        V = [[float(next(it)) for _ in range(3)] for _ in range(nv)]
-        nl = int(next(it))
-        lines = [[int(next(it)), int(next(it))] for _ in range(nl)]
-        nfl = int(next(it))
-        faces = []
-        for _ in range(nfl):
-            k = int(next(it))
-            ids = [int(next(it)) for _ in range(k)]
-            faces.append([lines[i][0] for i in ids])
-        nfp = int(next(it))
-        for _ in range(nfp):
-            k = int(next(it))
-            faces.append([int(next(it)) for _ in range(k)])
-    except (StopIteration, ValueError, IndexError):
-        raise InputError(p, "could not parse the .cao model") from None
-    return PolygonModel(np.array(V), faces)
 
 
 # ---------------------------------------------------------------------------- one-frame tracker

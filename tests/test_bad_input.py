@@ -305,10 +305,7 @@ MODEL_BAD = {
     "nan_vertex": m_text("v nan 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n"),
 }
 for name, mut in MODEL_BAD.items():
-    add(f"track-model-{name}", "track", "model", mut,
-        marks=[pytest.mark.xfail(strict=True, reason="needs fix in pipeline/tracker.py (load_polygon_model: a model "
-                                                     "of one point is blamed on the --init pose)")]
-        if name == "one_point" else [])
+    add(f"track-model-{name}", "track", "model", mut)
 add("init-model-missing", "init", "model", m_missing)
 
 # ---- trajectories (fuse --traj, eval traj)
@@ -788,8 +785,6 @@ def test_synth_output_folder_holding_an_input(how, case_dir, monkeypatch):
     assert _snapshot(root) == before
 
 
-@pytest.mark.xfail(strict=True, reason="needs fix in pipeline/synth.py (synthesize_from_scene renders a scene.json "
-                                       "of an unknown version)")
 def test_synth_scene_of_unknown_version(case_dir, monkeypatch):
     f, o = case_dir
     seq = _scene(f["model"].parent, version=99)
@@ -930,8 +925,6 @@ def test_output_beside_the_frames_is_not_an_input(case_dir):
     assert (f["frames"] / "traj.txt").read_text() != "old run\n"
 
 
-@pytest.mark.xfail(strict=True, reason="needs fix in cli/synth.py / pipeline/synth.py (SynthConfig's messages name "
-                                       "no option, e.g. 'frames must be >= 1')")
 @pytest.mark.parametrize("opt,value", [("--frames", "-1"), ("--fps", "0"), ("--distance", "nan")])
 def test_synth_bad_option_names_the_option(opt, value, case_dir, monkeypatch):
     f, o = case_dir
