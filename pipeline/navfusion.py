@@ -19,10 +19,11 @@ Estimator, in two stages:
    filters + Rauch-Tung-Striebel smoothers (numba), decoupled (their coupling is the lever arm times
    the attitude error, millimetres):
 
-   * attitude: state ``[theta, dtheta/dt]`` (rad), the model-frame perturbation of a smooth reference
-     rotation; constant-rate model with white angular acceleration; measurements: vision rotations and
-     AHRS attitudes mapped to camera attitudes in the model frame. Run twice, the second time about
-     the first result, so the linearisation error is second order in the (small) correction;
+   * attitude: measurements are the vision rotations and the AHRS attitudes mapped to camera
+     attitudes in the model frame; constant-rate model with white angular acceleration. Offline: a
+     batch Gauss-Newton on SO(3) (:func:`smooth_rotations_gn`), then a linear KF + RTS about that
+     smooth solution (state ``[theta, dtheta/dt]``, the model-frame correction) for the covariances.
+     Causal: a multiplicative EKF (nominal rotation + rate, error state) frame by frame;
    * position: state ``[p, v, b]`` (camera position, velocity in the model frame, GPS bias random
      walk); constant-velocity model with white acceleration; measurements: vision positions, GPS
      fixes mapped into the model frame and moved from the antenna to the camera with the attitude
@@ -31,7 +32,8 @@ Estimator, in two stages:
    Robust: every measurement whose Mahalanobis innovation exceeds ``huber_k`` is down-weighted by the
    Huber weight ``huber_k / d`` (variance inflated); offline, the smoother is re-run with Huber
    weights from the smoothed residuals. ``mode="filter"`` returns the causal filter estimates
-   (calibration still from the whole log), ``mode="smoother"`` the RTS-smoothed ones.
+   (each frame from the measurements up to it; only the constant calibration of stage 1 is fitted on
+   the whole log), ``mode="smoother"`` the smoothed ones.
 """
 
 from __future__ import annotations
@@ -46,6 +48,7 @@ import numpy as np
 
 from mst import InputError
 from mst.pipeline.navfusion_kernels import kf_rts as _kf_rts
+from mst.pipeline.navfusion_kernels import mekf_attitude as _mekf
 from mst.pipeline.navlog import NavLog, mount_ypr_deg_from_R
 from mst.pipeline.poses import so3_exp, so3_log
 
@@ -281,15 +284,26 @@ def fuse_navigation(t_vis: np.ndarray, T_vis: np.ndarray, cov_vis: np.ndarray | 
         if len(known):
             nearest = known[np.clip(np.searchsorted(known, np.arange(K)), 0, len(known) - 1)]
             R0[fill] = R_mc_ahrs[src[nearest[fill]]]
-    R_ref = smooth_rotations_gn(t_grid, R0, t_meas_r, R_meas, C_r, np.radians(cfg.ang_accel_sigma_dps2), cfg.huber_k)
     smooth = cfg.mode == "smoother"
-    x0 = np.zeros(6)
-    P0 = np.diag([np.radians(10.0) ** 2] * 3 + [np.radians(10.0) ** 2] * 3)
-    # about the smooth batch solution the linear KF is exact to first order in its (small) correction;
-    # it gives the covariances, and the causal estimates in filter mode
-    z_r = so3_log(R_meas @ np.swapaxes(_interp_R(t_grid, R_ref, t_meas_r), -1, -2))
-    xr, Pr, wr = _run_kf(F6, Q6, x0, P0, steps_r, z_r, H_r, C_r, cfg.huber_k, smooth, smooth)
-    R_ref = so3_exp(xr[:, :3]) @ R_ref
+    if smooth:
+        R_ref = smooth_rotations_gn(t_grid, R0, t_meas_r, R_meas, C_r, np.radians(cfg.ang_accel_sigma_dps2), cfg.huber_k)
+        x0 = np.zeros(6)
+        P0 = np.diag([np.radians(10.0) ** 2] * 3 + [np.radians(10.0) ** 2] * 3)
+        # about the smooth batch solution the linear KF + RTS is exact to first order in its (small)
+        # correction; it gives the covariances
+        z_r = so3_log(R_meas @ np.swapaxes(_interp_R(t_grid, R_ref, t_meas_r), -1, -2))
+        xr, Pr, wr = _run_kf(F6, Q6, x0, P0, steps_r, z_r, H_r, C_r, cfg.huber_k, True, True)
+        R_ref = so3_exp(xr[:, :3]) @ R_ref
+    else:  # causal: multiplicative EKF, each frame from the measurements up to it
+        order = np.argsort(steps_r, kind="stable")
+        ptr = np.searchsorted(steps_r[order], np.arange(K + 1)).astype(np.int64)
+        dtau_r = np.concatenate([np.zeros(len(vidx)), dtau_a])
+        first = R_meas[order[0]]
+        R_ref, _, Pr, w_o = _mekf(dts, np.radians(cfg.ang_accel_sigma_dps2) ** 2, first, ptr,
+                                  np.ascontiguousarray(R_meas[order]), dtau_r[order], np.ascontiguousarray(C_r[order]),
+                                  cfg.huber_k)
+        wr = np.empty_like(w_o)
+        wr[order] = w_o
     R_fused = R_ref
 
     # ---- 2b. position smoother

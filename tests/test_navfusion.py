@@ -167,6 +167,7 @@ def test_filter_mode_is_causal_and_the_smoother_is_at_least_as_good(scene):
     cut = fuse_navigation(t_v[t_v <= t[k]], T_v[t_v <= t[k]], C_v[t_v <= t[k]], sim.nav, _cfg(mode="filter"))
     # (the calibration is fitted on the whole log in both runs; with less data it differs slightly)
     assert np.abs(cut.T_model_cam[k, :3, 3] - fl.T_model_cam[k, :3, 3]).max() < 0.5
+    assert _rot_err_deg(cut.T_model_cam[k:k + 1], fl.T_model_cam[k:k + 1])[0] < 0.5
 
 
 def test_bad_inputs_are_refused_with_the_file_named(scene):
