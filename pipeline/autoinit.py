@@ -11,10 +11,13 @@ Frames: ``T_cam_model`` (model -> camera, camera x right, y down, z forward), me
    +- n_sigma * pos_sigma (model axes) and attitude +- n_sigma * att_sigma (model-frame rotation
    vector), plus the guess. Fine: the ``n_keep`` best start points, each refined by a pattern search
    with halving steps; then the best is refined by the edge tracker (moving edges + robust VVS).
+   Every kept candidate is then refined by the edge tracker (kept when healthy, with >= 70 % inliers,
+   inside the box) and re-scored, the score scaled by (most samples of any candidate) / (its samples)
+   so that a pose showing few edges cannot win; the best refined one wins.
 4. Refusal (no pose written): the best score is above ``max_score`` (the frame does not show the
-   model as predicted), the tracker's refinement is unhealthy, or a *distinct* candidate (its
-   projected samples more than ``dt_max_px`` away on average) scores within ``min_margin`` of the best
-   (ambiguous, e.g. a repetitive facade).
+   model as predicted), no candidate's refinement is healthy and inside the search box, or a
+   *distinct* refined candidate (its projected samples more than ``dt_max_px`` away on average)
+   scores within ``min_margin`` (+0.02) of the best (ambiguous, e.g. a repetitive facade).
 """
 
 from __future__ import annotations
@@ -24,7 +27,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from mst import InputError
-from mst.pipeline.poses import inv_T, so3_exp
+from mst.pipeline.poses import inv_T, so3_exp, so3_log
 
 
 @dataclass
@@ -44,7 +47,8 @@ class AutoInitConfig:
     canny_high: float = 120.0
     min_samples: int = 30
     max_score: float = 0.35
-    min_margin: float = 0.15       # second best must score >= best * (1 + min_margin)
+    min_margin: float = 0.15       # second best must score >= best * (1 + min_margin) + 0.02
+    min_inlier_ratio: float = 0.7  # of the tracker's refinement (robust VVS inliers / samples)
     seed: int = 0
 
 
@@ -143,42 +147,61 @@ def auto_init(gray: np.ndarray, model, camera, T_cam_model_guess: np.ndarray, cf
             step = step / 2.0
         finals.append(d)
         fscores.append(best)
-    order = np.argsort(fscores)
-    finals = [finals[i] for i in order]
-    fscores = [float(fscores[i]) for i in order]
-    T_best = inv_T(_perturb(T0, finals[0][None])[0])
-    if fscores[0] > cfg.max_score:
-        return AutoInitResult(False, None, fscores[0], None, guess_score, n_eval,
-                              f"no pose near the guess matches the image edges (best score {fscores[0]:.2f} > "
-                              f"{cfg.max_score}: the frame may not show the model)")
-    # the best distinct competitor: its projection differs from the best's by more than dt_max on average
-    s_best = samples(T_best)
-    Xs = s_best.X_model
-    uv_b = s_best.uv
-    second = None
-    for d, f in zip(finals[1:], fscores[1:]):
-        Tc = inv_T(_perturb(T0, d[None])[0])
-        Xc = Xs @ Tc[:3, :3].T + Tc[:3, 3]
-        ok = Xc[:, 2] > 1e-6
-        uv = (Xc[ok] @ K.T)[:, :2] / Xc[ok, 2:3]
-        if not ok.any() or np.linalg.norm(uv - uv_b[ok], axis=1).mean() > cfg.dt_max_px:
-            second = f
-            break
-    if second is not None and second < fscores[0] * (1.0 + cfg.min_margin):
-        return AutoInitResult(False, None, fscores[0], second, guess_score, n_eval,
-                              f"ambiguous: a distinct pose scores {second:.3f} against the best {fscores[0]:.3f} "
-                              f"(need {cfg.min_margin:.0%} better)")
-    # refine with the edge tracker (moving edges + robust VVS, as on a first frame)
+    # refine every kept candidate with the edge tracker (moving edges + robust VVS, as on a first
+    # frame) and score the refined poses: the true pose then lands on the image edges (score ~0.05),
+    # a wrong basin does not; refined poses that leave the search box or are unhealthy are dropped
     from mst.pipeline.tracker import EdgeTracker
 
     tr = EdgeTracker(model, camera, tc)
-    fr = tr.track(gray, T_best, first=True)
-    info = {"healthy": bool(fr.healthy), "samples": int(fr.n_samples), "inliers": int(fr.n_inliers),
-            "residual_px": float(fr.residual_px) if np.isfinite(fr.residual_px) else None, "reason": fr.reason}
-    if not fr.healthy or fr.T_cam_model is None:
-        return AutoInitResult(False, None, fscores[0], second, guess_score, n_eval,
-                              f"the edge tracker does not confirm the best pose ({fr.reason or 'unhealthy'})", info)
-    return AutoInitResult(True, fr.T_cam_model, fscores[0], second, guess_score, n_eval, "", info)
+    cands = []
+    for d in finals:
+        T_c = inv_T(_perturb(T0, d[None])[0])
+        fr = tr.track(gray, T_c, first=True)
+        if not fr.healthy or fr.T_cam_model is None or fr.n_inliers < cfg.min_inlier_ratio * max(fr.n_samples, 1):
+            continue
+        T_r = fr.T_cam_model
+        Tm = inv_T(T_r)
+        dp = Tm[:3, 3] - T0[:3, 3]
+        da = np.degrees(np.linalg.norm(so3_log(Tm[:3, :3] @ T0[:3, :3].T)))
+        if (np.abs(dp) > half[:3] * 1.2).any() or da > np.sqrt(3) * half[3] * 1.2:
+            continue
+        cands.append((float(score_many(Tm[None])[0]), T_r, fr))
+    n_eval += len(cands)
+    if not cands:
+        best_raw = float(min(fscores))
+        if best_raw > cfg.max_score:
+            return AutoInitResult(False, None, best_raw, None, guess_score, n_eval,
+                                  f"no pose near the guess matches the image edges (best score {best_raw:.2f} > "
+                                  f"{cfg.max_score}: the frame may not show the model)")
+        return AutoInitResult(False, None, best_raw, None, guess_score, n_eval,
+                              "the edge tracker confirms none of the best candidates (unhealthy or outside the search box)")
+    # a pose that shows fewer model edges than the best-covered candidate (e.g. seen from the
+    # ground, half out of view) must not win on a few well-placed samples: scores scale by n_max / n
+    n_max = max(c[2].n_samples for c in cands)
+    cands = [(f * n_max / max(c.n_samples, 1), T, c) for f, T, c in cands]
+    cands.sort(key=lambda c: c[0])
+    best, T_best, fr = cands[0]
+    info = {"healthy": True, "samples": int(fr.n_samples), "inliers": int(fr.n_inliers),
+            "residual_px": float(fr.residual_px) if np.isfinite(fr.residual_px) else None, "candidates_confirmed": len(cands)}
+    if best > cfg.max_score:
+        return AutoInitResult(False, None, best, None, guess_score, n_eval,
+                              f"no pose near the guess matches the image edges (best score {best:.2f} > "
+                              f"{cfg.max_score}: the frame may not show the model)", info)
+    # the best distinct competitor: its projection differs from the best's by more than dt_max on average
+    s_best = samples(T_best)
+    second = None
+    for f, Tc, _ in cands[1:]:
+        Xc = s_best.X_model @ Tc[:3, :3].T + Tc[:3, 3]
+        ok = Xc[:, 2] > 1e-6
+        uv = (Xc[ok] @ K.T)[:, :2] / Xc[ok, 2:3]
+        if not ok.any() or np.linalg.norm(uv - s_best.uv[ok], axis=1).mean() > cfg.dt_max_px:
+            second = f
+            break
+    if second is not None and second < best * (1.0 + cfg.min_margin) + 0.02:
+        return AutoInitResult(False, None, best, second, guess_score, n_eval,
+                              f"ambiguous: a distinct pose scores {second:.3f} against the best {best:.3f} "
+                              f"(need {cfg.min_margin:.0%} better)", info)
+    return AutoInitResult(True, T_best, best, second, guess_score, n_eval, "", info)
 
 
 def guess_from_nav(nav_path, t: float | None, mount_ypr_deg, lever_arm_m) -> tuple[np.ndarray, float]:
