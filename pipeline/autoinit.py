@@ -15,7 +15,7 @@ Frames: ``T_cam_model`` (model -> camera, camera x right, y down, z forward), me
    inside the box) and re-scored, the score scaled by (most samples of any candidate) / (its samples)
    so that a pose showing few edges cannot win; the best refined one wins.
 4. Refusal (no pose written): the best score is above ``max_score`` (the frame does not show the
-   model as predicted), no candidate's refinement is healthy and inside the search box, or a
+   model as predicted) or, after refinement, above ``max_refined_score`` (not converged), no candidate's refinement is healthy and inside the search box, or a
    *distinct* refined candidate (its projected samples more than ``dt_max_px`` away on average)
    scores within ``min_margin`` (+0.02) of the best (ambiguous, e.g. a repetitive facade).
 """
@@ -37,8 +37,8 @@ class AutoInitConfig:
     pos_sigma_m: tuple[float, float, float] = (3.0, 3.0, 5.0)
     att_sigma_deg: float = 3.0
     n_sigma: float = 3.0
-    n_coarse: int = 300
-    n_keep: int = 6
+    n_coarse: int = 500
+    n_keep: int = 10
     refine_iters: int = 7
     refine_samples: int = 16
     dt_max_px: float = 20.0
@@ -49,6 +49,9 @@ class AutoInitConfig:
     max_score: float = 0.35
     min_margin: float = 0.15       # second best must score >= best * (1 + min_margin) + 0.02
     min_inlier_ratio: float = 0.7  # of the tracker's refinement (robust VVS inliers / samples)
+    # a converged pose puts its edge samples within ~2 px of image edges (Canny localisation ~1 px,
+    # the tracker's residual ~0.2 px, a few samples on low-contrast edges): 0.12 * 20 px = 2.4 px
+    max_refined_score: float = 0.12
     seed: int = 0
 
 
@@ -187,6 +190,19 @@ def auto_init(gray: np.ndarray, model, camera, T_cam_model_guess: np.ndarray, cf
         return AutoInitResult(False, None, best, None, guess_score, n_eval,
                               f"no pose near the guess matches the image edges (best score {best:.2f} > "
                               f"{cfg.max_score}: the frame may not show the model)", info)
+    for _ in range(2):  # polish: the tracker again from its own result (its search range is limited)
+        fr2 = tr.track(gray, T_best, first=True)
+        if not fr2.healthy or fr2.T_cam_model is None:
+            break
+        s2 = float(score_many(inv_T(fr2.T_cam_model)[None])[0]) * n_max / max(fr2.n_samples, 1)
+        n_eval += 1
+        if s2 > best:
+            break
+        best, T_best = s2, fr2.T_cam_model
+    if best > cfg.max_refined_score:
+        return AutoInitResult(False, None, best, None, guess_score, n_eval,
+                              f"the best refined pose does not sit on the image edges (score {best:.3f} > "
+                              f"{cfg.max_refined_score}: mean edge distance {best * cfg.dt_max_px:.1f} px)", info)
     # the best distinct competitor: its projection differs from the best's by more than dt_max on average
     s_best = samples(T_best)
     second = None
