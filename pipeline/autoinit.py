@@ -50,7 +50,9 @@ class AutoInitConfig:
     min_margin: float = 0.15       # second best must score >= best * (1 + min_margin) + 0.02
     min_inlier_ratio: float = 0.7  # of the tracker's refinement (robust VVS inliers / samples)
     # a converged pose puts its edge samples within ~2 px of image edges (Canny localisation ~1 px,
-    # the tracker's residual ~0.2 px, a few samples on low-contrast edges): 0.12 * 20 px = 2.4 px
+    # the tracker's residual ~0.2 px, a few samples on low-contrast edges): 0.12 * 20 px = 2.4 px.
+    # Conservative: a model whose edges largely lack image contrast (two walls shaded alike) is
+    # refused even at its true pose -- then click (`mst init --clicks`)
     max_refined_score: float = 0.12
     seed: int = 0
 
