@@ -177,7 +177,10 @@ def fuse(traj_path, nav_path, out, cov_path, mode, offset, lever, mount_path, m2
             import csv
 
             with open(status_csv, newline="") as f:
-                st = {round(float(r["time"]), 6): r["status"] for r in csv.DictReader(f) if r.get("time")}
+                try:
+                    st = {round(float(r["time"]), 6): r.get("status") for r in csv.DictReader(f) if r.get("time")}
+                except (ValueError, KeyError):
+                    st = {}  # not mst track's per-frame CSV: no statuses
             slam = np.array([st.get(round(x, 6)) == "slam" for x in t_v])
             cov[slam] *= 9.0
     res = fuse_navigation(t_v, T_v, cov, nav, cfg, nav_name=nav_path)
