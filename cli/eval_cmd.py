@@ -49,10 +49,16 @@ def eval_group() -> None:
 @click.option("--fps", type=POSITIVE, default=None, help="KITTI files: timestamps are line index / fps.")
 @click.option("--plot", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="PNG: top-down trajectories and dX dY dZ d-yaw over time with the gaps shaded.")
+@click.option("--nav", "nav_path", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="GPS/AHRS log (nav.csv): also print the UAV table of vision, GPS/AHRS and ESTIMATE against REFERENCE.")
+@click.option("--nav-calib", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="With --nav: the calibration JSON of `mst nav fuse --json` (model-to-world, mount, lever).")
+@click.option("--nav-vision", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="With --nav: the vision trajectory (TUM) for the table's vision column.")
 @json_option
 @quiet_option
 def traj(estimate, reference, align, t_max_diff, t_offset, delta, delta_m, yaw_offset, fmt, csv_columns, fps,
-         plot, as_json, quiet):
+         plot, as_json, quiet, nav_path=None, nav_calib=None, nav_vision=None):
     """Compare an ESTIMATE trajectory with a REFERENCE (evo-compatible numbers).
 
     Associates poses by timestamp (nearest within --t-max-diff), aligns, and reports ATE
@@ -67,6 +73,7 @@ def traj(estimate, reference, align, t_max_diff, t_offset, delta, delta_m, yaw_o
       mst eval traj traj.txt gt.txt --align sim3 --json
       mst eval traj traj.txt gps.csv --csv-columns t=time,x=e,y=n,z=h --align first --plot traj.png
       mst eval traj traj.txt gt.txt --yaw-offset 90 --t-max-diff 0.02
+      mst eval traj fused.txt gt.txt --nav nav.csv --nav-calib fused.json --nav-vision traj.txt
     """
     from mst.eval.traj import TrajConfig, evaluate_trajectories, report_rows, uav_rows
 
@@ -94,5 +101,13 @@ def traj(estimate, reference, align, t_max_diff, t_offset, delta, delta_m, yaw_o
             info("gaps: " + ", ".join(f"frames {g['first']}-{g['last']} ({g['t_start']:.3f}-{g['t_end']:.3f} s)"
                                       for g in s["gaps"]["ranges"][:20])
                  + (" ..." if s["gaps"]["count"] > 20 else ""))
+    if nav_path is not None:  # the UAV table against a navigation log (mst.eval.navtable)
+        from mst.eval.navtable import nav_table_from_files
+
+        nt = nav_table_from_files(estimate, reference, nav_path, nav_calib, nav_vision, t_max_diff)
+        s["nav_table"] = nt.to_json()
+        if not quiet:
+            print_table(f"UAV table against {Path(reference).name} (mean ± std)", ["", *nt.columns],
+                        [[r[0].replace("[", "\\["), *r[1:]] for r in nt.rows()])
     if as_json:
         emit_json(s)

@@ -21,6 +21,9 @@ from mst.cli.common import FINITE, POSITIVE, emit_json, info, json_option, print
               help="Fixed camera-mount rotation relative to the vehicle body (deg), with --from-pose.")
 @click.option("--mount-offset", nargs=3, type=FINITE, default=(0.0, 0.0, 0.0), show_default=True, metavar="DX DY DZ",
               help="Camera lever arm in the body frame (metres), with --from-pose.")
+@click.option("--from-nav", "from_nav", type=click.Path(dir_okay=False), default=None,
+              help="Search the pose around a nav.csv row (GPS/AHRS, model frame = the log's frame) on --image; no clicks.")
+@click.option("--nav-time", type=float, default=None, help="With --from-nav: the log time of the image [first fix].")
 @click.option("--image", "image_path", type=click.Path(dir_okay=False), default=None,
               help="The frame the clicks were taken on (a picture, or a video: its first frame).")
 @click.option("--overlay", "overlay_path", type=click.Path(dir_okay=False), default=None, help="PNG: the model drawn with the pose on --image.")
@@ -30,7 +33,7 @@ from mst.cli.common import FINITE, POSITIVE, emit_json, info, json_option, print
 @json_option
 @quiet_option
 def init_pose(model_path, camera_path, clicks_path, points_path, from_pose, mount, mount_offset, image_path,
-              overlay_path, show_points, max_residual, out, as_json, quiet):
+              overlay_path, show_points, max_residual, out, as_json, quiet, from_nav=None, nav_time=None):
     """Compute the first camera pose from >= 4 clicked model points (PnP + robust refinement).
 
     Per-click reprojection residuals (px) are printed. When they are large the command fails
@@ -43,12 +46,22 @@ def init_pose(model_path, camera_path, clicks_path, points_path, from_pose, moun
       mst init --model teabox.cao --camera teabox.xml --points teabox.init --show-points \\
                --image teabox.mp4 --clicks teabox.clicks -o where_to_click.png
       mst init --model bldg.obj --camera cam.json --from-pose 10 -40 30 90 -20 0 -o pose0.txt
+      mst init --model bldg.obj --camera cam.json --from-nav nav.csv --mount 60 -20 0 --image f0.png -o pose0.txt
 
     \b
     --from-pose angles: yaw counter-clockwise from the model x axis (east) about z (up), pitch
     positive nose up, roll positive right side down; the body looks along its x axis. The camera
     looks along the body's forward axis after --mount (e.g. --mount 0 -90 0 for a nadir camera).
     """
+    if from_nav is not None:  # automatic initialisation (mst.pipeline.autoinit)
+        from mst.pipeline.autoinit import run_autoinit
+
+        res = run_autoinit(model_path, camera_path, out, from_nav, image_path, nav_time=nav_time, mount=mount,
+                           mount_offset=mount_offset, overlay_path=overlay_path)
+        info(f"edge score {res['score']:.3f} (guess {res['guess_score']:.3f}, {res['evaluated']} poses searched) -> {out}", quiet)
+        if as_json:
+            emit_json(res)
+        return
     from mst.pipeline.init_pose import run_init
 
     check_outputs([out, overlay_path], [model_path, camera_path, clicks_path, points_path, image_path])

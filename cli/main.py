@@ -24,6 +24,7 @@ COMMANDS: dict[str, str] = {
     "fuse": "fuse:fuse",
     "c2m": "c2m:c2m",
     "eval": "eval_cmd:eval_group",
+    "nav": "nav:nav_group",
 }
 
 
@@ -61,6 +62,7 @@ def cli() -> None:
       mst fuse --traj traj.txt --depth depth/ --camera cam.json -o cloud.ply
       mst c2m cloud.ply mesh.obj                    cloud-to-mesh statistics (Table 1)
       mst eval traj traj.txt gt.txt                 trajectory errors (ATE/RPE, dX dY dZ dyaw)
+      mst nav fuse --traj traj.txt --nav nav.csv -o fused.txt   GPS/AHRS + vision fusion
 
     Results and --json summaries go to stdout, progress and messages to stderr.
     """

@@ -71,9 +71,10 @@ def _check_not_inputs(out_dir, inputs) -> None:
 @click.option("--texture-size", type=click.IntRange(min=64), default=2048, show_default=True, help="Texture tile size, texels.")
 @click.option("--threads", "nthreads", type=click.IntRange(min=0), default=0, show_default=True, help="Ray-casting threads (0 = all).")
 @click.option("--overwrite", is_flag=True, help="Replace the sequence files in a non-empty output folder.")
+@click.option("--nav", "nav_log", is_flag=True, help="Also write nav.csv (simulated GPS/AHRS, --seed; see `mst nav simulate`).")
 @json_option
 @quiet_option
-def synth(scenario, model, out_dir, from_scene, as_json, quiet, overwrite, **opts):
+def synth(scenario, model, out_dir, from_scene, as_json, quiet, overwrite, nav_log, **opts):
     """Render a synthetic sequence with ground truth (CPU raycasting, no GPU or display).
 
     \b
@@ -126,6 +127,11 @@ def synth(scenario, model, out_dir, from_scene, as_json, quiet, overwrite, **opt
         total = cfg.frames if cfg.frames is not None else DEFAULT_FRAMES[scenario]
         with progress_bar(max(total, 0), f"synth {scenario}", quiet or as_json) as advance:
             summary = synthesize(scenario, model, out_dir, cfg, progress=advance, overwrite=overwrite)
+    if nav_log:  # after the sequence is complete: default error model of `mst nav simulate`
+        from mst.cli.nav import simulate_nav_files
+        from mst.pipeline.navlog import NavSimConfig
+
+        summary["nav"] = simulate_nav_files(Path(out_dir) / "gt.txt", Path(out_dir) / "nav.csv", NavSimConfig(seed=opts.get("seed", 0)))["nav"]
     if as_json:
         emit_json(summary)
     else:

@@ -1,0 +1,140 @@
+"""The UAV paper's table against navigation logs: dX dY dZ d-yaw (mean, std) for vision, GPS/AHRS and fused.
+
+Every column is a camera trajectory ``T_model_cam`` compared with one reference (``mst eval traj
+EST REF --nav nav.csv``): poses associated by nearest timestamp within ``t_max_diff`` seconds, no
+alignment (all are in the model frame: the GPS/AHRS log is mapped into it with the calibration of
+``mst nav fuse --json``). dX dY dZ: estimate - reference along the model axes [m]; d-yaw: heading of
+the optical axis (:func:`mst.eval.traj.camera_yaw_deg`), estimate - reference - the column's yaw
+offset, wrapped [deg]. The GPS/AHRS column is the platform attitude turned by the estimated mount;
+without a calibration file the model frame is taken as the world frame, the lever arm as zero and
+the mount as unknown: then the column's constant yaw offset (the mount yaw) is removed as the
+circular mean of its d-yaw and reported, as in the paper.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from mst import InputError
+from mst.pipeline.navlog import R_MOUNT_CAM, NavLog, interpolate_poses, read_navlog
+from mst.pipeline.poses import read_tum
+
+
+@dataclass
+class NavTable:
+    """Per column: {dX, dY, dZ: {mean, std} m, dyaw: {mean, std} deg, yaw_offset_deg, ate_rmse_m, matched, gaps}."""
+
+    reference: str
+    columns: dict[str, dict] = field(default_factory=dict)
+
+    def to_json(self) -> dict:
+        return {"reference": self.reference, "columns": self.columns}
+
+    def rows(self) -> list[list[str]]:
+        """Table rows: quantity, then 'mean +- std' per column."""
+        out = []
+        for key, lab in (("dX", "dX [m]"), ("dY", "dY [m]"), ("dZ", "dZ [m]"), ("dyaw", "d-yaw [deg]")):
+            out.append([lab] + [f"{c[key]['mean']:+.3f} ± {c[key]['std']:.3f}" if c.get(key) else "-" for c in self.columns.values()])
+        out.append(["yaw offset removed [deg]"] + [f"{c['yaw_offset_deg']:.2f}" for c in self.columns.values()])
+        out.append(["ATE rmse [m]"] + [f"{c['ate_rmse_m']:.3f}" for c in self.columns.values()])
+        out.append(["matched / gaps"] + [f"{c['matched']} / {c['gaps']}" for c in self.columns.values()])
+        return out
+
+
+def nav_camera_poses(nav: NavLog, T_world_model: np.ndarray | None = None, R_body_cam: np.ndarray | None = None,
+                     lever_arm_m=(0.0, 0.0, 0.0)) -> tuple[np.ndarray, np.ndarray, bool]:
+    """Camera poses ``T_model_cam`` (M, 4, 4) of the GPS fixes (fix rows only) of a log. Without
+    ``R_body_cam`` the camera is taken to look along the body's x axis (mount 0: its yaw offset is
+    then the mount yaw). Returns (t (M,), T (M, 4, 4), mount_known)."""
+    T_wm = np.eye(4) if T_world_model is None else np.asarray(T_world_model, float)
+    R_bc = R_MOUNT_CAM if R_body_cam is None else np.asarray(R_body_cam, float)
+    R_wb = nav.R_world_body()[nav.fix]
+    R_mc = T_wm[:3, :3].T[None] @ R_wb @ R_bc[None]
+    p_w = nav.p_world[nav.fix] + np.einsum("nij,j->ni", R_wb, np.asarray(lever_arm_m, float))
+    T = np.tile(np.eye(4), (len(R_mc), 1, 1))
+    T[:, :3, :3] = R_mc
+    T[:, :3, 3] = (p_w - T_wm[:3, 3]) @ T_wm[:3, :3]
+    return nav.t[nav.fix], T, R_body_cam is not None
+
+
+def column_stats(t_ref: np.ndarray, T_ref: np.ndarray, t_est: np.ndarray, T_est: np.ndarray, t_max_diff: float,
+                 remove_yaw_offset: bool = False, yaw_offset_deg: float = 0.0) -> dict:
+    """dX dY dZ d-yaw statistics of one estimate against the reference (module docstring)."""
+    from mst.eval.traj import camera_yaw_deg, wrap_deg
+
+    j = np.clip(np.searchsorted(t_est, t_ref), 1, len(t_est) - 1) if len(t_est) > 1 else np.zeros(len(t_ref), int)
+    if len(t_est) > 1:
+        j = np.where(np.abs(t_est[j - 1] - t_ref) <= np.abs(t_est[j] - t_ref), j - 1, j)
+    ok = np.abs(t_est[j] - t_ref) <= t_max_diff
+    if not ok.any():
+        raise InputError(None, "no poses within --t-max-diff of the reference's timestamps")
+    Te, Tr = T_est[j[ok]], T_ref[ok]
+    d = Te[:, :3, 3] - Tr[:, :3, 3]
+    dyaw = wrap_deg(camera_yaw_deg(Te) - camera_yaw_deg(Tr))
+    off = yaw_offset_deg
+    if remove_yaw_offset:
+        off = float(np.degrees(np.arctan2(np.sin(np.radians(dyaw)).mean(), np.cos(np.radians(dyaw)).mean())))
+    dyaw = wrap_deg(dyaw - off)
+    st = {k: {"mean": float(d[:, i].mean()), "std": float(d[:, i].std())} for i, k in enumerate(("dX", "dY", "dZ"))}
+    st["dyaw"] = {"mean": float(dyaw.mean()), "std": float(dyaw.std())}
+    st.update(yaw_offset_deg=off, ate_rmse_m=float(np.sqrt(np.mean(np.sum(d**2, axis=1)))), matched=int(ok.sum()),
+              gaps=int((~ok).sum()))
+    return st
+
+
+def nav_table(t_ref, T_ref, columns: list[tuple[str, np.ndarray, np.ndarray, bool]], t_max_diff: float = 0.01,
+              reference: str = "reference") -> NavTable:
+    """Table for ``columns`` = [(name, t, T_model_cam, remove_yaw_offset), ...] against the reference."""
+    tab = NavTable(reference=reference)
+    for name, t, T, rm in columns:
+        tab.columns[name] = column_stats(np.asarray(t_ref), np.asarray(T_ref), np.asarray(t), np.asarray(T), t_max_diff, rm)
+    return tab
+
+
+def nav_table_from_files(estimate: str | os.PathLike, reference: str | os.PathLike, nav_path: str | os.PathLike,
+                         calib_path: str | os.PathLike | None = None, vision_path: str | os.PathLike | None = None,
+                         t_max_diff: float = 0.01) -> NavTable:
+    """Columns: vision (``vision_path``, a TUM file, if given), GPS/AHRS (``nav_path`` with the
+    calibration JSON of ``mst nav fuse --json``: keys T_world_model, R_body_cam, lever_arm_m,
+    nav_offset_enh), and the estimate (named by its file stem) against ``reference`` (TUM)."""
+    t_ref, T_ref = read_tum(reference)
+    T_wm = R_bc = None
+    lever = (0.0, 0.0, 0.0)
+    offset = None
+    if calib_path is not None:
+        p = Path(calib_path)
+        if not p.is_file():
+            raise InputError(p, "calibration file does not exist")
+        try:
+            c = json.loads(p.read_text())
+            T_wm, R_bc = np.array(c["T_world_model"], float), np.array(c["R_body_cam"], float)
+            lever = tuple(c.get("lever_arm_m", lever))
+            offset = c.get("nav_offset_enh")
+        except (ValueError, KeyError, TypeError) as e:
+            raise InputError(p, f"not a calibration of `mst nav fuse --json` ({type(e).__name__}: {e})") from None
+        if T_wm.shape != (4, 4) or R_bc.shape != (3, 3):
+            raise InputError(p, "T_world_model must be 4x4 and R_body_cam 3x3")
+    nav = read_navlog(nav_path, offset=offset if offset is not None and any(offset) else None)
+    cols: list[tuple[str, np.ndarray, np.ndarray, bool]] = []
+    if vision_path is not None:
+        cols.append(("vision", *read_tum(vision_path), False))
+    t_n, T_n, known = nav_camera_poses(nav, T_wm, R_bc, lever)
+    tab = nav_table(t_ref, T_ref, [], t_max_diff, reference=str(reference))
+    for name, t, T, rm in cols:
+        tab.columns[name] = column_stats(t_ref, T_ref, t, T, t_max_diff, rm)
+    # the log's rows rarely fall on frame times: the reference is interpolated to the fix times
+    # (inside its time range); "gaps" then counts fixes outside it
+    inside = (t_n >= t_ref[0]) & (t_n <= t_ref[-1])
+    if not inside.any():
+        raise InputError(nav_path, "no GPS fix inside the reference's time range")
+    T_ri = interpolate_poses(t_ref, T_ref, t_n[inside])
+    st = column_stats(t_n[inside], T_ri, t_n[inside], T_n[inside], 1e-9, remove_yaw_offset=not known)
+    st["gaps"] = int((~inside).sum())
+    tab.columns["GPS/AHRS"] = st
+    tab.columns[Path(estimate).stem] = column_stats(t_ref, T_ref, *read_tum(estimate), t_max_diff)
+    return tab

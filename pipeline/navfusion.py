@@ -1,0 +1,469 @@
+"""Offline / causal fusion of a vision trajectory with a GPS/AHRS log (``mst nav fuse``).
+
+Inputs: the vision trajectory ``T_model_cam`` (K_v, 4, 4) at times ``t_vis`` (lost frames absent)
+with per-pose 6x6 covariances, and a :class:`~mst.pipeline.navlog.NavLog` (frames in its docstring).
+
+Covariance convention (input side file and output ``fused.cov.csv``): order ``(x, y, z, rx, ry, rz)``;
+position of the camera in the model frame [m]; rotation as a perturbation in the model frame [rad]:
+``R_true = exp([r]x) @ R_est``.
+
+Estimator, in two stages:
+
+1. **Calibration** (batch, robust): the model-to-world transform ``T_world_model`` (4 DoF: yaw about
+   up + translation; the model is z-up) by a Huber-weighted 2-D Procrustes fit of the GPS fixes to the
+   vision positions of the antenna at the same times, and the camera mount ``R_body_cam`` by a Huber-
+   weighted chordal mean of ``R_cam_model R_model_world R_world_body``; alternated 3 times (the lever
+   arm couples them). The constant part of the GPS bias goes into ``T_world_model``; a constant AHRS
+   heading bias goes into the mount yaw (they are not separable for a near-level platform).
+2. **Smoothing** on the frame grid (every frame of the video, lost ones included), two linear Kalman
+   filters + Rauch-Tung-Striebel smoothers (numba), decoupled (their coupling is the lever arm times
+   the attitude error, millimetres):
+
+   * attitude: measurements are the vision rotations and the AHRS attitudes mapped to camera
+     attitudes in the model frame; constant-rate model with white angular acceleration. Offline: a
+     batch Gauss-Newton on SO(3) (:func:`smooth_rotations_gn`), then a linear KF + RTS about that
+     smooth solution (state ``[theta, dtheta/dt]``, the model-frame correction) for the covariances.
+     Causal: a multiplicative EKF (nominal rotation + rate, error state) frame by frame;
+   * position: state ``[p, v, b]`` (camera position, velocity in the model frame, GPS bias random
+     walk); constant-velocity model with white acceleration; measurements: vision positions, GPS
+     fixes mapped into the model frame and moved from the antenna to the camera with the attitude
+     (``H = [I, dtau I, I]``, ``dtau`` = fix time - frame time, so fixes need not fall on frames).
+
+   Robust: every measurement whose Mahalanobis innovation exceeds ``huber_k`` is down-weighted by the
+   Huber weight ``huber_k / d`` (variance inflated); offline, the smoother is re-run with Huber
+   weights from the smoothed residuals. ``mode="filter"`` returns the causal filter estimates
+   (each frame from the measurements up to it; only the constant calibration of stage 1 is fitted on
+   the whole log), ``mode="smoother"`` the smoothed ones.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from mst import InputError
+from mst.pipeline.navfusion_kernels import kf_rts as _kf_rts
+from mst.pipeline.navfusion_kernels import mekf_attitude as _mekf
+from mst.pipeline.navlog import NavLog, mount_ypr_deg_from_R
+from mst.pipeline.poses import so3_exp, so3_log
+
+
+@dataclass
+class FusionConfig:
+    """Noise model and options of :func:`fuse_navigation` (units in the names)."""
+
+    mode: str = "smoother"                  # smoother (offline, RTS) | filter (causal)
+    gps_sigma_h_m: float = 3.0
+    gps_sigma_v_m: float = 5.0
+    gps_bias_rw_m_per_sqrt_s: float = 0.05  # random walk of the GPS bias
+    gps_bias_sigma_m: float = 3.0           # prior of the bias left after the calibration
+    ahrs_sigma_deg: float = 3.0
+    accel_sigma_mps2: float = 1.0           # white acceleration, (m/s^2)/sqrt(Hz)
+    ang_accel_sigma_dps2: float = 2.0       # white angular acceleration, (deg/s^2)/sqrt(Hz)
+    vision_sigma_m: float = 0.05            # when no covariance is given
+    vision_sigma_deg: float = 0.3
+    huber_k: float = 3.0                    # Mahalanobis distance where Huber down-weighting starts
+    lever_arm_m: tuple[float, float, float] = (0.0, 0.0, 0.0)  # camera in the body frame
+    R_body_cam: np.ndarray | None = None    # fixed mount rotation (None: estimated)
+    T_world_model: np.ndarray | None = None  # fixed model-to-world transform (None: estimated)
+    max_world_yaw_std_deg: float = 2.0      # refuse when the fit cannot pin the model-to-world yaw
+    min_pairs: int = 10                     # GPS fixes with vision needed for the calibration
+
+
+@dataclass
+class FusionResult:
+    """Fused trajectory on the frame grid and the calibration."""
+
+    t: np.ndarray                 # (K,) s
+    T_model_cam: np.ndarray       # (K, 4, 4)
+    cov: np.ndarray               # (K, 6, 6) convention in the module docstring
+    has_vision: np.ndarray        # (K,) bool: the frame had a vision pose (else bridged by nav)
+    gps_bias_m: np.ndarray        # (K, 3) GPS bias in the model frame (relative to the calibration)
+    T_world_model: np.ndarray     # (4, 4)
+    R_body_cam: np.ndarray        # (3, 3)
+    calib: dict = field(default_factory=dict)
+    stats: dict = field(default_factory=dict)
+
+    def to_json(self) -> dict:
+        """Calibration and counts (what ``mst nav fuse --json`` prints)."""
+        return {"frames": int(len(self.t)), "vision_frames": int(self.has_vision.sum()),
+                "bridged_frames": int((~self.has_vision).sum()), "T_world_model": self.T_world_model.tolist(),
+                "R_body_cam": self.R_body_cam.tolist(), **self.calib, **self.stats}
+
+
+# ------------------------------------------------------------------------------ Kalman / RTS kernel
+def _cv_model(dt: np.ndarray, q: float, extra: int = 0, q_extra: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """Constant-velocity model in 3-D for steps dt (K,): F, Q (K, n, n), n = 6 + 3*extra; state
+    [value(3), rate(3), extra random walks(3 each)] with white 2nd-derivative PSD q and walk PSD q_extra."""
+    K = len(dt)
+    n = 6 + 3 * extra
+    F = np.tile(np.eye(n), (K, 1, 1))
+    Q = np.zeros((K, n, n))
+    i3 = np.arange(3)
+    F[:, i3, i3 + 3] = dt[:, None]
+    Q[:, i3, i3] = (q * dt**3 / 3)[:, None]
+    Q[:, i3, i3 + 3] = Q[:, i3 + 3, i3] = (q * dt**2 / 2)[:, None]
+    Q[:, i3 + 3, i3 + 3] = (q * dt)[:, None]
+    for e in range(extra):
+        j = 6 + 3 * e + i3
+        Q[:, j, j] = (q_extra * dt)[:, None]
+    return F, Q
+
+
+def _run_kf(F, Q, x0, P0, step, z, H, R, gate_k, smooth, robust_refit):
+    """Sort measurements by step, run the kernel (twice when ``robust_refit``: Huber weights from the
+    smoothed residuals). Returns x, P, per-measurement weights (in the input order)."""
+    K = F.shape[0]
+    order = np.argsort(step, kind="stable")
+    st, zz, HH, RR = step[order], np.ascontiguousarray(z[order]), np.ascontiguousarray(H[order]), np.ascontiguousarray(R[order])
+    ptr = np.searchsorted(st, np.arange(K + 1)).astype(np.int64)
+    w = np.ones(len(st))
+    x, P, w = _kf_rts(F, Q, x0, P0, ptr, zz, HH, RR, w, gate_k, smooth)
+    if robust_refit and len(st):
+        r = zz - np.einsum("lmn,ln->lm", HH, x[st])
+        d = np.sqrt(np.einsum("lm,lm->l", r, np.linalg.solve(RR, r[..., None])[..., 0]))
+        w = np.where(d > gate_k, gate_k / np.maximum(d, 1e-12), 1.0)
+        x, P, w = _kf_rts(F, Q, x0, P0, ptr, zz, HH, RR, w, 0.0, smooth)
+    wo = np.empty_like(w)
+    wo[order] = w
+    return x, P, wo
+
+
+# ------------------------------------------------------------------------------ calibration helpers
+def _rot_mean(R: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Weighted chordal mean of rotations (N, 3, 3)."""
+    U, _, Vt = np.linalg.svd(np.einsum("n,nij->ij", w, R))
+    D = np.diag([1.0, 1.0, np.linalg.det(U @ Vt)])
+    return U @ D @ Vt
+
+
+def robust_rotation_mean(R: np.ndarray, sigma_rad: float, k: float) -> tuple[np.ndarray, np.ndarray, float]:
+    """Huber-weighted chordal mean of (N, 3, 3); returns (mean, weights, std of the mean [rad])."""
+    w = np.ones(len(R))
+    M = _rot_mean(R, w)
+    for _ in range(6):
+        a = np.linalg.norm(so3_log(np.swapaxes(M, -1, -2)[None] @ R), axis=1) / sigma_rad / np.sqrt(3)
+        w = np.where(a > k / np.sqrt(3), (k / np.sqrt(3)) / np.maximum(a, 1e-12), 1.0)
+        M = _rot_mean(R, w)
+    return M, w, sigma_rad / np.sqrt(max(w.sum(), 1.0))
+
+
+def fit_world_from_model_4dof(q_model: np.ndarray, g_world: np.ndarray, sig: np.ndarray, k: float
+                              ) -> tuple[np.ndarray, np.ndarray, float]:
+    """Huber-IRLS fit of ``g = Rz(yaw) q + t`` (4 DoF). q, g (N, 3) m; sig (3,) m. Returns
+    (T_world_model 4x4, weights (N,), yaw std [rad])."""
+    w = np.ones(len(q_model))
+    T = np.eye(4)
+    for _ in range(8):
+        ws = w / w.sum()
+        qc, gc = ws @ q_model, ws @ g_world
+        A, B = q_model[:, :2] - qc[:2], g_world[:, :2] - gc[:2]
+        Hm = np.einsum("n,ni,nj->ij", w, A, B)
+        yaw = np.arctan2(Hm[0, 1] - Hm[1, 0], Hm[0, 0] + Hm[1, 1])
+        c, s = np.cos(yaw), np.sin(yaw)
+        R = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        T = np.eye(4)
+        T[:3, :3] = R
+        T[:3, 3] = gc - R @ qc
+        r = (q_model @ R.T + T[:3, 3] - g_world) / sig
+        d = np.linalg.norm(r, axis=1)
+        w = np.where(d > k, k / np.maximum(d, 1e-12), 1.0)
+    spread = np.sqrt(np.sum(w * np.sum((q_model[:, :2] - (w / w.sum()) @ q_model[:, :2]) ** 2, axis=1)))
+    return T, w, float(sig[0] / max(spread, 1e-12))
+
+
+# ------------------------------------------------------------------------------ main entry
+def frame_grid(t_vis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The regular frame grid spanning the vision times (lost frames filled in) and the grid index of
+    each vision pose. Returns (t_grid (K,), idx (K_v,))."""
+    if len(t_vis) < 2:
+        raise InputError(None, "the vision trajectory needs at least 2 poses")
+    dt = float(np.median(np.diff(t_vis)))
+    if not dt > 0:
+        raise InputError(None, "vision timestamps are not increasing")
+    idx = np.round((t_vis - t_vis[0]) / dt).astype(np.int64)
+    if (np.diff(idx) <= 0).any():
+        raise InputError(None, "vision timestamps are not on a regular frame grid (two poses in one frame)")
+    t = t_vis[0] + dt * np.arange(idx[-1] + 1)
+    t[idx] = t_vis
+    return t, idx
+
+
+def fuse_navigation(t_vis: np.ndarray, T_vis: np.ndarray, cov_vis: np.ndarray | None, nav: NavLog,
+                    cfg: FusionConfig | None = None, nav_name: str | os.PathLike | None = None) -> FusionResult:
+    """Fuse vision poses ``T_vis`` (K_v, 4, 4) ``T_model_cam`` at ``t_vis`` (s) having covariances
+    ``cov_vis`` (K_v, 6, 6) or None (then ``cfg.vision_sigma_*``) with the log ``nav``.
+
+    Returns the fused poses at every frame of the vision time range (see :class:`FusionResult`).
+    Raises :class:`mst.InputError` (naming ``nav_name``) when the log does not overlap the video or
+    the calibration is not observable (too few fixes, a trajectory too short to fix the yaw).
+    """
+    cfg = cfg or FusionConfig()
+    if cfg.mode not in ("smoother", "filter"):
+        raise InputError(None, f"unknown fusion mode {cfg.mode!r} (smoother | filter)")
+    t_grid, vidx = frame_grid(np.asarray(t_vis, float))
+    K = len(t_grid)
+    dt_f = float(np.median(np.diff(t_grid)))
+    has_vis = np.zeros(K, bool)
+    has_vis[vidx] = True
+    Tg = np.tile(np.eye(4), (K, 1, 1))
+    Tg[vidx] = T_vis
+    if cov_vis is None:
+        cov_vis = np.tile(np.diag([cfg.vision_sigma_m**2] * 3 + [np.radians(cfg.vision_sigma_deg) ** 2] * 3), (len(t_vis), 1, 1))
+    lo, hi = max(t_grid[0], nav.t[0]), min(t_grid[-1], nav.t[-1])
+    if hi <= lo:
+        raise InputError(nav_name, f"time range {nav.t[0]:.3f}-{nav.t[-1]:.3f} s does not overlap the video "
+                                   f"({t_grid[0]:.3f}-{t_grid[-1]:.3f} s); a time offset?")
+    in_rng = (nav.t >= t_grid[0] - 0.5 * dt_f) & (nav.t <= t_grid[-1] + 0.5 * dt_f)
+    tn, fix, R_wb = nav.t[in_rng], nav.fix[in_rng], nav.R_world_body()[in_rng]
+    g_w = nav.p_world[in_rng]
+    # vision interpolated at nav times (both neighbouring frames tracked)
+    j = np.clip(np.searchsorted(t_grid, tn) - 1, 0, K - 2)
+    a = np.clip((tn - t_grid[j]) / (t_grid[j + 1] - t_grid[j]), 0.0, 1.0)
+    pair = has_vis[j] & has_vis[j + 1]
+    p_ci = (1 - a)[:, None] * Tg[j, :3, 3] + a[:, None] * Tg[j + 1, :3, 3]
+    dR = so3_log(np.swapaxes(Tg[j, :3, :3], -1, -2) @ Tg[j + 1, :3, :3])
+    R_ci = Tg[j, :3, :3] @ so3_exp(a[:, None] * dR)
+    lever = np.asarray(cfg.lever_arm_m, float)
+    sig = np.array([cfg.gps_sigma_h_m, cfg.gps_sigma_h_m, cfg.gps_sigma_v_m])
+    s_ahrs = np.radians(cfg.ahrs_sigma_deg)
+
+    # ---- 1. calibration
+    use_g = pair & fix
+    if cfg.T_world_model is None and use_g.sum() < cfg.min_pairs:
+        raise InputError(nav_name, f"only {int(use_g.sum())} GPS fixes at tracked frames (need {cfg.min_pairs}) "
+                                   "to estimate the model-to-world transform")
+    if cfg.R_body_cam is None and pair.sum() < cfg.min_pairs:
+        raise InputError(nav_name, f"only {int(pair.sum())} attitudes at tracked frames (need {cfg.min_pairs}) to estimate the mount")
+    T_wm = np.eye(4) if cfg.T_world_model is None else np.asarray(cfg.T_world_model, float)
+    R_bc = np.eye(3) if cfg.R_body_cam is None else np.asarray(cfg.R_body_cam, float)
+    q = p_ci
+    yaw_std = 0.0
+    w_g = np.ones(int(use_g.sum()))
+    w_a = np.ones(int(pair.sum()))
+    mount_std = 0.0
+    for _ in range(3):
+        if cfg.T_world_model is None:
+            T_wm, w_g, yaw_std = fit_world_from_model_4dof(q[use_g], g_w[use_g], sig, cfg.huber_k)
+        if cfg.R_body_cam is None:
+            R_cb_j = np.swapaxes(R_ci[pair], -1, -2) @ T_wm[:3, :3].T[None] @ R_wb[pair]
+            R_cb, w_a, mount_std = robust_rotation_mean(R_cb_j, s_ahrs, cfg.huber_k)
+            R_bc = R_cb.T
+        q = p_ci - np.einsum("nij,j->ni", R_ci @ R_bc.T[None], lever)
+    if cfg.T_world_model is None and np.degrees(yaw_std) > cfg.max_world_yaw_std_deg:
+        raise InputError(nav_name, f"the tracked trajectory spans too little ground for the GPS noise to fix the "
+                                   f"model-to-world yaw (std {np.degrees(yaw_std):.1f} deg); give the transform")
+    R_wm, t_wm = T_wm[:3, :3], T_wm[:3, 3]
+
+    # ---- 2a. attitude smoother
+    R_mc_ahrs = R_wm.T[None] @ R_wb @ R_bc[None]
+    k_a = np.clip(np.round((tn - t_grid[0]) / dt_f).astype(np.int64), 0, K - 1)
+    dtau_a = tn - t_grid[k_a]
+    dts = np.diff(t_grid, prepend=t_grid[0])
+    F6, Q6 = _cv_model(dts, np.radians(cfg.ang_accel_sigma_dps2) ** 2)
+    steps_r = np.concatenate([vidx, k_a])
+    R_meas = np.concatenate([T_vis[:, :3, :3], R_mc_ahrs])
+    H_r = np.zeros((len(steps_r), 3, 6))
+    H_r[:, :, :3] = np.eye(3)
+    H_r[len(vidx):, :, 3:] = dtau_a[:, None, None] * np.eye(3)
+    C_r = np.concatenate([cov_vis[:, 3:, 3:], np.tile(np.eye(3) * s_ahrs**2, (len(tn), 1, 1))])
+    t_meas_r = t_grid[steps_r] + np.concatenate([np.zeros(len(vidx)), dtau_a])
+    R0 = Tg[:, :3, :3].copy()
+    if not has_vis.all():  # frames without vision: the nearest attitude measurement
+        near = np.clip(np.round((tn - t_grid[0]) / dt_f).astype(np.int64), 0, K - 1)
+        R_at = np.full(K, -1)
+        R_at[near] = np.arange(len(tn))
+        fill = ~has_vis
+        src = np.where(R_at >= 0, R_at, -1)
+        known = np.flatnonzero(src >= 0)
+        if len(known):
+            nearest = known[np.clip(np.searchsorted(known, np.arange(K)), 0, len(known) - 1)]
+            R0[fill] = R_mc_ahrs[src[nearest[fill]]]
+    smooth = cfg.mode == "smoother"
+    if smooth:
+        R_ref = smooth_rotations_gn(t_grid, R0, t_meas_r, R_meas, C_r, np.radians(cfg.ang_accel_sigma_dps2), cfg.huber_k)
+        x0 = np.zeros(6)
+        P0 = np.diag([np.radians(10.0) ** 2] * 3 + [np.radians(10.0) ** 2] * 3)
+        # about the smooth batch solution the linear KF + RTS is exact to first order in its (small)
+        # correction; it gives the covariances
+        z_r = so3_log(R_meas @ np.swapaxes(_interp_R(t_grid, R_ref, t_meas_r), -1, -2))
+        xr, Pr, wr = _run_kf(F6, Q6, x0, P0, steps_r, z_r, H_r, C_r, cfg.huber_k, True, True)
+        R_ref = so3_exp(xr[:, :3]) @ R_ref
+    else:  # causal: multiplicative EKF, each frame from the measurements up to it
+        order = np.argsort(steps_r, kind="stable")
+        ptr = np.searchsorted(steps_r[order], np.arange(K + 1)).astype(np.int64)
+        dtau_r = np.concatenate([np.zeros(len(vidx)), dtau_a])
+        first = R_meas[order[0]]
+        R_ref, _, Pr, w_o = _mekf(dts, np.radians(cfg.ang_accel_sigma_dps2) ** 2, first, ptr,
+                                  np.ascontiguousarray(R_meas[order]), dtau_r[order], np.ascontiguousarray(C_r[order]),
+                                  cfg.huber_k)
+        wr = np.empty_like(w_o)
+        wr[order] = w_o
+    R_fused = R_ref
+
+    # ---- 2b. position smoother
+    gi = np.flatnonzero(fix)
+    g_m = (g_w[gi] - t_wm) @ R_wm  # = R_wm^T (g - t)
+    g_cam = g_m + np.einsum("nij,j->ni", R_fused[k_a[gi]] @ R_bc.T[None], lever)  # antenna -> camera
+    Sg = R_wm.T @ np.diag(sig**2) @ R_wm
+    F9, Q9 = _cv_model(dts, cfg.accel_sigma_mps2**2, extra=1, q_extra=cfg.gps_bias_rw_m_per_sqrt_s**2)
+    steps_p = np.concatenate([vidx, k_a[gi]])
+    z_p = np.concatenate([T_vis[:, :3, 3], g_cam])
+    H_p = np.zeros((len(steps_p), 3, 9))
+    H_p[:, :, :3] = np.eye(3)
+    H_p[len(vidx):, :, 3:6] = dtau_a[gi][:, None, None] * np.eye(3)
+    H_p[len(vidx):, :, 6:] = np.eye(3)
+    C_p = np.concatenate([cov_vis[:, :3, :3], np.tile(Sg, (len(gi), 1, 1))])
+    x0 = np.zeros(9)
+    x0[:3] = T_vis[0, :3, 3] if vidx[0] == 0 else (g_cam[0] if len(gi) else T_vis[0, :3, 3])
+    P0 = np.diag([100.0**2] * 3 + [30.0**2] * 3 + [cfg.gps_bias_sigma_m**2] * 3)
+    xp_, Pp_, wp = _run_kf(F9, Q9, x0, P0, steps_p, z_p, H_p, C_p, cfg.huber_k, smooth, smooth)
+
+    T_out = np.tile(np.eye(4), (K, 1, 1))
+    T_out[:, :3, :3] = R_fused
+    T_out[:, :3, 3] = xp_[:, :3]
+    cov = np.zeros((K, 6, 6))
+    cov[:, :3, :3] = Pp_[:, :3, :3]
+    cov[:, 3:, 3:] = Pr[:, :3, :3]
+    w_gps = wp[len(vidx):]
+    w_ahrs = wr[len(vidx):]
+    calib = {
+        "mode": cfg.mode,
+        "world_yaw_deg": float(np.degrees(np.arctan2(R_wm[1, 0], R_wm[0, 0]))),
+        "world_yaw_std_deg": float(np.degrees(yaw_std)),
+        "world_offset_m": t_wm.tolist(),
+        "mount_ypr_deg": mount_ypr_deg_from_R(R_bc).tolist(),
+        "mount_std_deg": float(np.degrees(mount_std)),
+        "lever_arm_m": lever.tolist(),
+        "lever_arm_estimated": False,
+        "time_offset_s": 0.0,
+        "time_offset_estimated": False,
+        "gps_bias_m_start_end": [xp_[0, 6:].tolist(), xp_[-1, 6:].tolist()],
+        "nav_offset_enh": nav.offset.tolist(),
+    }
+    stats = {
+        "gps_fixes_used": int(len(gi)), "gps_downweighted": int((w_gps < 0.999).sum()),
+        "gps_outliers": int((w_gps < 0.5).sum()), "ahrs_rows_used": int(len(tn)),
+        "ahrs_outliers": int((w_ahrs < 0.5).sum()),
+        "calibration_gps_outliers": int((w_g < 0.5).sum()), "calibration_ahrs_outliers": int((w_a < 0.5).sum()),
+        "pos_sigma_median_m": float(np.median(np.sqrt(np.trace(cov[:, :3, :3], axis1=1, axis2=2)))),
+        "rot_sigma_median_deg": float(np.degrees(np.median(np.sqrt(np.trace(cov[:, 3:, 3:], axis1=1, axis2=2))))),
+    }
+    return FusionResult(t=t_grid, T_model_cam=T_out, cov=cov, has_vision=has_vis, gps_bias_m=xp_[:, 6:].copy(),
+                        T_world_model=T_wm, R_body_cam=R_bc, calib=calib, stats=stats)
+
+
+def smooth_rotations_gn(t_grid: np.ndarray, R_init: np.ndarray, t_meas: np.ndarray, R_meas: np.ndarray,
+                        C_meas: np.ndarray, sigma_alpha: float, huber_k: float, iters: int = 4) -> np.ndarray:
+    """Batch maximum-a-posteriori attitudes on the grid (Gauss-Newton on SO(3), sparse).
+
+    Minimises sum |log(R_meas R(t_meas)^T)|^2_C (Huber-IRLS) + sum |rate change|^2 / (sigma_alpha^2 dt)
+    with ``R(t)`` slerped between grid rotations, updates ``R_k <- exp(delta_k) R_k``. ``R_init``
+    (K, 3, 3) may be noisy: the smoothness terms are evaluated on the current estimate, so the result
+    is smooth (unlike a linear filter about a noisy reference). ``C_meas`` (L, 3, 3) rad^2,
+    ``sigma_alpha`` rad/s^2/sqrt(Hz). Returns (K, 3, 3)."""
+    import scipy.sparse as sp
+    from scipy.sparse.linalg import spsolve
+
+    K = len(t_grid)
+    R = R_init.copy()
+    j = np.clip(np.searchsorted(t_grid, t_meas) - 1, 0, K - 2)
+    a = np.clip((t_meas - t_grid[j]) / (t_grid[j + 1] - t_grid[j]), 0.0, 1.0)
+    Linv = np.linalg.inv(np.linalg.cholesky(C_meas))  # whitening: Linv @ e
+    L = len(t_meas)
+    dt = np.diff(t_grid)
+    w = np.ones(L)
+    i3 = np.arange(3)
+    # measurement rows: Linv @ ((1-a) d_j + a d_j+1) = Linv @ e
+    rm = (3 * np.arange(L)[:, None, None] + i3[None, :, None]).repeat(3, 2)  # (L, 3, 3) row ids
+    cj = (3 * j[:, None, None] + i3[None, None, :]).repeat(3, 1)
+    ks = np.arange(1, K - 1)
+    nk = len(ks)
+    s_k = 1.0 / (sigma_alpha * np.sqrt(0.5 * (dt[ks - 1] + dt[ks])))
+    rows_s = 3 * L + 3 * np.arange(nk)[:, None] + i3[None, :]  # (nk, 3)
+    for it in range(iters):
+        Rj = _interp_R(t_grid, R, t_meas)
+        e = so3_log(R_meas @ np.swapaxes(Rj, -1, -2))
+        ew = np.einsum("lij,lj->li", Linv, e)
+        if it > 0:
+            d = np.linalg.norm(ew, axis=1)
+            w = np.where(d > huber_k, huber_k / np.maximum(d, 1e-12), 1.0)
+        sw = np.sqrt(w)[:, None, None]
+        vals_m = np.concatenate([((1 - a)[:, None, None] * Linv * sw).ravel(), (a[:, None, None] * Linv * sw).ravel()])
+        rows_m = np.concatenate([rm.ravel(), rm.ravel()])
+        cols_m = np.concatenate([cj.ravel(), (cj + 3).ravel()])
+        om = so3_log(R[1:] @ np.swapaxes(R[:-1], -1, -2)) / dt[:, None]  # (K-1, 3) rates
+        b_s = -(om[ks] - om[ks - 1]) * s_k[:, None]
+        c1, c0 = s_k / dt[ks], s_k / dt[ks - 1]  # d/d delta: (d_k+1 - d_k)/dt_k - (d_k - d_k-1)/dt_k-1
+        rows = np.concatenate([rows_m, np.repeat(rows_s.ravel(), 3)])
+        cols = np.concatenate([cols_m, np.stack([3 * (ks + 1)[:, None] + i3, 3 * ks[:, None] + i3,
+                                                 3 * (ks - 1)[:, None] + i3], -1).ravel()])
+        vals = np.concatenate([vals_m, np.stack([np.repeat(c1[:, None], 3, 1), -np.repeat((c1 + c0)[:, None], 3, 1),
+                                                 np.repeat(c0[:, None], 3, 1)], -1).ravel()])
+        A = sp.csr_matrix((vals, (rows, cols)), shape=(3 * L + 3 * nk, 3 * K))
+        b = np.concatenate([(ew * np.sqrt(w)[:, None]).ravel(), b_s.ravel()])
+        N = (A.T @ A + sp.identity(3 * K) * 1e-9).tocsc()
+        delta = spsolve(N, A.T @ b).reshape(K, 3)
+        R = so3_exp(delta) @ R
+        if np.abs(delta).max() < 1e-7:
+            break
+    return R
+
+
+def _interp_R(t_grid: np.ndarray, R: np.ndarray, tau: np.ndarray) -> np.ndarray:
+    """Rotations (K, 3, 3) on the grid slerped to times ``tau`` (M,) (clipped to the grid)."""
+    K = len(t_grid)
+    j = np.clip(np.searchsorted(t_grid, tau) - 1, 0, K - 2)
+    a = np.clip((tau - t_grid[j]) / (t_grid[j + 1] - t_grid[j]), 0.0, 1.0)
+    return R[j] @ so3_exp(a[:, None] * so3_log(np.swapaxes(R[j], -1, -2) @ R[j + 1]))
+
+
+# ------------------------------------------------------------------------------ covariance side files
+COV_COLS = [f"c{i}{j}" for i in range(6) for j in range(6)]
+
+
+def cov_path_for(traj_path: str | os.PathLike) -> Path:
+    """``traj.txt`` -> ``traj.cov.csv``."""
+    p = Path(traj_path)
+    return p.with_name(p.stem + ".cov.csv")
+
+
+def format_cov_csv(t: np.ndarray, cov: np.ndarray, source: np.ndarray | None = None) -> str:
+    """CSV text: ``t[,source],c00..c55`` (row-major 6x6, convention in the module docstring)."""
+    out = io.StringIO()
+    out.write("# pose covariance: (x y z [m, model frame], rx ry rz [rad, model-frame perturbation R = exp(r) R_est])\n")
+    out.write(",".join(["t"] + (["source"] if source is not None else []) + COV_COLS) + "\n")
+    flat = cov.reshape(len(t), 36)
+    for i, ti in enumerate(t):
+        out.write(f"{ti:.6f}," + (f"{source[i]}," if source is not None else "") + ",".join(f"{v:.6e}" for v in flat[i]) + "\n")
+    return out.getvalue()
+
+
+def read_cov_csv(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
+    """Read a covariance side file: (t (N,), cov (N, 6, 6)); checks symmetry and positive diagonals."""
+    p = Path(path)
+    if not p.is_file():
+        raise InputError(p, "covariance file does not exist")
+    rows = [r for r in csv.reader(io.StringIO(p.read_text())) if r and not r[0].lstrip().startswith("#")]
+    if len(rows) < 2:
+        raise InputError(p, "covariance file needs a header row and rows")
+    hdr = [h.strip() for h in rows[0]]
+    miss = [c for c in ["t"] + COV_COLS if c not in hdr]
+    if miss:
+        raise InputError(p, f"missing column(s) {', '.join(miss[:4])}{' ...' if len(miss) > 4 else ''}")
+    idx = [hdr.index(c) for c in ["t"] + COV_COLS]
+    try:
+        a = np.array([[float(r[i]) for i in idx] for r in rows[1:]])
+    except (ValueError, IndexError):
+        raise InputError(p, "not a number or a short row") from None
+    if not np.isfinite(a).all():
+        raise InputError(p, "covariance holds NaN or infinite values")
+    C = a[:, 1:].reshape(-1, 6, 6)
+    if np.abs(C - np.swapaxes(C, 1, 2)).max() > 1e-9 * max(1.0, np.abs(C).max()) or (np.einsum("nii->ni", C) <= 0).any():
+        raise InputError(p, "covariances must be symmetric with positive diagonals")
+    return a[:, 0], C
