@@ -116,8 +116,12 @@ def auto_init(gray: np.ndarray, model, camera, T_cam_model_guess: np.ndarray, cf
     D = np.minimum(D, cfg.dt_max_px) / cfg.dt_max_px
     geom = ModelGeometry.from_model(model)
 
+    from mst.pipeline.settings import scene_near_m
+
+    near_m = scene_near_m(geom.vertices, T_cam_model_guess, tc.near_clip)  # fixed at the guess, as the tracker does
+
     def samples(T_cam_model):
-        return visible_samples(geom, T_cam_model, K, W, H, cfg.sample_step_px, tc.near_clip, tc.far_clip,
+        return visible_samples(geom, T_cam_model, K, W, H, cfg.sample_step_px, near_m, tc.far_clip,
                                tc.angle_appear, tc.angle_disappear, None, border_px=2.0, hidden_lines=tc.hidden_lines,
                                zbuffer_scale=tc.zbuffer_scale)
 

@@ -230,7 +230,7 @@ def attach_render_edges(tracker, model, model_path, mode: str, T0: np.ndarray | 
     cfg = tracker.cfg
     curved = curved_fraction(V, F) > CURVED_SHARE
     # the tracker's near plane: the configured one, else relative to the scene depth at the first pose
-    near_m = cfg.near_clip if cfg.near_clip is not None else (tracker.near(T0) if T0 is not None else 1e-3)
+    near_m = tracker.near(T0) if T0 is not None else (cfg.near_clip if cfg.near_clip is not None else 1e-3)
     tracker.sample_provider = RenderEdgeProvider(V, F, tracker.cam, crease_deg=40.0, near_m=near_m,
                                                  border_px=cfg.mask_size // 2 + 1)
     tracker.cfg = cfg.updated(passes=max(cfg.passes, 2))  # the second pass samples the contour near the frame's pose

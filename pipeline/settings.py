@@ -25,11 +25,23 @@ import xml.etree.ElementTree as ET
 from dataclasses import dataclass, fields, replace
 from pathlib import Path
 
+import numpy as np
+
 from mst import InputError
 
 #: default near plane: this fraction of the scene depth (median depth of the model vertices in
 #: front of the camera at the first tracked pose); ViSP's fixed 0.1 m clips a 5 cm part entirely
 NEAR_CLIP_REL = 1e-3
+def scene_near_m(vertices_m: np.ndarray, T_cam_model: np.ndarray, near_clip_m: float | None = None) -> float:
+    """Near clipping distance (m): ``near_clip_m`` when set, else ``NEAR_CLIP_REL`` x the median
+    camera-frame depth of the model vertices ``(N, 3)`` in front of the camera at ``T_cam_model``."""
+    if near_clip_m is not None:
+        return float(near_clip_m)
+    z = np.asarray(vertices_m, float) @ T_cam_model[2, :3] + T_cam_model[2, 3]
+    z = z[z > 0]
+    return max(float(NEAR_CLIP_REL * np.median(z)) if len(z) else 1e-3, 1e-6)
+
+
 #: default level-of-detail line length, in sample steps (3 samples: the edge's own line is
 #: over-determined and its residual spread measurable)
 LOD_LINE_SAMPLES = 3

@@ -24,7 +24,7 @@ import numpy as np
 
 from mst import InputError, atomic_outputs
 from mst.pipeline.overlay import OverlayWriter, draw_overlay
-from mst.pipeline.settings import NEAR_CLIP_REL, TrackerConfig, config_to_dict, lod_thresholds
+from mst.pipeline.settings import TrackerConfig, config_to_dict, lod_thresholds, scene_near_m
 
 #: on re-acquisition (the model back after a SLAM-only stretch) an edge pose is healthy only when its
 #: gradient support is at least this fraction of its running mean over the model frames (measured
@@ -310,13 +310,10 @@ class EdgeTracker:
 
     # -------------------------------------------------------------- helpers
     def near(self, T_cam_model: np.ndarray) -> float:
-        """Near clipping distance (m): the configured one, else ``NEAR_CLIP_REL`` x the median depth
-        of the model vertices in front of the camera at the first pose seen (fixed from then on)."""
+        """Near clipping distance (m): the configured one, else :func:`scene_near_m` at the first
+        pose seen (fixed from then on)."""
         if self.near_m is None:
-            z = self.geom.vertices @ T_cam_model[2, :3] + T_cam_model[2, 3]
-            z = z[z > 0]
-            self.near_m = float(NEAR_CLIP_REL * np.median(z)) if len(z) else 1e-3
-            self.near_m = max(self.near_m, 1e-6)
+            self.near_m = scene_near_m(self.geom.vertices, T_cam_model)
         return self.near_m
 
     def _samples(self, T, K, W, H):
