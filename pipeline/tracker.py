@@ -836,6 +836,9 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
                 ms = (time.perf_counter() - t0) * 1000.0
                 t_frames.append(ms)
                 aid_state = "" if aid is None else ("standby" if getattr(aid, "standby", False) else "on")
+                fired = getattr(aid, "static_world_fired", None) if aid is not None else None
+                if fired and fired[-1] == idx:
+                    aid_state = "static-world-broken"  # the map's world moved against the object here
                 rows.append([idx, f"{t_s:.6f}", status, fr.n_samples, fr.n_inliers,
                              f"{fr.residual_px:.4f}" if np.isfinite(fr.residual_px) else "nan",
                              f"{fr.proj_error_deg:.3f}", f"{ms:.3f}",
@@ -888,6 +891,9 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
         summary["relocalisation"] = {"keyframes": st["keyframes"], "attempts": st["attempts"], "pnp_poses": st["pnp_poses"],
                                      "ms_per_attempt": st["ms_attempts"] / st["attempts"] if st["attempts"] else None,
                                      "ms_learn_total": st["ms_learn"]}
+    fired = getattr(aid, "static_world_fired", None) if aid is not None else None
+    if fired is not None:
+        summary["static_world_frames"] = [int(f) for f in fired]
     if aid is not None and "wakes" in getattr(aid, "stats", {}):
         # the default aid: how often (and where) the mono SLAM was switched on, its replay cost
         summary["aid_wakes"] = int(aid.stats["wakes"])
