@@ -357,6 +357,10 @@ class ModelAidedSlam:
         self._cur = st
         self._cur_gray = gray
         self.timing_ms["predict"] += (time.perf_counter() - t0) * 1e3
+        if self._disagree_streak > 0 or self.moving_hold:
+            # the map is in doubt or its world moves: predict the object's motion from the last
+            # output (edge) poses instead
+            return None if T_cv is None else T_cv.copy()
         if st.T is not None:
             return st.T.copy()
         return None if T_cv is None else T_cv.copy()
@@ -383,7 +387,7 @@ class ModelAidedSlam:
         if edge_ok and slam_ok and self.moving_hold:
             # the object moves in the map's world: no gate, the map follows the model pose; leave this
             # state after static_world_frames frames in a row in which the map agrees again
-            agree_now = self._consistent(T_cam_model_edges, W, st)
+            agree_now = self._consistent(T_cam_model_edges, W, st, fresh=True)
             self._agree_streak = self._agree_streak + 1 if agree_now else 0
             if self._agree_streak >= self.cfg.static_world_frames:
                 self.moving_hold = False
@@ -437,10 +441,10 @@ class ModelAidedSlam:
             if W is not None:
                 tr = float(np.trace(W))
                 self.info_ref = tr if self.info_ref is None else 0.9 * self.info_ref + 0.1 * tr
-        elif slam_ok and not self.moving_hold and not contradicted:
+        elif slam_ok and not self.moving_hold and not contradicted and self._disagree_streak == 0:
             T_out, status = st.T, STATUS_SLAM
             self.frames_since_fix += 1
-        elif contradicted:
+        elif contradicted or (slam_ok and self._disagree_streak > 0):
             # the image supports another pose than the map by more than the output accuracy (a wrong
             # edge match, or the object moving in the map's world): which is right is not known
             # yet, so neither is output; the map is kept (not dragged) until the check decides
@@ -638,12 +642,19 @@ class ModelAidedSlam:
         dpos = np.linalg.norm(inv_T(T_a)[:3, 3] - inv_T(T_b)[:3, 3])
         return dpos > self.cfg.disagree_rel * self.scene_depth or ang > self.cfg.disagree_deg
 
-    def _consistent(self, T_edges: np.ndarray, W_edges: np.ndarray | None, st: _FrameState) -> bool:
-        """The chi-square test of :meth:`_gate` without its bookkeeping (True: edges and map agree)."""
-        if W_edges is None or st.W is None or st.n_inliers < self.cfg.gate_min_inliers:
-            return True
+    def _consistent(self, T_edges: np.ndarray, W_edges: np.ndarray | None, st: _FrameState, fresh: bool = False) -> bool:
+        """The chi-square test of :meth:`_gate` without its bookkeeping (True: edges and map agree).
+
+        ``fresh``: the map was re-anchored onto the previous frame's edge pose, so its anchoring
+        covariance is that pose's (about this frame's edge covariance), not the filter's ``P``."""
+        if W_edges is None or st.W is None or (st.n_inliers < self.cfg.gate_min_inliers and not fresh):
+            return not fresh
         delta = se3_log(np.asarray(T_edges, float) @ inv_T(st.T))
-        cov = self._slam_cov(st) + self.cfg.edge_sigma_px**2 * np.linalg.inv(_reg(np.asarray(W_edges, float)))
+        Se = self.cfg.edge_sigma_px**2 * np.linalg.inv(_reg(np.asarray(W_edges, float)))
+        if fresh:
+            cov = 2.0 * Se + self.cfg.slam_sigma_px**2 * np.linalg.inv(_reg(st.W))
+        else:
+            cov = self._slam_cov(st) + Se
         return float(delta @ np.linalg.solve(cov, delta)) <= self.cfg.gate_chi2
 
     def _strong_enough(self, W: np.ndarray | None) -> bool:

@@ -743,6 +743,7 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
         reloc = Relocaliser(tracker)
     monitor = HealthMonitor(len(tracker.geom.edges), len(tracker.surf_X)) if health_score else None
     n_score_rejects = 0
+    T_hint = None
 
     def judge(fr: FrameResult, first_frame: bool) -> FrameResult:
         """The calibrated health score on top of the tracker's absolute tests."""
@@ -770,7 +771,8 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
                 T_pred = aid.predict(idx, gray, T_prev) if aid is not None else None
                 if T_pred is None and cfg.constant_velocity and T_prev2 is not None and lost_streak == 0:
                     T_pred = (T_prev @ inv_T(T_prev2)) @ T_prev  # constant velocity (camera-frame motion)
-                T_start = T_pred if T_pred is not None else T_prev
+                T_start = T_pred if T_pred is not None else (T_hint if T_hint is not None else T_prev)
+                T_hint = None
                 # re-acquisition: the model comes back after a SLAM-only stretch (or after a loss).
                 # The SLAM prediction has drifted (mono: ~1 deg = several pixels), the previous image
                 # holds no model edges to take contrasts from: widened coarse-to-fine search, and the
@@ -830,6 +832,10 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
                 else:
                     lost_streak += 1
                     T_out, status = None, "lost"
+                    if fr.healthy and fr.T_cam_model is not None:
+                        # a healthy edge pose the aid refused (it contradicts the map): not output,
+                        # but where the object is; the next frame starts there
+                        T_hint = fr.T_cam_model
                 if first:
                     first_reason = fr.reason
                 first = False
