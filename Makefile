@@ -1,16 +1,21 @@
-# mst: every target creates what it needs (system libraries, venv, editable install).
+# mst: every target creates what it needs (system libraries, venv, install from the lock file).
 SHELL := /bin/bash
 PYTHON ?= python3
 VENV ?= .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.mst-installed
 DEMO_OUT ?= demo-out
+LOCK := requirements.lock
+# the lock is resolved for the documented target: Debian bookworm (glibc 2.36), CPython 3.11, x86-64
+LOCK_PLATFORM ?= x86_64-manylinux_2_36
+LOCK_PYTHON ?= 3.11
+UV_VERSION ?= 0.13.9
 
-.PHONY: setup demo test test-all bench lint clean
+.PHONY: setup demo test test-latest test-all bench lint lock clean
 
 setup: $(STAMP)
 
-$(STAMP): pyproject.toml .ci/setup
+$(STAMP): pyproject.toml $(LOCK) .ci/setup
 	PYTHON=$(PYTHON) VENV=$(VENV) bash .ci/setup
 	@touch $(STAMP)
 
@@ -18,9 +23,15 @@ $(STAMP): pyproject.toml .ci/setup
 demo: $(STAMP)
 	PATH=$(CURDIR)/$(BIN):$$PATH OUT=$(DEMO_OUT) bash samples/demo.sh
 
-## test: the default suite (slow tests excluded; `make bench` covers them). Exit 5 (no tests) fails.
+## test: the default suite on the locked versions (slow tests excluded; `make bench` covers them).
+## Exit 5 (no tests) fails. This is what CI (.ci/run) runs.
 test: $(STAMP)
 	$(BIN)/python -m pytest -q
+
+## test-latest: the same suite on the newest versions pyproject.toml allows (in .venv-latest), to test upgrades on purpose
+test-latest:
+	PYTHON=$(PYTHON) VENV=.venv-latest MST_LATEST=1 bash .ci/setup
+	.venv-latest/bin/python -m pytest -q
 
 test-all: $(STAMP)
 	$(BIN)/python -m pytest -q -m ''
@@ -32,5 +43,12 @@ bench: $(STAMP)
 lint: $(STAMP)
 	$(BIN)/python -m ruff check .
 
+## lock: re-resolve requirements.lock (exact versions + sha256 hashes) from pyproject.toml with uv
+lock:
+	@test -x .venv-uv/bin/uv || ($(PYTHON) -m venv .venv-uv && .venv-uv/bin/python -m pip install -q uv==$(UV_VERSION))
+	.venv-uv/bin/uv pip compile pyproject.toml --extra test --extra dev --generate-hashes \
+	    --python-version $(LOCK_PYTHON) --python-platform $(LOCK_PLATFORM) --custom-compile-command "make lock" --upgrade -o $(LOCK)
+	@echo "$(LOCK) written; run 'make test' to install and test it"
+
 clean:
-	rm -rf $(VENV) $(DEMO_OUT) .pytest_cache bench-results.json
+	rm -rf $(VENV) .venv-latest .venv-uv $(DEMO_OUT) .pytest_cache bench-results.json

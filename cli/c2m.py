@@ -6,8 +6,8 @@ from pathlib import Path
 
 import click
 
-from mst import InputError, atomic_output
-from mst.cli.common import emit_json, info, json_option, print_table, progress_bar, quiet_option
+from mst import InputError, atomic_output, check_outputs
+from mst.cli.common import POSITIVE, emit_json, info, json_option, print_table, progress_bar, quiet_option
 
 
 def _floats(ctx, param, value: str) -> tuple[float, ...]:
@@ -15,7 +15,7 @@ def _floats(ctx, param, value: str) -> tuple[float, ...]:
         vals = tuple(float(v) for v in value.replace(";", ",").split(",") if v.strip())
     except ValueError:
         raise click.BadParameter(f"{value!r}: expected comma-separated numbers, e.g. 0.1,0.2,0.5,1") from None
-    if not vals or any(not (v > 0) for v in vals):
+    if not vals or any(not (0 < v < float("inf")) for v in vals):
         raise click.BadParameter("thresholds must be positive numbers")
     return vals
 
@@ -27,7 +27,7 @@ def _floats(ctx, param, value: str) -> tuple[float, ...]:
               help="Max. C2M distances [m] of the Table-1 columns, comma separated.")
 @click.option("--signed", is_flag=True, help="Also signed distances: + on the side the faces point to (outside), "
               "- inside; angle-weighted pseudo-normal of the nearest face/edge/vertex.")
-@click.option("--max-dist", type=float, default=None, help="Points farther than this [m] are counted as "
+@click.option("--max-dist", type=POSITIVE, default=None, help="Points farther than this [m] are counted as "
               "beyond it (NaN in -o) and left out of the overall statistics.")
 @click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="Write the cloud with scalar fields C2M_absolute_distances (and C2M_signed_distances) "
@@ -51,7 +51,8 @@ def c2m(cloud, mesh, thresholds, signed, max_dist, output, as_csv, markdown, plo
     Exact point-to-triangle distances (nearest triangle, float64, after a global shift so
     georeferenced coordinates keep their precision). Prints Table 1 (percentage of points under
     each threshold, mean and std of those distances) and overall count / mean / median / std /
-    RMS / max. NaN/inf points are counted and excluded.
+    RMS / max. NaN/inf points are counted and excluded (the summary says how many;
+    points_nonfinite in --json); a cloud with a coordinate beyond 1e12 m is refused as corrupt.
 
     \b
     CLOUD: .ply (binary/ascii) .pcd .xyz .txt .csv .las .laz
@@ -67,11 +68,7 @@ def c2m(cloud, mesh, thresholds, signed, max_dist, output, as_csv, markdown, plo
     from mst.eval.c2m import C2MConfig, markdown_report, overall_rows, run_c2m, table1_csv, table1_rows
     from mst.eval.cloud_io import open_cloud
 
-    if max_dist is not None and not max_dist > 0:
-        raise click.BadParameter("must be positive", param_hint="--max-dist")
-    for out in (output, markdown, plot):
-        if out is not None and Path(out).resolve() in (Path(cloud).resolve(), Path(mesh).resolve()):
-            raise InputError(out, "output would overwrite an input")
+    check_outputs([output, markdown, plot], [cloud, mesh])
     if output is not None and output.suffix.lower() != ".ply":
         raise InputError(output, "-o must be a .ply file")
     cfg = C2MConfig(thresholds=thresholds, signed=signed, max_dist=max_dist, chunk_points=chunk, engine=engine)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 import sys
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
@@ -10,12 +11,58 @@ from typing import Any
 
 import click
 
+
+class FiniteFloat(click.FloatRange):
+    """A float option that must be finite (NaN and inf refused) and optionally within a range.
+
+    Bad values are reported by click as a problem of the option (``Invalid value for '--voxel'``),
+    never as a problem of an input file.
+    """
+
+    name = "number"
+
+    def __init__(self, *a, allow_inf: bool = False, **k):
+        super().__init__(*a, **k)
+        self.allow_inf = allow_inf
+
+    def convert(self, value, param, ctx):
+        rv = super().convert(value, param, ctx)
+        if math.isnan(rv) or (math.isinf(rv) and not self.allow_inf):
+            self.fail(f"{value!r} is not a {'number' if self.allow_inf else 'finite number'}", param, ctx)
+        return rv
+
+
+#: common option types: finite floats > 0 and >= 0, finite float of any sign
+POSITIVE = FiniteFloat(min=0, min_open=True)
+NON_NEGATIVE = FiniteFloat(min=0)
+FINITE = FiniteFloat()
+
+
 json_option = click.option("--json", "as_json", is_flag=True, help="Print a machine-readable JSON summary on stdout.")
 quiet_option = click.option("-q", "--quiet", is_flag=True, help="No progress bar or summary on stderr.")
 
 
+def _finite_or_none(o: Any) -> Any:
+    """``o`` with numpy values converted and every NaN/inf float replaced by None (JSON null)."""
+    if hasattr(o, "tolist"):
+        o = o.tolist()
+    if isinstance(o, float):
+        return o if math.isfinite(o) else None
+    if isinstance(o, dict):
+        return {k: _finite_or_none(v) for k, v in o.items()}
+    if isinstance(o, (list, tuple)):
+        return [_finite_or_none(v) for v in o]
+    if hasattr(o, "__fspath__"):
+        return str(o)
+    return o
+
+
 def emit_json(obj: Any) -> None:
-    """Write ``obj`` as one JSON document on stdout (numpy scalars/arrays converted)."""
+    """Write ``obj`` as one JSON document on stdout (numpy scalars/arrays converted).
+
+    Strict JSON: a NaN/inf value (a statistic of nothing, an unbounded setting) is written as null,
+    never as the invalid tokens ``NaN``/``Infinity`` that ``jq`` and other parsers reject.
+    """
 
     def default(o: Any) -> Any:
         if hasattr(o, "tolist"):
@@ -24,7 +71,11 @@ def emit_json(obj: Any) -> None:
             return str(o)
         raise TypeError(f"not JSON serialisable: {type(o).__name__}")
 
-    sys.stdout.write(json.dumps(obj, indent=2, default=default, allow_nan=False) + "\n")
+    try:
+        text = json.dumps(obj, indent=2, default=default, allow_nan=False)
+    except ValueError:  # a non-finite float somewhere: nulls instead
+        text = json.dumps(_finite_or_none(obj), indent=2, default=default, allow_nan=False)
+    sys.stdout.write(text + "\n")
     sys.stdout.flush()
 
 
@@ -43,7 +94,7 @@ def stderr_console():
 
 @contextmanager
 def progress_bar(total: int | None, description: str, quiet: bool = False) -> Iterator[Any]:
-    """A rich progress bar on stderr; yields ``advance(n=1)``. Silent with ``quiet``."""
+    """A rich progress bar on stderr; yields ``advance(n=1)``. Silent with ``quiet``; erased on an error."""
     if quiet:
         yield lambda n=1: None
         return
@@ -59,7 +110,12 @@ def progress_bar(total: int | None, description: str, quiet: bool = False) -> It
     cols = [TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), TimeRemainingColumn()]
     with Progress(*cols, console=stderr_console(), transient=False) as prog:
         task = prog.add_task(description, total=total)
-        yield lambda n=1: prog.advance(task, n)
+        try:
+            yield lambda n=1: prog.advance(task, n)
+        except BaseException:
+            # an error (a corrupt frame found on the way): the bar is removed, the error line stays alone
+            prog.live.transient = True
+            raise
 
 
 def print_table(title: str, columns: Iterable[str], rows: Iterable[Iterable[Any]], quiet: bool = False) -> None:

@@ -6,7 +6,8 @@ import sys
 
 import click
 
-from mst.cli.common import emit_json, info, json_option, progress_bar, quiet_option
+from mst import check_outputs
+from mst.cli.common import NON_NEGATIVE, emit_json, info, json_option, progress_bar, quiet_option
 
 STEPS = ("read", "weld", "orient", "regions", "outlines", "write")
 
@@ -15,13 +16,13 @@ STEPS = ("read", "weld", "orient", "regions", "outlines", "write")
 @click.argument("input_path", metavar="INPUT", type=click.Path(dir_okay=False, path_type=str))
 @click.option("-o", "--output", "output_path", required=True, type=click.Path(dir_okay=False, path_type=str),
               help="Polygon model to write; format from the suffix: .wrl (VRML 2.0), .cao (ViSP), .obj.")
-@click.option("--angle-tol", type=click.FloatRange(min=0), default=1.0, show_default=True,
+@click.option("--angle-tol", type=NON_NEGATIVE, default=1.0, show_default=True,
               help="Max angle in degrees between any two triangle normals of one polygon "
                    "(each triangle within half of it from the polygon's normal).")
-@click.option("--dist-tol", type=click.FloatRange(min=0), default=None,
+@click.option("--dist-tol", type=NON_NEGATIVE, default=None,
               help="Max distance in metres of a polygon's vertices from its plane "
                    "[default: 1e-4 of the model's bounding-box diagonal].")
-@click.option("--weld-tol", type=click.FloatRange(min=0), default=1e-6, show_default=True,
+@click.option("--weld-tol", type=NON_NEGATIVE, default=1e-6, show_default=True,
               help="Vertices closer than this (metres) are merged first; 0 merges exact duplicates only.")
 @json_option
 @quiet_option
@@ -44,6 +45,7 @@ def convert_model(input_path: str, output_path: str, angle_tol: float, dist_tol:
     from mst.meshtools.convert import ConvertConfig, summary_lines
     from mst.meshtools.convert import convert_model as run
 
+    check_outputs([output_path], [input_path])
     cfg = ConvertConfig(angle_tol_deg=angle_tol, dist_tol=dist_tol, weld_tol=weld_tol)
     # the bar only on a terminal: in logs and pipes it would leave a stale line before errors
     show_bar = not (quiet or as_json) and sys.stderr.isatty()

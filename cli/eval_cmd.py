@@ -6,8 +6,17 @@ from pathlib import Path
 
 import click
 
-from mst import atomic_output
-from mst.cli.common import emit_json, info, json_option, print_table, quiet_option
+from mst import atomic_output, check_outputs
+from mst.cli.common import (
+    FINITE,
+    NON_NEGATIVE,
+    POSITIVE,
+    emit_json,
+    info,
+    json_option,
+    print_table,
+    quiet_option,
+)
 
 
 @click.group("eval")
@@ -25,19 +34,19 @@ def eval_group() -> None:
 @click.argument("reference", type=click.Path(dir_okay=False, path_type=Path))
 @click.option("--align", type=click.Choice(["none", "se3", "sim3", "first"]), default="se3", show_default=True,
               help="Align the estimate onto the reference: Umeyama without/with scale, first pose, or none.")
-@click.option("--t-max-diff", type=float, default=0.01, show_default=True,
+@click.option("--t-max-diff", type=NON_NEGATIVE, default=0.01, show_default=True,
               help="Association tolerance [s]: poses match when their timestamps differ by at most this.")
-@click.option("--t-offset", type=float, default=0.0, show_default=True, help="Added to the estimate's timestamps [s].")
+@click.option("--t-offset", type=FINITE, default=0.0, show_default=True, help="Added to the estimate's timestamps [s].")
 @click.option("--delta", type=click.IntRange(min=1), default=1, show_default=True, help="RPE step in frames.")
-@click.option("--delta-m", type=click.FloatRange(min=0, min_open=True), default=1.0, show_default=True,
+@click.option("--delta-m", type=POSITIVE, default=1.0, show_default=True,
               help="RPE step in metres of travelled path.")
-@click.option("--yaw-offset", type=float, default=0.0, show_default=True,
+@click.option("--yaw-offset", type=FINITE, default=0.0, show_default=True,
               help="Constant camera-mount yaw offset [deg] removed from d-yaw (est - ref - offset).")
 @click.option("--format", "fmt", type=click.Choice(["auto", "tum", "kitti", "csv"]), default="auto", show_default=True,
               help="Trajectory file format (auto: .csv -> csv, 12 numbers per line -> kitti, else tum).")
 @click.option("--csv-columns", default=None, help="CSV column names, e.g. 't=time,x=east,y=north,z=up,qx=qx,qy=qy,"
               "qz=qz,qw=qw' (defaults: t x y z qx qy qz qw; no quaternion columns: positions only).")
-@click.option("--fps", type=float, default=None, help="KITTI files: timestamps are line index / fps.")
+@click.option("--fps", type=POSITIVE, default=None, help="KITTI files: timestamps are line index / fps.")
 @click.option("--plot", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="PNG: top-down trajectories and dX dY dZ d-yaw over time with the gaps shaded.")
 @json_option
@@ -61,10 +70,13 @@ def traj(estimate, reference, align, t_max_diff, t_offset, delta, delta_m, yaw_o
     """
     from mst.eval.traj import TrajConfig, evaluate_trajectories, report_rows, uav_rows
 
+    check_outputs([plot], [estimate, reference])
     cfg = TrajConfig(align=align, t_max_diff=t_max_diff, t_offset=t_offset, delta=delta, delta_m=delta_m,
                      yaw_offset_deg=yaw_offset, fmt=fmt, csv_columns=csv_columns, fps=fps)
     s = evaluate_trajectories(estimate, reference, cfg)
     series = s.pop("series")
+    for note in s["notes"]:
+        info(f"note: {note}", quiet)
     if plot is not None:
         from mst.eval.plots import trajectory_figure
 

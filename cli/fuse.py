@@ -4,7 +4,17 @@ from __future__ import annotations
 
 import click
 
-from mst.cli.common import emit_json, info, json_option, progress_bar, quiet_option
+from mst import check_outputs
+from mst.cli.common import (
+    NON_NEGATIVE,
+    POSITIVE,
+    FiniteFloat,
+    emit_json,
+    info,
+    json_option,
+    progress_bar,
+    quiet_option,
+)
 
 
 @click.command("fuse")
@@ -19,23 +29,23 @@ from mst.cli.common import emit_json, info, json_option, progress_bar, quiet_opt
 @click.option("--depth-to-color", "depth_to_color", type=click.Path(dir_okay=False), default=None,
               help="4x4 T_depth_color (ViSP's depth_M_color.txt: X_depth = T @ X_color); the trajectory is then "
                    "the COLOUR camera's.")
-@click.option("--depth-scale", type=float, default=1000.0, show_default=True,
+@click.option("--depth-scale", type=POSITIVE, default=1000.0, show_default=True,
               help="Integer depth units per metre (1000 = mm, 5000 = TUM RGB-D); a value < 1 is metres per unit.")
-@click.option("--min-depth", type=float, default=0.1, show_default=True, help="Metres; nearer samples are dropped.")
-@click.option("--max-depth", type=float, default=50.0, show_default=True, help="Metres; farther samples are dropped.")
-@click.option("--edge-k", type=float, default=0.03, show_default=True,
+@click.option("--min-depth", type=NON_NEGATIVE, default=0.1, show_default=True, help="Metres; nearer samples are dropped.")
+@click.option("--max-depth", type=FiniteFloat(min=0, min_open=True, allow_inf=True), default=50.0, show_default=True, help="Metres; farther samples are dropped (inf: no limit).")
+@click.option("--edge-k", type=NON_NEGATIVE, default=0.03, show_default=True,
               help="Drop pixels whose 4-neighbour depth jumps by more than K * depth (0: off).")
-@click.option("--max-angle", type=float, default=80.0, show_default=True,
+@click.option("--max-angle", type=FiniteFloat(min=0, min_open=True, max=90), default=80.0, show_default=True,
               help="Degrees; drop samples seen more obliquely than this to their surface (90: off).")
-@click.option("--smooth", type=int, default=0, show_default=True,
+@click.option("--smooth", type=click.IntRange(min=0, max=99), default=0, show_default=True,
               help="Bilateral filter diameter in pixels for noisy depth (edge-preserving, on log-depth; 0: off).")
-@click.option("--smooth-rel", type=float, default=0.02, show_default=True,
+@click.option("--smooth-rel", type=POSITIVE, default=0.02, show_default=True,
               help="Bilateral range sigma as a fraction of depth.")
-@click.option("--voxel", type=float, default=None,
+@click.option("--voxel", type=NON_NEGATIVE, default=None,
               help="Voxel size in metres: one averaged point per voxel, 0 keeps every sample [default: 0.005]; "
                    "with --tsdf the TSDF voxel [default: 0.01].")
-@click.option("--stride", type=int, default=1, show_default=True, help="Fuse every N-th depth frame.")
-@click.option("--fps", type=float, default=None,
+@click.option("--stride", type=click.IntRange(min=1), default=1, show_default=True, help="Fuse every N-th depth frame.")
+@click.option("--fps", type=POSITIVE, default=None,
               help="Trajectory times are seconds: frame index = round(t * FPS). Default: times are frame indices.")
 @click.option("--tsdf", is_flag=True, help="Fuse a TSDF (Open3D VoxelBlockGrid) and output its surface points.")
 @click.option("--color", "color", default=None, help="Folder of colour images (same frame order) to colour the points.")
@@ -78,6 +88,13 @@ def fuse(traj, depth, camera, output, depth_to_color, depth_scale, min_depth, ma
         raise click.UsageError("--depth needs --traj and --camera")
     if depth is None and landmarks is None:
         raise click.UsageError("give --depth (with --traj and --camera) or --landmarks")
+    if min_depth >= max_depth:
+        raise click.BadParameter(f"{max_depth:g} m is not beyond --min-depth {min_depth:g} m", param_hint="--max-depth")
+    from mst.pipeline.depth_io import DEPTH_SUFFIXES, IMAGE_SUFFIXES
+
+    check_outputs([output], [traj, camera, depth_to_color, color_camera, landmarks,
+                             (depth, DEPTH_SUFFIXES) if depth is not None else None,
+                             (color, IMAGE_SUFFIXES) if color is not None else None])
     if voxel is None:
         voxel = 0.01 if tsdf else 0.005
     cfg = FuseConfig(depth_scale=depth_scale, min_depth=min_depth, max_depth=max_depth, edge_k=edge_k,

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import click
 
-from mst.cli.common import emit_json, info, json_option, print_table, quiet_option
+from mst import check_outputs
+from mst.cli.common import FINITE, POSITIVE, emit_json, info, json_option, print_table, quiet_option
 
 
 @click.command("init")
@@ -14,17 +15,17 @@ from mst.cli.common import emit_json, info, json_option, print_table, quiet_opti
               help="Clicks: 'X Y Z u v' per line, or 'u v' per line with --points.")
 @click.option("--points", "points_path", type=click.Path(dir_okay=False), default=None,
               help="ViSP .init file (count, then 'X Y Z' lines) paired in order with 'u v' clicks.")
-@click.option("--from-pose", "from_pose", nargs=6, type=float, default=None, metavar="X Y Z YAW PITCH ROLL",
+@click.option("--from-pose", "from_pose", nargs=6, type=FINITE, default=None, metavar="X Y Z YAW PITCH ROLL",
               help="Approximate pose: position (model frame, metres; x east, y north, z up) and yaw/pitch/roll (deg).")
-@click.option("--mount", nargs=3, type=float, default=(0.0, 0.0, 0.0), show_default=True, metavar="YAW PITCH ROLL",
+@click.option("--mount", nargs=3, type=FINITE, default=(0.0, 0.0, 0.0), show_default=True, metavar="YAW PITCH ROLL",
               help="Fixed camera-mount rotation relative to the vehicle body (deg), with --from-pose.")
-@click.option("--mount-offset", nargs=3, type=float, default=(0.0, 0.0, 0.0), show_default=True, metavar="DX DY DZ",
+@click.option("--mount-offset", nargs=3, type=FINITE, default=(0.0, 0.0, 0.0), show_default=True, metavar="DX DY DZ",
               help="Camera lever arm in the body frame (metres), with --from-pose.")
 @click.option("--image", "image_path", type=click.Path(dir_okay=False), default=None,
               help="The frame the clicks were taken on (a picture, or a video: its first frame).")
 @click.option("--overlay", "overlay_path", type=click.Path(dir_okay=False), default=None, help="PNG: the model drawn with the pose on --image.")
 @click.option("--show-points", is_flag=True, help="Render the model with the --points numbered (needs --image and a pose/clicks, or -o picture).")
-@click.option("--max-residual", type=float, default=4.0, show_default=True, help="RMS reprojection error (px) above which init fails with a diagnosis.")
+@click.option("--max-residual", type=POSITIVE, default=4.0, show_default=True, help="RMS reprojection error (px) above which init fails with a diagnosis.")
 @click.option("-o", "--output", "out", required=True, type=click.Path(dir_okay=False), help="Pose file (TUM line + cMo comment); with --show-points a PNG.")
 @json_option
 @quiet_option
@@ -50,6 +51,7 @@ def init_pose(model_path, camera_path, clicks_path, points_path, from_pose, moun
     """
     from mst.pipeline.init_pose import run_init
 
+    check_outputs([out, overlay_path], [model_path, camera_path, clicks_path, points_path, image_path])
     res = run_init(model_path, camera_path, out, clicks_path=clicks_path, points_path=points_path,
                    from_pose=from_pose, mount=mount, mount_offset=mount_offset, image_path=image_path,
                    overlay_path=overlay_path, show_points=show_points, max_residual=max_residual)

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import importlib
 import sys
+import warnings
 
 import click
 
@@ -65,31 +66,56 @@ def cli() -> None:
     """
 
 
+def _warning_line(w: warnings.WarningMessage) -> str:
+    return f"{w.category.__name__}: {w.message}"
+
+
 def main(argv: list[str] | None = None) -> None:
-    """Console-script entry point: one clean error line and a non-zero exit for bad input."""
+    """Console-script entry point: one clean error line and exit code 1 for every error.
+
+    The rule: success exits 0; EVERY error exits 1 -- bad input (:class:`mst.InputError`), bad
+    usage (a missing option, an invalid choice, a folder given as a file, an unknown command) and
+    an output that cannot be written; an interrupt (Ctrl-C) exits 130, a closed pipe 141. Python
+    warnings (e.g. numpy ``RuntimeWarning``) raised while a command runs are held back: after an
+    error only the error line is printed; after success each distinct warning is printed once.
+    """
     prog = "mst"
     args = sys.argv[1:] if argv is None else argv
     if args and args[0] in COMMANDS:
         prog = f"mst {args[0]}"
-    try:
-        rv = cli.main(args=args, prog_name="mst", standalone_mode=False)
-    except MstError as e:
-        click.echo(f"{prog}: error: {e}", err=True)
-        sys.exit(e.exit_code)
-    except click.exceptions.Abort:
-        click.echo(f"{prog}: aborted", err=True)
-        sys.exit(130)
-    except click.ClickException as e:
-        click.echo(f"{prog}: error: {e.format_message()}", err=True)
-        sys.exit(e.exit_code)
-    except click.exceptions.Exit as e:
-        sys.exit(e.exit_code)
-    except KeyboardInterrupt:
-        click.echo(f"{prog}: interrupted", err=True)
-        sys.exit(130)
-    except BrokenPipeError:
-        sys.exit(141)
-    sys.exit(rv if isinstance(rv, int) else 0)
+        if args[0] == "eval" and len(args) > 1 and not args[1].startswith("-"):
+            prog = f"mst eval {args[1]}"
+    code = 0
+    with warnings.catch_warnings(record=True) as caught:  # the filters in force decide what is recorded
+        try:
+            rv = cli.main(args=args, prog_name="mst", standalone_mode=False)
+            code = rv if isinstance(rv, int) else 0
+        except MstError as e:
+            click.echo(f"{prog}: error: {e}", err=True)
+            code = 1
+        except click.exceptions.Abort:
+            click.echo(f"{prog}: interrupted", err=True)
+            code = 130
+        except click.ClickException as e:  # usage errors: click's own code is 2, the rule is 1
+            msg = e.format_message().replace("\n", " ")
+            click.echo(f"{prog}: error: {msg}", err=True)
+            code = 1
+        except click.exceptions.Exit as e:
+            code = e.exit_code
+        except KeyboardInterrupt:
+            click.echo(f"{prog}: interrupted", err=True)
+            code = 130
+        except BrokenPipeError:
+            code = 141
+        except (IsADirectoryError, NotADirectoryError, PermissionError, FileNotFoundError) as e:
+            # an OS-level refusal on a named file that a reader did not turn into an InputError
+            where = f"{e.filename}: " if e.filename else ""
+            click.echo(f"{prog}: error: {where}{e.strerror or e}", err=True)
+            code = 1
+    if code == 0:
+        for text in dict.fromkeys(_warning_line(w) for w in caught):
+            click.echo(f"{prog}: warning: {text}", err=True)
+    sys.exit(code)
 
 
 if __name__ == "__main__":

@@ -4,9 +4,33 @@ from __future__ import annotations
 
 import click
 
-from mst.cli.common import emit_json, info, json_option, progress_bar, quiet_option
+from mst.cli.common import NON_NEGATIVE, POSITIVE, emit_json, info, json_option, progress_bar, quiet_option
 
 SCENARIOS = ("orbit", "corridor", "flyover", "fast", "turntable", "occluder", "blackout")
+
+
+def _check_not_inputs(out_dir, inputs) -> None:
+    """Refuse an output folder whose sequence files (model.obj, scene.json, rgb/ ...) include an input.
+
+    ``mst synth`` replaces those names in OUT (with --overwrite): a --model or --from-scene inside
+    them would be overwritten or deleted.
+    """
+    from pathlib import Path
+
+    from mst import InputError
+    from mst.pipeline.synth import _OWNED
+
+    out = Path(out_dir)
+    if not out.is_dir():
+        return
+    for i in inputs:
+        if i is None or not Path(i).exists():
+            continue
+        ri = Path(i).resolve()
+        for name in _OWNED:
+            target = (out / name).resolve()
+            if ri == target or target in ri.parents:
+                raise InputError(out / name, f"output would overwrite the input {i}")
 
 
 @click.command("synth")
@@ -15,37 +39,37 @@ SCENARIOS = ("orbit", "corridor", "flyover", "fast", "turntable", "occluder", "b
 @click.option("-o", "--out", "out_dir", required=True, type=click.Path(file_okay=False), help="Output sequence folder.")
 @click.option("--from-scene", "from_scene", type=click.Path(dir_okay=False),
               help="Re-render exactly what a scene.json describes (its model.obj beside it); other options ignored.")
-@click.option("--frames", type=int, default=None, help="Output frames [orbit 120, corridor 150, flyover 120, fast 60].")
-@click.option("--fps", type=float, default=30.0, show_default=True, help="Frame rate (gt.txt time = frame / fps).")
-@click.option("--width", type=int, default=640, show_default=True, help="Image width, pixels.")
-@click.option("--height", type=int, default=480, show_default=True, help="Image height, pixels.")
-@click.option("--focal", "focal_px", type=float, default=None, help="Focal length fx = fy, pixels [525 * width / 640].")
-@click.option("--speed", type=float, default=None, help="Camera speed, m/s [orbit: one turn per 12 s; corridor: "
+@click.option("--frames", type=click.IntRange(min=1), default=None, help="Output frames [orbit 120, corridor 150, flyover 120, fast 60].")
+@click.option("--fps", type=POSITIVE, default=30.0, show_default=True, help="Frame rate (gt.txt time = frame / fps).")
+@click.option("--width", type=click.IntRange(min=16), default=640, show_default=True, help="Image width, pixels.")
+@click.option("--height", type=click.IntRange(min=16), default=480, show_default=True, help="Image height, pixels.")
+@click.option("--focal", "focal_px", type=POSITIVE, default=None, help="Focal length fx = fy, pixels [525 * width / 640].")
+@click.option("--speed", type=NON_NEGATIVE, default=None, help="Camera speed, m/s [orbit: one turn per 12 s; corridor: "
               "the pass spans the sequence; flyover max(8, distance/4)].")
-@click.option("--distance", type=float, default=None, help="Camera-to-model distance in metres (flyover: height above "
+@click.option("--distance", type=POSITIVE, default=None, help="Camera-to-model distance in metres (flyover: height above "
               "the model) [model fills ~70% of the image height; flyover clamp(0.3 diag, 30, 150)].")
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of textures and noise.")
-@click.option("--drop", type=int, default=None, help="Keep every N-th frame of the trajectory (large motion) [fast: 8, else 1].")
+@click.option("--drop", type=click.IntRange(min=1), default=None, help="Keep every N-th frame of the trajectory (large motion) [fast: 8, else 1].")
 @click.option("--base", type=click.Choice(["orbit", "corridor", "flyover"]), default="orbit", show_default=True,
               help="Base scenario of 'fast'.")
 @click.option("--depth/--no-depth", default=True, show_default=True, help="Write depth/ (16-bit PNG mm + float32 .npy m).")
 @click.option("--depth-noise", type=click.Choice(["none", "kinect"]), default="none", show_default=True,
               help="Structured-light depth noise, quantisation and holes.")
-@click.option("--noise", "rgb_noise", type=float, default=2.0, show_default=True, help="Colour noise sigma, 8-bit levels.")
-@click.option("--motion-blur", type=int, default=1, show_default=True, help="Sub-frames averaged per frame (1 = off).")
+@click.option("--noise", "rgb_noise", type=NON_NEGATIVE, default=2.0, show_default=True, help="Colour noise sigma, 8-bit levels.")
+@click.option("--motion-blur", type=click.IntRange(min=1), default=1, show_default=True, help="Sub-frames averaged per frame (1 = off).")
 @click.option("--model-texture", is_flag=True, help="Texture the model (default: flat, per-face shading).")
 @click.option("--floor", type=click.Choice(["concrete", "tiles"]), default="concrete", show_default=True,
               help="Floor texture of orbit/corridor (flyover: terrain).")
 @click.option("--no-environment", "no_env", is_flag=True, help="Model alone in front of the sky (no ground or walls).")
-@click.option("--click-noise", type=float, default=0.0, show_default=True, help="Gaussian pixel noise on the clicks.")
-@click.option("--n-clicks", "n_clicks", type=int, default=6, show_default=True, help="Model corners in clicks.txt (>= 4).")
+@click.option("--click-noise", type=NON_NEGATIVE, default=0.0, show_default=True, help="Gaussian pixel noise on the clicks.")
+@click.option("--n-clicks", "n_clicks", type=click.IntRange(min=4), default=6, show_default=True, help="Model corners in clicks.txt (>= 4).")
 @click.option("--up", type=click.Choice(["z", "-z", "y", "-y", "x", "-x"]), default="z", show_default=True,
               help="The model's up axis.")
 @click.option("--video", is_flag=True, help="Also write video.mp4 (mp4v).")
 @click.option("--aa", "aa_samples", type=click.Choice(["0", "4", "8", "16"]), default="16", show_default=True,
               help="Sub-pixel rays per silhouette/crease pixel.")
-@click.option("--texture-size", type=int, default=2048, show_default=True, help="Texture tile size, texels.")
-@click.option("--threads", "nthreads", type=int, default=0, show_default=True, help="Ray-casting threads (0 = all).")
+@click.option("--texture-size", type=click.IntRange(min=64), default=2048, show_default=True, help="Texture tile size, texels.")
+@click.option("--threads", "nthreads", type=click.IntRange(min=0), default=0, show_default=True, help="Ray-casting threads (0 = all).")
 @click.option("--overwrite", is_flag=True, help="Replace the sequence files in a non-empty output folder.")
 @json_option
 @quiet_option
@@ -76,6 +100,7 @@ def synth(scenario, model, out_dir, from_scene, as_json, quiet, overwrite, **opt
 
     from mst import InputError
 
+    _check_not_inputs(out_dir, [model, from_scene, Path(from_scene).parent / "model.obj" if from_scene else None])
     if from_scene:
         from mst.pipeline.synth import synthesize_from_scene
 

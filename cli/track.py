@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import click
 
-from mst.cli.common import emit_json, info, json_option, progress_bar, quiet_option
+from mst import check_outputs
+from mst.cli.common import POSITIVE, emit_json, info, json_option, progress_bar, quiet_option
 
 
 @click.command("track")
@@ -16,8 +17,8 @@ from mst.cli.common import emit_json, info, json_option, progress_bar, quiet_opt
 @click.option("--settings", "settings_path", type=click.Path(dir_okay=False), default=None,
               help="ViSP tracker XML (<conf><ecm>..); default: the camera file when it is one, else built-in defaults.")
 @click.option("--frames", "frame_range", default=None, help="Frame selection a:b:step (b exclusive).")
-@click.option("--scale", type=float, default=1.0, show_default=True, help="Resize frames by this factor (intrinsics follow).")
-@click.option("--fps", type=float, default=None, help="Frame rate for time stamps (default: the video's; image sequences: t = index).")
+@click.option("--scale", type=POSITIVE, default=1.0, show_default=True, help="Resize frames by this factor (intrinsics follow).")
+@click.option("--fps", type=POSITIVE, default=None, help="Frame rate for time stamps (default: the video's; image sequences: t = index).")
 @click.option("--range", "search_range", type=int, default=None, help="Moving-edge search range, px each side (overrides settings).")
 @click.option("--step", "sample_step", type=float, default=None, help="Sample step along edges, px (overrides settings).")
 @click.option("--pyramid", "pyramid_levels", type=int, default=None, help="Coarse-to-fine levels (1 = none, 2 = half resolution first).")
@@ -34,10 +35,15 @@ from mst.cli.common import emit_json, info, json_option, progress_bar, quiet_opt
 @click.option("--landmarks", "landmarks_path", type=click.Path(dir_okay=False), default=None,
               help="Write the SLAM map points (model frame) as PLY, e.g. for `mst fuse --landmarks` (mono).")
 @click.option("--depth-to-color", "depth_to_color", type=click.Path(dir_okay=False), default=None, help="4x4 depth-to-colour transform file.")
+@click.option("--edges", type=click.Choice(["auto", "polygon", "render"]), default="auto", show_default=True,
+              help="Edges to track: polygon = the model's polygon edges; render = contours and creases from CPU renders "
+                   "of the mesh (curved objects, raw TINs); auto = polygon for .cao/.wrl and small planar meshes, "
+                   "render for triangle meshes with many faces or curved parts.")
 @json_option
 @quiet_option
 def track(frames_src, model_path, camera_path, init_path, out, settings_path, frame_range, scale, fps, search_range,
-          sample_step, pyramid_levels, constant_velocity, klt, relocalise, overlay, slam, depth_dir, depth_camera, depth_to_color, landmarks_path, as_json, quiet):
+          sample_step, pyramid_levels, constant_velocity, klt, relocalise, overlay, slam, depth_dir, depth_camera, depth_to_color,
+          landmarks_path, edges, as_json, quiet):
     """Track MODEL through FRAMES (video, image folder, glob or printf pattern) from an initial pose.
 
     Per frame: visible model edges are sampled, moving edges searched along their normals (ViSP's
@@ -54,14 +60,32 @@ def track(frames_src, model_path, camera_path, init_path, out, settings_path, fr
     Outputs: traj.txt (TUM: t tx ty tz qx qy qz qw, camera pose in the model frame, tracked frames
     only), traj.csv (frame, time, status, samples, inliers, residual_px, health = mean gradient /
     model-normal angle in degrees, ms, score = calibrated health score: 1 typical, <= 0 rejected,
-    aid = SLAM aid on/standby, reason = why the edge pose was not used), traj.json with --json
+    aid = SLAM aid on/standby, reason = why the edge pose was not used), traj.cov.csv (per model
+    frame the 6x6 pose covariance and the camera-position / rotation 1-sigma), traj.json with --json
     (also printed on stdout).
     """
     from pathlib import Path
 
-    from mst.pipeline.settings import TrackerConfig, read_tracker_xml
+    from mst import InputError
+    from mst.pipeline.depth_io import DEPTH_SUFFIXES, IMAGE_SUFFIXES
+    from mst.pipeline.settings import TrackerConfig, check_setting, read_tracker_xml
     from mst.pipeline.tracker import run_track
 
+    # options are bounded by the same table as the XML settings (settings.BOUNDS), named as options
+    for name, value, label in (("search_range", search_range, "--range"), ("sample_step", sample_step, "--step"),
+                               ("pyramid_levels", pyramid_levels, "--pyramid")):
+        problem = check_setting(name, value, label)
+        if problem:
+            raise InputError(None, f"bad option: {problem}")
+    out_p = Path(out)
+    frames_p = Path(frames_src)
+    # the trajectory, its side outputs (traj.csv, traj.json) and the others must not replace an input
+    check_outputs([out_p, out_p.with_suffix(".csv"), out_p.with_suffix(".cov.csv"),
+                   out_p.with_suffix(".json") if as_json else None, landmarks_path,
+                   overlay],
+                  [(frames_p, IMAGE_SUFFIXES) if frames_p.is_dir() else frames_p if frames_p.exists() else None,
+                   model_path, camera_path, init_path, settings_path, depth_camera, depth_to_color,
+                   (depth_dir, DEPTH_SUFFIXES) if depth_dir else None])
     cfg = TrackerConfig()
     if settings_path:
         cfg = read_tracker_xml(settings_path)
@@ -72,8 +96,8 @@ def track(frames_src, model_path, camera_path, init_path, out, settings_path, fr
     notes: list[str] = []
     summary = run_track(frames_src, model_path, camera_path, init_path, out, cfg, frames=frame_range, scale=scale,
                         fps=fps, overlay=overlay, slam=slam, depth_dir=depth_dir, depth_camera_path=depth_camera,
-                        depth_to_color_path=depth_to_color, landmarks_path=landmarks_path, write_json=as_json, notes=notes, klt=klt, relocalise=relocalise,
-                        progress=lambda total: progress_bar(total, "tracking", quiet))
+                        depth_to_color_path=depth_to_color, landmarks_path=landmarks_path, write_json=as_json, notes=notes, klt=klt,
+                        relocalise=relocalise, progress=lambda total: progress_bar(total, "tracking", quiet), edges=edges)
     for nt in notes:
         info(f"note: {nt}", quiet)
     res = summary["mean_residual_px"]

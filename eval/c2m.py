@@ -809,6 +809,12 @@ def load_mesh_triangles(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray
     return load_triangles(require_file(path, "mesh file"))
 
 
+#: largest accepted |coordinate| of a cloud point, metres. Nothing measured lies 1e12 m away (Earth-
+#: centred coordinates are ~6.4e6 m); such values are corrupt and, near 1e154, overflow the squared
+#: distances into inf/NaN. Clouds holding them are refused (NaN/inf points are counted and excluded).
+MAX_CLOUD_COORD_M = 1e12
+
+
 def run_c2m(cloud_path: str | os.PathLike, mesh_path: str | os.PathLike, config: C2MConfig | None = None,
             out_cloud: str | os.PathLike | None = None, progress: Callable[[int], None] | None = None) -> dict:
     """Cloud-to-mesh distances of every point of ``cloud_path`` to the mesh ``mesh_path``.
@@ -864,6 +870,12 @@ def run_c2m(cloud_path: str | os.PathLike, mesh_path: str | os.PathLike, config:
 
     def work(xyz: np.ndarray):
         ts = time.perf_counter()
+        with np.errstate(invalid="ignore"):
+            far = (np.abs(xyz) > MAX_CLOUD_COORD_M) & np.isfinite(xyz)
+        if far.any():
+            n_far = int(far.any(axis=1).sum())
+            raise InputError(cloud_path, f"{n_far} point(s) with a coordinate beyond {MAX_CLOUD_COORD_M:g} m "
+                                         "(corrupt values?); NaN/inf points are excluded, these are refused")
         if nb is not None:
             P, fin = nb.shift_points(np.ascontiguousarray(xyz, np.float64), shift)
             if not fin.all():

@@ -55,7 +55,7 @@ class CloudSource:
 
     def read_all(self) -> np.ndarray:
         """All coordinates as one float64 (N, 3) array."""
-        parts = list(self.chunks(max(self.count, 1)))
+        parts = list(self.chunks(min(max(self.count, 1), 1 << 20)))  # memory follows the data, not the header
         return np.concatenate(parts) if parts else np.zeros((0, 3))
 
 
@@ -133,18 +133,26 @@ def _open_ply(p: Path) -> CloudSource:
         if not tok:
             continue
         if tok[0] == "format":
-            fmt = tok[1]
+            fmt = tok[1] if len(tok) > 1 else None
         elif tok[0] == "element":
+            if len(tok) != 3 or not re.fullmatch(r"\d+", tok[2]):
+                raise InputError(p, f"PLY header: bad element line {line[:60]!r} (count must be an integer >= 0)")
             elements.append((tok[1], int(tok[2]), []))
         elif tok[0] == "property":
             if not elements:
                 raise InputError(p, "property before any element in the header")
-            if tok[1] == "list":
+            if len(tok) >= 2 and tok[1] == "list":
+                if len(tok) != 5 or tok[2] not in PLY_TYPES or tok[3] not in PLY_TYPES:
+                    raise InputError(p, f"PLY header: bad list property {line[:60]!r}")
+                if elements[-1][0] == "vertex" and tok[4] in ("x", "y", "z"):
+                    raise InputError(p, f"PLY header: vertex coordinate {tok[4]!r} declared as a list")
                 elements[-1][2].append((tok[-1], "list"))
             else:
-                if tok[1] not in PLY_TYPES:
-                    raise InputError(p, f"unknown PLY type {tok[1]!r}")
+                if len(tok) != 3 or tok[1] not in PLY_TYPES:
+                    raise InputError(p, f"PLY header: bad property line {line[:60]!r}")
                 elements[-1][2].append((tok[2], PLY_TYPES[tok[1]]))
+        elif tok[0] not in ("ply", "comment", "obj_info", "end_header"):
+            raise InputError(p, f"PLY header: unexpected line {line[:60]!r}")
     if fmt not in ("ascii", "binary_little_endian", "binary_big_endian"):
         raise InputError(p, f"unsupported PLY format {fmt!r}")
     names = [e[0] for e in elements]
@@ -169,8 +177,11 @@ def _open_ply(p: Path) -> CloudSource:
     end = "<" if fmt == "binary_little_endian" else ">"
     offset = data_start
     for e in elements[:vi]:
-        offset += e[1] * np.dtype([(nm, end + t) for nm, t in e[2]]).itemsize
-    dt = np.dtype([(nm, end + t) for nm, t in props])
+        offset += e[1] * sum(np.dtype(t).itemsize for _, t in e[2])
+    try:
+        dt = np.dtype([(nm, end + t) for nm, t in props])
+    except ValueError as e:  # duplicate property names
+        raise InputError(p, f"PLY header: bad vertex properties ({e})") from None
     need = offset + n * dt.itemsize
     if p.stat().st_size < need:
         raise InputError(p, f"file is truncated: {p.stat().st_size} bytes, header needs {need}")
@@ -182,8 +193,9 @@ def _open_ply(p: Path) -> CloudSource:
             for s in range(0, n, size):
                 blk = np.fromfile(f, dtype=dt, count=min(size, n - s))
                 out = np.empty((len(blk), 3), np.float64)
-                for j, k in enumerate("xyz"):
-                    out[:, j] = blk[k]
+                with np.errstate(invalid="ignore"):  # signalling NaNs pass through as NaN
+                    for j, k in enumerate("xyz"):
+                        out[:, j] = blk[k]
                 yield out
 
     return CloudSource(p, n, xyz_dtype, reader)
@@ -207,19 +219,31 @@ def _open_pcd(p: Path) -> CloudSource:
         hdr[tok[0].upper()] = tok[1:]
         if tok[0].upper() == "DATA":
             break
-    try:
-        fields = hdr["FIELDS"]
-        n = int(hdr["POINTS"][0]) if "POINTS" in hdr else int(hdr["WIDTH"][0]) * int(hdr["HEIGHT"][0])
-        data = hdr["DATA"][0].lower()
-    except (KeyError, IndexError, ValueError):
-        raise InputError(p, "PCD header lacks FIELDS/POINTS/DATA") from None
-    if not {"x", "y", "z"} <= set(fields):
-        raise InputError(p, "PCD has no x, y, z fields")
-    sizes = [int(s) for s in hdr.get("SIZE", ["4"] * len(fields))]
-    types = hdr.get("TYPE", ["F"] * len(fields))
-    counts = [int(c) for c in hdr.get("COUNT", ["1"] * len(fields))]
+    def ints(key: str, default: list[str]) -> list[int]:
+        vals = hdr.get(key, default)
+        if not vals or not all(re.fullmatch(r"\d+", v) for v in vals):
+            raise InputError(p, f"PCD header: {key} must hold integers >= 0 (got {' '.join(vals)[:40]!r})")
+        return [int(v) for v in vals]
+
+    if "FIELDS" not in hdr or "DATA" not in hdr or not hdr["DATA"] or not ("POINTS" in hdr or "WIDTH" in hdr):
+        raise InputError(p, "PCD header lacks FIELDS/POINTS/DATA")
+    fields = hdr["FIELDS"]
+    n = ints("POINTS", [])[0] if "POINTS" in hdr else ints("WIDTH", [])[0] * ints("HEIGHT", ["1"])[0]
+    data = hdr["DATA"][0].lower()
+    if not {"x", "y", "z"} <= set(fields) or len(set(fields)) != len(fields):
+        raise InputError(p, "PCD has no x, y, z fields (or a field twice)")
+    sizes = ints("SIZE", ["4"] * len(fields))
+    types = [t.upper() for t in hdr.get("TYPE", ["F"] * len(fields))]
+    counts = ints("COUNT", ["1"] * len(fields))
+    if not (len(sizes) == len(types) == len(counts) == len(fields)):
+        raise InputError(p, "PCD header: FIELDS, SIZE, TYPE and COUNT differ in length")
     kind = {"F": "f", "I": "i", "U": "u"}
-    xyz_dtype = np.dtype(f"f{max(sizes[fields.index(k)] for k in 'xyz')}")
+    for nm, sz, t in zip(fields, sizes, types):
+        if t not in kind or sz not in ((4, 8) if t == "F" else (1, 2, 4, 8)):
+            raise InputError(p, f"PCD header: field {nm!r} has TYPE {t} SIZE {sz} (not a number type)")
+    if any(counts[fields.index(k)] != 1 for k in "xyz"):
+        raise InputError(p, "PCD header: x, y, z must have COUNT 1")
+    xyz_dtype = np.dtype("f8") if max(sizes[fields.index(k)] for k in "xyz") > 4 else np.dtype("f4")
     if data == "ascii":
         col, cols = 0, {}
         for nm, c in zip(fields, counts):
@@ -239,7 +263,8 @@ def _open_pcd(p: Path) -> CloudSource:
             f.seek(pos)
             for s in range(0, n, size):
                 blk = np.fromfile(f, dtype=dt, count=min(size, n - s))
-                yield np.stack([blk[k].astype(np.float64) for k in "xyz"], axis=1)
+                with np.errstate(invalid="ignore"):  # signalling NaNs pass through as NaN
+                    yield np.stack([blk[k].astype(np.float64) for k in "xyz"], axis=1)
 
     return CloudSource(p, n, xyz_dtype, reader)
 
@@ -251,8 +276,16 @@ def _open_las(p: Path) -> CloudSource:
     try:
         with laspy.open(p) as f:
             n = int(f.header.point_count)
+            start = int(f.header.offset_to_point_data)
+            rec = int(f.header.point_format.size)
+            compressed = bool(getattr(f.header, "are_points_compressed", p.suffix.lower() == ".laz"))
     except Exception as e:  # laspy raises several types for corrupt files
         raise InputError(p, f"cannot read LAS/LAZ header ({e})") from None
+    size = p.stat().st_size
+    # the header's count must fit the file (a corrupt count would make laspy allocate it); LAZ
+    # compresses, so only an absurd ratio is refused there (LASzip reaches ~10x on real clouds)
+    if (not compressed and start + n * rec > size) or (compressed and n * rec > 1000 * size):
+        raise InputError(p, f"LAS/LAZ header announces {n} points of {rec} bytes; the file has {size} bytes (truncated or corrupt)")
 
     def reader(size: int) -> Iterator[np.ndarray]:
         try:

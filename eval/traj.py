@@ -33,8 +33,8 @@ from pathlib import Path
 
 import numpy as np
 
-from mst import InputError
-from mst.pipeline.poses import R_from_quat, inv_T, make_T, read_tum, rotation_angle_deg
+from mst import InputError, read_text
+from mst.pipeline.poses import R_from_quat, check_pose_rows, inv_T, make_T, read_tum, rotation_angle_deg
 
 NADIR_LIMIT_DEG = 10.0
 
@@ -56,7 +56,7 @@ class TrajConfig:
 
 # ------------------------------------------------------------------------------------ reading
 def read_trajectory(path: str | os.PathLike, fmt: str = "auto", csv_columns: str | None = None,
-                    fps: float | None = None) -> tuple[np.ndarray, np.ndarray, bool]:
+                    fps: float | None = None, notes: list[str] | None = None) -> tuple[np.ndarray, np.ndarray, bool]:
     """Read a trajectory: ``(t (N,) seconds, T_model_cam (N, 4, 4), has_rotation)``.
 
     Formats: ``tum`` (``t tx ty tz qx qy qz qw``), ``kitti`` (12 numbers per line, the 3x4 pose
@@ -64,48 +64,92 @@ def read_trajectory(path: str | os.PathLike, fmt: str = "auto", csv_columns: str
     ``csv_columns`` as ``key=column`` pairs for keys t x y z and optionally qx qy qz qw; without
     quaternion columns the rotation is unknown and ``has_rotation`` is False). ``auto``: ``.csv`` is
     CSV, otherwise TUM for 8 numbers per line and KITTI for 12.
+
+    UTF-8 text (a byte-order mark is accepted). Refused with :class:`mst.InputError` naming the
+    file (and line): NaN/inf, positions beyond 1e9 m, quaternions that are not unit, timestamps
+    out of order, and two poses with the same timestamp that differ (identical duplicates are
+    dropped, with a line appended to ``notes``).
     """
     p = Path(path)
-    if not p.is_file():
+    if not p.exists():
         raise InputError(p, "trajectory file does not exist")
+    text = read_text(p, "trajectory file")
     if fmt == "auto":
         if p.suffix.lower() == ".csv":
             fmt = "csv"
         else:
-            first = next((ln for ln in p.read_text().splitlines() if ln.strip() and not ln.lstrip().startswith("#")), "")
+            first = next((ln for ln in text.splitlines() if ln.strip() and not ln.lstrip().startswith("#")), "")
             fmt = "kitti" if len(first.replace(",", " ").split()) == 12 else "tum"
     if fmt == "tum":
         t, T = read_tum(p)
         has_rot = True
     elif fmt == "kitti":
-        try:
-            a = np.loadtxt(p, comments="#", ndmin=2)
-        except ValueError as e:
-            raise InputError(p, f"not a KITTI pose file ({e})") from None
-        if a.shape[1] != 12 or len(a) == 0:
-            raise InputError(p, f"KITTI poses need 12 numbers per line, got {a.shape[1]}")
+        rows, lines = [], []
+        for ln, line in enumerate(text.splitlines(), 1):
+            s = line.split("#", 1)[0].strip()
+            if not s:
+                continue
+            parts = s.split()
+            if len(parts) != 12:
+                raise InputError(p, f"line {ln}: KITTI poses need 12 numbers per line, got {len(parts)}")
+            try:
+                rows.append([float(x) for x in parts])
+            except ValueError:
+                raise InputError(p, f"line {ln}: not a number") from None
+            lines.append(ln)
+        if not rows:
+            raise InputError(p, "trajectory has no poses")
+        a = np.asarray(rows)
+        check_pose_rows(p, a, np.asarray(lines), quat_cols=None, pos_cols=slice(3, 12, 4))
         T = np.tile(np.eye(4), (len(a), 1, 1))
         T[:, :3, :] = a.reshape(-1, 3, 4)
+        # KITTI prints >= 6 significant digits: a rotation block off by more than 1e-2 (or a
+        # reflection) is not a rotation; it must not be re-orthonormalised into an arbitrary one
+        R = T[:, :3, :3]
+        with np.errstate(over="ignore", invalid="ignore"):  # entries of 1e308 overflow: not a rotation
+            off = np.abs(np.swapaxes(R, 1, 2) @ R - np.eye(3)).max(axis=(1, 2))
+            bad = ~(off <= 1e-2) | ~(np.linalg.det(R) > 0)
+        if bad.any():
+            raise InputError(p, f"line {lines[int(np.argmax(bad))]}: the 3x3 rotation block is not a rotation")
         U, _, Vt = np.linalg.svd(T[:, :3, :3])
         T[:, :3, :3] = U @ Vt
         t = np.arange(len(a), dtype=np.float64) / (fps or 1.0)
         has_rot = True
     elif fmt == "csv":
-        t, T, has_rot = _read_csv(p, csv_columns)
+        t, T, has_rot = _read_csv(p, text, csv_columns)
     else:
         raise InputError(p, f"unknown trajectory format {fmt!r}")
     if not np.isfinite(T).all() or not np.isfinite(t).all():
         raise InputError(p, "trajectory holds NaN or infinite values")
-    if len(t) > 1 and (np.diff(t) < 0).any():
-        raise InputError(p, "timestamps are not sorted in increasing order")
+    dt = np.diff(t)
+    if len(t) > 1 and (dt < 0).any():
+        k = int(np.argmax(dt < 0))
+        raise InputError(p, f"timestamps are not sorted in increasing order (pose {k + 2}: {t[k + 1]:.6f} s after "
+                            f"{t[k]:.6f} s)")
+    dup = np.flatnonzero(dt == 0)
+    if len(dup):
+        # same time twice: identical poses are a harmless repeat, different ones are a conflict that
+        # must not be averaged or picked silently (evo associates one of them at random)
+        differ = np.abs(T[dup + 1] - T[dup]).max(axis=(1, 2)) > 1e-9
+        if differ.any():
+            k = int(dup[np.argmax(differ)])
+            raise InputError(p, f"two different poses at the same timestamp {t[k]:.6f} s (poses {k + 1} and {k + 2})")
+        keep = np.ones(len(t), bool)
+        keep[dup + 1] = False
+        t, T = t[keep], T[keep]
+        if notes is not None:
+            notes.append(f"{p}: {len(dup)} identical duplicate pose(s) dropped")
     return t, T, has_rot
 
 
-def _read_csv(p: Path, spec: str | None) -> tuple[np.ndarray, np.ndarray, bool]:
+def _read_csv(p: Path, text: str, spec: str | None) -> tuple[np.ndarray, np.ndarray, bool]:
     import csv
+    import io
 
-    with open(p, newline="") as f:
-        rows = [r for r in csv.reader(f) if r and not r[0].lstrip().startswith("#")]
+    try:
+        rows = [r for r in csv.reader(io.StringIO(text, newline="")) if r and not r[0].lstrip().startswith("#")]
+    except csv.Error as e:
+        raise InputError(p, f"not a CSV file ({e})") from None
     if len(rows) < 2:
         raise InputError(p, "CSV trajectory needs a header row and at least one pose")
     header = [h.strip() for h in rows[0]]
@@ -129,6 +173,7 @@ def _read_csv(p: Path, spec: str | None) -> tuple[np.ndarray, np.ndarray, bool]:
         a = np.array([[float(r[c]) for c in cols] for r in rows[1:]], np.float64)
     except (ValueError, IndexError):
         raise InputError(p, "CSV row with a missing or non-numeric value") from None
+    check_pose_rows(p, a[:, 1:], np.arange(2, len(a) + 2), quat_cols=slice(3, 7) if has_rot else None)
     R = R_from_quat(a[:, 4:8]) if has_rot else np.tile(np.eye(3), (len(a), 1, 1))
     return a[:, 0], make_T(R, a[:, 1:4]), has_rot
 
@@ -284,8 +329,9 @@ def evaluate_trajectories(est_path: str | os.PathLike, ref_path: str | os.PathLi
     callers drop it for JSON).
     """
     cfg = config or TrajConfig()
-    t_est, T_est, rot_e = read_trajectory(est_path, cfg.fmt, cfg.csv_columns, cfg.fps)
-    t_ref, T_ref, rot_r = read_trajectory(ref_path, cfg.fmt, cfg.csv_columns, cfg.fps)
+    notes: list[str] = []
+    t_est, T_est, rot_e = read_trajectory(est_path, cfg.fmt, cfg.csv_columns, cfg.fps, notes)
+    t_ref, T_ref, rot_r = read_trajectory(ref_path, cfg.fmt, cfg.csv_columns, cfg.fps, notes)
     ie, ir = associate(t_est, t_ref, cfg.t_max_diff, cfg.t_offset)
     if len(ie) == 0:
         raise InputError(est_path, f"no timestamps match the reference within {cfg.t_max_diff} s "
@@ -293,12 +339,19 @@ def evaluate_trajectories(est_path: str | os.PathLike, ref_path: str | os.PathLi
     has_rot = rot_e and rot_r
     Te, Tr = T_est[ie], T_ref[ir]
     if cfg.align == "first" and not has_rot:
-        raise InputError(None, "--align first needs orientations in both trajectories")
+        raise InputError(ref_path if rot_e else est_path, "--align first needs orientations (no quaternion columns)")
+    if cfg.align in ("se3", "sim3") and len(ie) >= 3:
+        # Umeyama needs positions spread in 2 dimensions: name the trajectory that is degenerate
+        for path, T in ((est_path, Te), (ref_path, Tr)):
+            sv = np.linalg.svd(T[:, :3, 3] - T[:, :3, 3].mean(0), compute_uv=False)
+            if sv[1] <= 1e-9 * max(1.0, float(np.abs(T[:, :3, 3]).max())) * np.sqrt(len(T)):
+                raise InputError(path, f"the {len(T)} associated positions are identical or on one line: "
+                                       f"--align {cfg.align} is not determined (use --align first or none)")
     Ta, T_align, scale = align_estimate(Te, Tr, cfg.align)
     dxyz = Ta[:, :3, 3] - Tr[:, :3, 3]
     ate = np.linalg.norm(dxyz, axis=1)
     out: dict = {
-        "estimate": str(est_path), "reference": str(ref_path),
+        "estimate": str(est_path), "reference": str(ref_path), "notes": notes,
         "poses_estimate": int(len(t_est)), "poses_reference": int(len(t_ref)), "associated": int(len(ie)),
         "t_max_diff_s": cfg.t_max_diff, "align": cfg.align,
         "alignment": {"T_ref_est": T_align, "scale": scale},

@@ -167,9 +167,23 @@ def tin_to_polygons(V: np.ndarray, F: np.ndarray, config: ConvertConfig | None =
     stats.update(regions=n_regions, regrown_triangles=int(n_fallback))
     step("regions")
 
-    # ---- 5./6. outlines
-    faces, holes, ostats = outlines(X, F, region, n_regions, cr, E, col_tol, diag)
-    stats.update(ostats)
+    # ---- 5./6. outlines, then the planarity promise checked on the OUTPUT polygons
+    faces, holes, ostats, face_region = outlines(X, F, region, n_regions, cr, E, col_tol, diag)
+    n_replanarised = 0
+    for it in range(_PLANARITY_ROUNDS + 3):  # the last rounds split what still fails into triangles
+        bad_reg = _nonplanar_regions(X, faces, holes, face_region, dist_tol, diag)
+        if len(bad_reg) == 0:
+            break
+        bad_tri = np.isin(region, bad_reg)
+        n_replanarised += int(bad_tri.sum())
+        if it < _PLANARITY_ROUNDS:  # regrow those regions in a thinner slab
+            region = _regrow(X, F, N, area2, E, region, bad_tri, np.deg2rad(cfg.angle_tol_deg),
+                             dist_tol * 0.5 ** (it + 1))
+        else:  # last resort: one region per triangle (a triangle is exactly planar)
+            region = _renumber(np.where(bad_tri, region.max() + 1 + np.arange(len(F)), region))
+        n_regions = int(region.max()) + 1
+        faces, holes, ostats, face_region = outlines(X, F, region, n_regions, cr, E, col_tol, diag)
+    stats.update(ostats, regions=n_regions, replanarised_triangles=n_replanarised)
     # keep only used vertices, input order
     loops = faces + [h for hs in holes for h in hs]
     used = np.zeros(len(X), bool)
@@ -500,6 +514,59 @@ def _queue_grow(X, F, N, area2, sub, f1, f2, angle_tol, dist_tol) -> np.ndarray:
     return np.array(label, np.int64)[fac]
 
 
+_PLANARITY_ROUNDS = 6
+
+
+def _renumber(lab: np.ndarray) -> np.ndarray:
+    """Region labels renumbered 0.. in the order of their first triangle (canonical, deterministic)."""
+    _, first, inv = np.unique(lab, return_index=True, return_inverse=True)
+    order = np.argsort(first, kind="stable")
+    rank = np.empty(len(order), np.int64)
+    rank[order] = np.arange(len(order))
+    return rank[inv.ravel()]
+
+
+def _regrow(X, F, N, area2, E: _Edges, region, bad_tri, angle_tol: float, dist_tol: float) -> np.ndarray:
+    """Regrow the triangles ``bad_tri`` (whole regions) with :func:`_queue_grow` at ``dist_tol``;
+    the other regions keep their triangles. Returns canonical labels."""
+    f1, f2 = E.pair[:, 0] // 3, E.pair[:, 1] // 3
+    consistent = E.u[E.pair[:, 0]] == E.v[E.pair[:, 1]]
+    cand = consistent & (np.einsum("ij,ij->i", N[f1], N[f2]) >= np.cos(angle_tol) - 1e-15)
+    cand &= bad_tri[f1] & bad_tri[f2] & (region[f1] == region[f2])
+    sub = np.flatnonzero(bad_tri)
+    newlab = _queue_grow(X, F, N, area2, sub, f1[cand], f2[cand], angle_tol, dist_tol)
+    # keep regrown pieces inside their old region (label pairs), so two old regions never merge
+    out = region.copy()
+    out[sub] = region.max() + 1 + newlab * (region.max() + 1) + region[sub]
+    return _renumber(out)
+
+
+def _nonplanar_regions(X, faces, holes, face_region, dist_tol: float, diag: float) -> np.ndarray:
+    """Regions having an output polygon whose vertices (outer loop and holes) are farther than
+    ``dist_tol`` from the polygon's own least-squares plane (through their centroid, normal = the
+    smallest principal axis). This is the plane a user of the written model fits, so it is the one
+    the ``--dist-tol`` promise is checked against. Vectorised over polygons."""
+    if not faces:
+        return np.zeros(0, np.int64)
+    idx = [np.concatenate([f, *hs]) for f, hs in zip(faces, holes)]
+    lens = np.array([len(i) for i in idx], np.int64)
+    pid = np.repeat(np.arange(len(idx)), lens)
+    P = X[np.concatenate(idx)]
+    cnt = lens.astype(float)
+    c = np.stack([np.bincount(pid, weights=P[:, k], minlength=len(idx)) for k in range(3)], 1) / cnt[:, None]
+    Q = P - c[pid]
+    C = np.empty((len(idx), 3, 3))
+    for a in range(3):
+        for b in range(a, 3):
+            C[:, a, b] = C[:, b, a] = np.bincount(pid, weights=Q[:, a] * Q[:, b], minlength=len(idx))
+    n = np.linalg.eigh(C)[1][:, :, 0]  # eigenvector of the smallest eigenvalue
+    d = np.abs(np.einsum("ij,ij->i", Q, n[pid]))
+    dmax = np.zeros(len(idx))
+    np.maximum.at(dmax, pid, d)
+    bad = dmax > dist_tol * (1 + 1e-9) + 1e-12 * diag
+    return np.unique(np.asarray(face_region, np.int64)[bad])
+
+
 # ====================================================================== 5./6. outlines
 def outlines(X, F, region, n_regions, cr, E: _Edges, col_tol: float, diag: float):
     """Boundary loops per region: outer loop + holes, simplified without cracks (module doc 5-6).
@@ -546,7 +613,7 @@ def outlines(X, F, region, n_regions, cr, E: _Edges, col_tol: float, diag: float
     B = len(bu)
     if B == 0:
         return [], [], {"loops": 0, "slit_loops_dropped": 0, "pinch_vertices": 0, "vertices_removed": 0,
-                        "regions_without_outer_loop": int(R), "open_boundary_edges_dropped": n_open}
+                        "regions_without_outer_loop": int(R), "open_boundary_edges_dropped": n_open}, np.zeros(0, np.int64)
     # successor: next boundary half-edge of the same region leaving bv
     out_key = br * nv + bu
     o = np.argsort(out_key, kind="stable")
@@ -643,7 +710,7 @@ def outlines(X, F, region, n_regions, cr, E: _Edges, col_tol: float, diag: float
             n_dropped += 1
             continue
         (outer_of_region if a > 0 else holes_of_region).setdefault(r, []).append(k)
-    faces, holes = [], []
+    faces, holes, face_region = [], [], []
     regions_without_outer = 0
     for r in range(R):
         outs = outer_of_region.get(r, [])
@@ -654,13 +721,15 @@ def outlines(X, F, region, n_regions, cr, E: _Edges, col_tol: float, diag: float
         outs.sort(key=lambda k: -loops[k][1])
         faces.append(loops[outs[0]][2])
         holes.append([loops[h][2] for h in hs])
+        face_region.append(r)
         for extra in outs[1:]:
             faces.append(loops[extra][2])
             holes.append([])
+            face_region.append(r)
     stats = {"loops": len(loops), "slit_loops_dropped": int(n_dropped), "pinch_vertices": int(n_pinch),
              "loops_split_at_pinches": n_split, "vertices_removed": int(len(np.unique(u_o[removable]))),
              "regions_without_outer_loop": int(regions_without_outer), "open_boundary_edges_dropped": n_open}
-    return faces, holes, stats
+    return faces, holes, stats, np.array(face_region, np.int64)
 
 
 def _resolve_pinches(X, bu, bv, br, nR, o, lo, hi, multi, succ):

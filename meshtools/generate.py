@@ -231,6 +231,92 @@ def cylinder(split: int = 1, **kw):
     return model_to_tin(cylinder_model(**kw), split)
 
 
+# ====================================================================== curved objects (render-based tracking)
+def _grid_faces(nu: int, nv: int, wrap_u: bool, wrap_v: bool) -> np.ndarray:
+    """Triangles (two per cell) of an ``nu x nv`` vertex grid (row-major, index ``i * nv + j``)."""
+    iu = np.arange(nu if wrap_u else nu - 1)
+    jv = np.arange(nv if wrap_v else nv - 1)
+    i, j = np.meshgrid(iu, jv, indexing="ij")
+    i, j = i.ravel(), j.ravel()
+    i1, j1 = (i + 1) % nu, (j + 1) % nv
+    a, b, c, d = i * nv + j, i1 * nv + j, i1 * nv + j1, i * nv + j1
+    return np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)]).astype(np.int64)
+
+
+def _orient_outward(V: np.ndarray, F: np.ndarray) -> np.ndarray:
+    """Flip all triangles when the mesh's signed volume is negative (closed, consistently wound meshes)."""
+    vol = np.einsum("ij,ij->i", V[F[:, 0]], np.cross(V[F[:, 1]], V[F[:, 2]])).sum()
+    return F[:, ::-1].copy() if vol < 0 else F
+
+
+def torus(R: float = 0.15, r: float = 0.05, n_major: int = 96, n_minor: int = 48, split: int = 1,
+          aspect: float = 1.0, standing: bool = False):
+    """Torus TIN: major radius ``R``, tube radius ``r`` (metres), ``n_major x n_minor x split^2`` quads (2
+    triangles each), wound outward, resting on z = 0. Lying (axis z) by default; ``standing``: axis y (a
+    wheel). ``aspect`` < 1 squeezes the major circle into an ellipse (semi-axes R, aspect R): a true torus is
+    symmetric about its axis, so a camera turning about that axis cannot be tracked from its contours
+    (every view is the same image). Returns ``(V, F)``."""
+    nu, nv = n_major * split, n_minor * split
+    u = np.linspace(0, 2 * np.pi, nu, endpoint=False)[:, None]
+    v = np.linspace(0, 2 * np.pi, nv, endpoint=False)[None, :]
+    x = (R + r * np.cos(v)) * np.cos(u)
+    y = (aspect * R + r * np.cos(v)) * np.sin(u)
+    z = r * np.sin(v) + 0.0 * u
+    V = np.stack([x, y, z], -1).reshape(-1, 3)
+    if standing:
+        V = V[:, [0, 2, 1]] * [1.0, -1.0, 1.0]  # axis z -> y (a rotation: keeps the winding)
+    V[:, 2] -= V[:, 2].min()
+    F = _grid_faces(nu, nv, True, True)
+    return V, _orient_outward(V, F)
+
+
+def blob(radius: float = 0.15, subdivisions: int = 5, bumps: int = 14, amplitude: float = 0.4, seed: int = 0,
+         split: int = 1):
+    """Smooth procedural "sculpture": an icosphere (``subdivisions`` = 5: 20,480 triangles) whose radius is
+    modulated by ``bumps`` Gaussian bumps and dents (relative amplitude up to ``amplitude``; the dents
+    make concavities and self-occluding contours), resting on z = 0. Deterministic (``seed``). ``(V, F)``."""
+    import trimesh
+
+    m = trimesh.creation.icosphere(subdivisions=subdivisions + max(split, 1) // 2, radius=1.0)
+    D = np.asarray(m.vertices, np.float64)
+    D /= np.linalg.norm(D, axis=1, keepdims=True)
+    rng = np.random.default_rng(seed)
+    C = rng.normal(size=(bumps, 3))
+    C /= np.linalg.norm(C, axis=1, keepdims=True)
+    amp = amplitude * rng.uniform(0.5, 1.0, bumps) * np.where(np.arange(bumps) % 2 == 0, 1.0, -1.0)
+    width = rng.uniform(0.06, 0.2, bumps)  # 1 - cos(angle) scale of each bump
+    rad = np.maximum(1.0 + (amp[None, :] * np.exp(-(1.0 - D @ C.T) / width[None, :])).sum(1), 0.3)  # star-shaped
+    V = radius * D * rad[:, None]
+    V[:, 2] -= V[:, 2].min()
+    F = np.asarray(m.faces, np.int64)
+    return V, _orient_outward(V, F)
+
+
+def vase(height: float = 0.30, n_theta: int = 96, n_profile: int = 64, split: int = 1, aspect: float = 1.0):
+    """Body of revolution (a vase / bottle, axis z, standing on z = 0): radius profile
+    ``r(z) = 0.09 + 0.035 sin(1.5 pi z/h + 0.3) - 0.04 (z/h)^3`` scaled to ``height`` (metres), with flat
+    bottom and top caps (creases at both rims); ``aspect`` < 1 makes the cross-sections ellipses (y
+    semi-axis ``aspect r``: breaks the symmetry about the axis, see :func:`torus`). ``(V, F)`` wound outward."""
+    nt, npf = n_theta * split, n_profile * split
+    zz = np.linspace(0.0, 1.0, npf)
+    rr = (0.09 + 0.035 * np.sin(1.5 * np.pi * zz + 0.3) - 0.04 * zz**3) * (height / 0.30)
+    th = np.linspace(0, 2 * np.pi, nt, endpoint=False)
+    # grid index i * npf + j: i around the axis, j along the profile
+    x = rr[None, :] * np.cos(th)[:, None]
+    y = aspect * rr[None, :] * np.sin(th)[:, None]
+    z = np.broadcast_to(zz[None, :] * height, x.shape)
+    V = np.stack([x, y, z], -1).reshape(-1, 3)
+    F = _grid_faces(nt, npf, True, False)
+    ib, it = len(V), len(V) + 1
+    V = np.vstack([V, [[0.0, 0.0, 0.0], [0.0, 0.0, height]]])
+    i = np.arange(nt)
+    i1 = (i + 1) % nt
+    bot = np.stack([np.full(nt, ib), i1 * npf, i * npf], 1)
+    top = np.stack([np.full(nt, it), i * npf + npf - 1, i1 * npf + npf - 1], 1)
+    F = np.concatenate([F, bot, top]).astype(np.int64)
+    return V, _orient_outward(V, F)
+
+
 # ====================================================================== terrain + city block
 def terrain(size: float = 400.0, cells: int = 100, n_creases: int = 6, slope: float = 0.08, seed: int = 0,
             origin=(0.0, 0.0)):
@@ -268,6 +354,23 @@ def terrain(size: float = 400.0, cells: int = 100, n_creases: int = 6, slope: fl
     t2 = np.where(alt[:, None], np.column_stack([a, c, d]), np.column_stack([b, c, d]))
     F = np.concatenate([t1, t2]).astype(np.int64)
     return V, F, z_of
+
+
+def uneven_arc(sagitta: float = 0.013, length: float = 2.0, width: float = 1.0, coarse: int = 2, dense: int = 40):
+    """A gently curved sheet ``z = -sagitta * (2x/length)^2`` over ``x in [-length/2, length/2]``,
+    ``y in [0, width]`` (metres), meshed unevenly: ``coarse`` steps on the left half, ``dense`` on
+    the right. Its area-weighted plane and the least-squares plane of its boundary vertices differ
+    (the dense half pulls the latter), the case where checking a region against one plane does not
+    bound the distances to the output polygon's own plane. Returns ``(V, F)``, normals up."""
+    h = length / 2
+    xs = np.concatenate([np.linspace(-h, 0, coarse + 1)[:-1], np.linspace(0, h, dense + 1)])
+    ys = np.array([0.0, width])
+    X, Y = np.meshgrid(xs, ys, indexing="ij")
+    V = np.column_stack([X.ravel(), Y.ravel(), (-sagitta * (X / h) ** 2).ravel()])
+    idx = np.arange(len(V)).reshape(len(xs), 2)
+    a, b, c, d = idx[:-1, 0], idx[1:, 0], idx[1:, 1], idx[:-1, 1]
+    F = np.concatenate([np.column_stack([a, b, c]), np.column_stack([a, c, d])]).astype(np.int64)
+    return V, F
 
 
 def city_block(n_triangles: int = 1_000_000, buildings: int = 64, seed: int = 0, size: float = 400.0):
@@ -315,7 +418,7 @@ def city_block(n_triangles: int = 1_000_000, buildings: int = 64, seed: int = 0,
 
 
 # ====================================================================== command line
-SHAPES = ("box", "l_shape", "courtyard", "gabled_house", "cylinder", "terrain", "city_block")
+SHAPES = ("box", "l_shape", "courtyard", "gabled_house", "cylinder", "terrain", "city_block", "torus", "blob", "vase")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -334,7 +437,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--polygons", action="store_true", help="write the ground-truth polygon model instead")
     a = ap.parse_args(argv)
     if a.polygons:
-        if a.shape in ("terrain", "city_block"):
+        if a.shape in ("terrain", "city_block", "torus", "blob", "vase"):
             ap.error("--polygons exists for the single buildings only")
         save_model(a.output, globals()[f"{a.shape}_model"]())
         return 0

@@ -11,8 +11,9 @@ suffix                    read    write   notes
                                           ``Transform``/``Group`` nesting (translation, rotation, scale,
                                           center, scaleOrientation), ``DEF``/``USE``; ``Switch``: the
                                           chosen child, ``LOD``: the first level; Inline not followed
-``.cao``                  yes     yes     ViSP model V1: points, lines, faces from lines, faces from
+``.cao``                  yes     yes     ViSP model V1/V2: points, lines, faces from lines, faces from
                                           points, cylinders, circles, ``load("sub.cao", t=[..], tu=[..])``
+                                          as loadCAOModel reads them (see read_cao)
 ``.off``                  yes     no      polygon faces kept
 ``.ply`` ``.stl``         yes     no      through trimesh (triangles)
 ``.json`` ``.city.json``  yes     no      CityJSON 1.0-2.0: every surface of every city object (highest
@@ -71,6 +72,11 @@ def load_model(path: str | os.PathLike) -> PolygonModel:
     """
     p = require_file(path, "model file")
     suf = _suffix(p)
+    with np.errstate(all="ignore"):  # overflow to inf etc. is reported as an InputError below
+        return _load_model(p, suf)
+
+
+def _load_model(p: Path, suf: str) -> PolygonModel:
     try:
         if suf == ".obj":
             m = read_obj(p)
@@ -80,8 +86,11 @@ def load_model(path: str | os.PathLike) -> PolygonModel:
             m = read_cao(p)
         elif suf == ".off":
             m = read_off(p)
-        elif suf in (".ply", ".stl"):
-            V, F = _trimesh_load(p)
+        elif suf == ".ply":
+            V, F = _read_ply_mesh(p)
+            m = PolygonModel(V, list(F))
+        elif suf == ".stl":
+            V, F = _read_stl(p)
             m = PolygonModel(V, list(F))
         elif suf == ".json":
             m = read_cityjson(p)
@@ -91,8 +100,10 @@ def load_model(path: str | os.PathLike) -> PolygonModel:
         raise
     except UnicodeDecodeError:
         raise InputError(p, f"not a text {suf} file (binary or wrong encoding)") from None
-    except (ValueError, IndexError, KeyError, TypeError) as e:
-        raise InputError(p, f"corrupt {suf} file: {e}") from None
+    except RecursionError:
+        raise InputError(p, f"{suf} file nested too deeply") from None
+    except (ValueError, IndexError, KeyError, TypeError, AttributeError, OverflowError) as e:
+        raise InputError(p, f"corrupt {suf} file: {type(e).__name__}: {e}") from None
     _validate(m, p)
     if suf in (".obj", ".wrl", ".vrml", ".cao", ".off"):
         m = unbridge_faces(m)
@@ -107,24 +118,23 @@ def load_triangles(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
     triangles) keep their vertices and faces exactly as stored (no welding, no reordering).
     """
     p = require_file(path, "mesh file")
-    suf = _suffix(p)
-    if suf == ".ply":
-        fast = _read_ply_triangles_fast(p)
-        if fast is not None:
-            V, F = fast
-            _check_arrays(V, F, p)
-            return V, F
+    with np.errstate(all="ignore"):  # overflow to inf etc. is reported as an InputError
+        return _load_triangles(p, _suffix(p))
+
+
+def _load_triangles(p: Path, suf: str) -> tuple[np.ndarray, np.ndarray]:
     if suf in (".ply", ".stl"):
         try:
-            V, F = _trimesh_load(p)
-        except InputError:
-            raise
-        except Exception as e:  # noqa: BLE001 - trimesh raises many types on corrupt files
-            raise InputError(p, f"cannot read mesh: {e}") from None
+            V, F = _read_ply_mesh(p) if suf == ".ply" else _read_stl(p)
+        except (ValueError, IndexError, KeyError, TypeError, AttributeError, OverflowError) as e:
+            raise InputError(p, f"corrupt {suf} file: {type(e).__name__}: {e}") from None
         _check_arrays(V, F, p)
         return V, F
     if suf == ".obj":
-        fast = _read_obj_triangles_fast(p)
+        try:
+            fast = _read_obj_triangles_fast(p)
+        except ValueError:  # anything odd: the general reader says what and where
+            fast = None
         if fast is not None:
             V, F = fast
             _check_arrays(V, F, p)
@@ -224,6 +234,195 @@ def _trimesh_load(p: Path) -> tuple[np.ndarray, np.ndarray]:
     if len(F) == 0:
         raise InputError(p, "no faces in the mesh")
     return V, F
+
+
+def _ply_header(p: Path) -> tuple[str, list[tuple[str, int, list[list[str]]]], int]:
+    """Strictly parsed PLY header: ``(format, [(element, count, [property tokens])], data offset)``.
+
+    Raises :class:`mst.InputError` for a missing ``end_header``, an unknown format or type, a
+    negative or non-integer element count, a ``property list`` on a vertex coordinate, no vertex
+    x/y/z, and a binary body too short for what the header announces (each face needs at least 3
+    indices).
+    """
+    with open(p, "rb") as fh:
+        head = fh.read(1 << 20)
+    if not head.startswith(b"ply"):
+        raise InputError(p, "not a PLY file (no 'ply' magic)")
+    m = re.search(rb"end_header[ \t]*\r?\n", head)
+    if not m:
+        raise InputError(p, "PLY header has no 'end_header' line (truncated or corrupt)")
+    lines = head[:m.start()].decode("ascii", "replace").splitlines()
+    fmt = None
+    elems: list[tuple[str, int, list[list[str]]]] = []
+    for ln in lines[1:]:
+        t = ln.split()
+        if not t or t[0] in ("comment", "obj_info"):
+            continue
+        if t[0] == "format":
+            fmt = t[1] if len(t) > 1 else None
+            if fmt not in ("ascii", "binary_little_endian", "binary_big_endian"):
+                raise InputError(p, f"unknown PLY format {fmt!r}")
+        elif t[0] == "element":
+            if len(t) != 3 or not re.fullmatch(r"\d+", t[2]):
+                raise InputError(p, f"PLY header: bad element line {ln.strip()[:60]!r} (count must be an integer >= 0)")
+            elems.append((t[1], int(t[2]), []))
+        elif t[0] == "property":
+            if not elems:
+                raise InputError(p, "PLY header: property before any element")
+            if len(t) >= 2 and t[1] == "list":
+                if len(t) != 5 or t[2] not in _PLY_TYPES or t[3] not in _PLY_TYPES:
+                    raise InputError(p, f"PLY header: bad list property {ln.strip()[:60]!r}")
+                if elems[-1][0] == "vertex" and t[4] in ("x", "y", "z"):
+                    raise InputError(p, f"PLY header: vertex coordinate {t[4]!r} declared as a list")
+            elif len(t) != 3 or t[1] not in _PLY_TYPES:
+                raise InputError(p, f"PLY header: bad property {ln.strip()[:60]!r}")
+            elems[-1][2].append(t[1:])
+        else:
+            raise InputError(p, f"PLY header: unexpected line {ln.strip()[:60]!r}")
+    if fmt is None:
+        raise InputError(p, "PLY header has no 'format' line")
+    names = [e[0] for e in elems]
+    if "vertex" not in names:
+        raise InputError(p, "PLY has no 'vertex' element")
+    vprops = [pr[-1] for pr in elems[names.index("vertex")][2]]
+    if not {"x", "y", "z"} <= set(vprops):
+        raise InputError(p, "PLY vertex element lacks x, y, z properties")
+    if fmt != "ascii":
+        need = 0
+        for name, count, props in elems:
+            per = 0
+            for pr in props:
+                if pr[0] == "list":  # at least the count and, for faces, 3 indices
+                    per += np.dtype(_PLY_TYPES[pr[1]]).itemsize + (3 * np.dtype(_PLY_TYPES[pr[2]]).itemsize if name == "face" else 0)
+                else:
+                    per += np.dtype(_PLY_TYPES[pr[0]]).itemsize
+            need += per * count
+        have = p.stat().st_size - m.end()
+        if have < need:
+            counts = ", ".join(f"{c} {n}" for n, c, _ in elems)
+            raise InputError(p, f"PLY is truncated: the header announces {counts} (at least {need} bytes), the body has {have}")
+    return fmt, elems, m.end()
+
+
+def _fan(faces: list[np.ndarray]) -> np.ndarray:
+    """Triangle fans of polygon index loops: (M, 3) int64 (triangles pass through unchanged)."""
+    out = [np.stack([np.full(len(f) - 2, f[0]), f[1:-1], f[2:]], 1) for f in faces if len(f) >= 3]
+    return np.concatenate(out).astype(np.int64) if out else np.zeros((0, 3), np.int64)
+
+
+def _read_ply_mesh(p: Path) -> tuple[np.ndarray, np.ndarray]:
+    """A PLY mesh as ``V`` (N, 3) float64, ``F`` (M, 3) int64 (polygons fanned into triangles).
+
+    Binary triangle meshes: vectorised (:func:`_read_ply_triangles_fast`); other binary layouts:
+    trimesh after the header check; ASCII: one element instance per line, every line checked.
+    Bad headers, short bodies and missing faces raise :class:`mst.InputError`.
+    """
+    fmt, elems, start = _ply_header(p)
+    names = [e[0] for e in elems]
+    if "face" not in names:
+        raise InputError(p, "PLY has no 'face' element (a point cloud, not a mesh)")
+    if fmt == "ascii":
+        return _read_ply_ascii(p, elems, start)
+    fast = _read_ply_triangles_fast(p)
+    if fast is not None:
+        return fast
+    V, F = _trimesh_load(p)
+    nv = elems[names.index("vertex")][1]
+    if len(V) != nv:
+        raise InputError(p, f"PLY announces {nv} vertices, {len(V)} were read")
+    return V, F
+
+
+def _read_ply_ascii(p: Path, elems, start: int) -> tuple[np.ndarray, np.ndarray]:
+    with open(p, "rb") as fh:
+        fh.seek(start)
+        body = fh.read()
+    try:
+        rows = body.decode("ascii").splitlines()
+    except UnicodeDecodeError:
+        raise InputError(p, "ascii PLY body has non-ASCII bytes") from None
+    rows = [r for r in rows if r.strip()]
+    k = 0
+    V = F = None
+    for name, count, props in elems:
+        if k + count > len(rows):
+            raise InputError(p, f"ascii PLY is truncated: {count} {name} elements announced, {len(rows) - k} lines left")
+        chunk = rows[k:k + count]
+        k += count
+        if name == "vertex":
+            if any(pr[0] == "list" for pr in props):
+                raise InputError(p, "ascii PLY vertex with list properties is not supported")
+            cols = [[pr[-1] for pr in props].index(c) for c in "xyz"]
+            try:
+                A = np.array(" ".join(chunk).split(), dtype=np.float64)
+            except ValueError:
+                raise InputError(p, "ascii PLY: a vertex value is not a number") from None
+            if A.size != count * len(props):
+                raise InputError(p, f"ascii PLY: vertex lines hold {A.size} numbers, {count} x {len(props)} expected")
+            V = A.reshape(count, len(props))[:, cols]
+        elif name == "face":
+            lists = [i for i, pr in enumerate(props) if pr[0] == "list"]
+            named = [i for i in lists if props[i][-1] in ("vertex_indices", "vertex_index")]
+            if not lists:
+                raise InputError(p, "ascii PLY face element without an index list")
+            which = (named or lists)[0]
+            faces = []
+            for j, r in enumerate(chunk):
+                t = r.split()
+                pos, idx = 0, None
+                try:
+                    for i, pr in enumerate(props):  # one instance per line, properties in header order
+                        if pr[0] == "list":
+                            n = int(t[pos])
+                            vals = t[pos + 1:pos + 1 + n]
+                            if i == which:
+                                idx = [int(x) for x in vals]
+                                if n < 3 or len(idx) != n:
+                                    raise IndexError
+                            pos += 1 + n
+                        else:
+                            float(t[pos])
+                            pos += 1
+                except (ValueError, IndexError):
+                    raise InputError(p, f"ascii PLY: face {j} is not a list of >= 3 integer indices with its "
+                                        f"properties ({r.strip()[:40]!r})") from None
+                if pos != len(t):
+                    raise InputError(p, f"ascii PLY: face {j} has {len(t)} values, its properties need {pos} "
+                                        f"({r.strip()[:40]!r})")
+                faces.append(np.array(idx, np.int64))
+            F = _fan(faces)
+    if V is None or F is None:
+        raise InputError(p, "ascii PLY without vertex or face data")
+    return V, F
+
+
+def _read_stl(p: Path) -> tuple[np.ndarray, np.ndarray]:
+    """STL (binary or ASCII) as unwelded triangles: ``V`` (3M, 3) float64, ``F`` (M, 3)."""
+    data = p.read_bytes()
+    if len(data) >= 84:
+        n = int(np.frombuffer(data, "<u4", 1, 80)[0])
+        if len(data) == 84 + 50 * n:
+            rec = np.frombuffer(data, dtype=[("n", "<f4", 3), ("v", "<f4", (3, 3)), ("a", "<u2")], count=n, offset=84)
+            V = rec["v"].reshape(-1, 3).astype(np.float64)
+            return V, np.arange(len(V), dtype=np.int64).reshape(-1, 3)
+    if data.lstrip()[:5].lower() != b"solid":
+        size = f"{len(data)} bytes" + (f", a binary STL of {n} triangles needs {84 + 50 * n}" if len(data) >= 84 else "")
+        raise InputError(p, f"not an STL file or truncated ({size})")
+    try:
+        text = data.decode("ascii")
+    except UnicodeDecodeError:
+        raise InputError(p, "ascii STL with non-ASCII bytes (or a binary STL whose size does not match its count)") from None
+    toks = re.findall(r"(?im)^\s*vertex\s+(\S+)\s+(\S+)\s+(\S+)\s*$", text)
+    n_vert_lines = len(re.findall(r"(?im)^\s*vertex\b", text))
+    if n_vert_lines != len(toks):
+        raise InputError(p, "ascii STL is truncated or corrupt: a 'vertex' line does not hold exactly 3 values")
+    try:
+        V = np.array(toks, dtype=np.float64).reshape(-1, 3)
+    except ValueError:
+        raise InputError(p, "ascii STL: a vertex coordinate is not a number") from None
+    if len(V) % 3 or len(re.findall(r"(?im)^\s*endfacet\b", text)) * 3 != len(V):
+        raise InputError(p, f"ascii STL is truncated or corrupt ({len(V)} vertices, not 3 per facet)")
+    return V, np.arange(len(V), dtype=np.int64).reshape(-1, 3)
 
 
 _PLY_TYPES = {"char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2", "int16": "i2",
@@ -401,14 +600,24 @@ def read_obj(p: Path) -> PolygonModel:
             continue
         tag = s[0]
         if tag == "v":
-            if len(s) < 4:
-                raise InputError(p, f"line {lineno}: vertex needs 3 coordinates")
-            V.append([float(s[1]), float(s[2]), float(s[3])])
+            if len(s) not in (4, 5, 7):  # x y z [w] or x y z r g b
+                raise InputError(p, f"line {lineno}: vertex needs 3 coordinates (got {len(s) - 1} values)")
+            try:
+                V.append([float(s[1]), float(s[2]), float(s[3])])
+            except ValueError:
+                raise InputError(p, f"line {lineno}: vertex coordinate is not a number ({raw.strip()[:40]!r})") from None
         elif tag in ("f", "l"):
             idx = []
             for tok in s[1:]:
-                i = int(tok.split("/", 1)[0])
+                head = tok.split("/", 1)[0]
+                if not re.fullmatch(r"[+-]?\d+", head):
+                    raise InputError(p, f"line {lineno}: {tag!r} index {tok[:20]!r} is not an integer")
+                i = int(head)
+                if i == 0 or -i > len(V):  # positive ones are checked once every vertex is read
+                    raise InputError(p, f"line {lineno}: {tag!r} index {i} out of range (vertices so far: {len(V)})")
                 idx.append(i - 1 if i > 0 else len(V) + i)
+            if tag == "f" and len(idx) < 3:
+                raise InputError(p, f"line {lineno}: face has {len(idx)} vertices (need at least 3)")
             if tag == "f":
                 faces.append(idx)
                 names.append(name)
@@ -426,7 +635,7 @@ def obj_text(model: PolygonModel) -> str:
     cur = None
     for f, name in zip(_output_loops(model), model.names):
         if name != cur:
-            out.append(f"g {_token(name) if name else 'default'}\n")
+            out.append(f"g {_token(name)}\n" if name else "g\n")  # bare g: no name (reads back as None)
             cur = name
         out.append("f " + " ".join(str(int(i) + 1) for i in f) + "\n")
     if len(model.lines):
@@ -449,16 +658,29 @@ def read_off(p: Path) -> PolygonModel:
                 toks_lines.append(s)
     if not toks_lines or not toks_lines[0][0].upper().endswith("OFF"):
         raise InputError(p, "not an OFF file (no OFF header)")
+    if len(toks_lines) < 2 and not toks_lines[0][1:]:
+        raise InputError(p, "OFF file ends after its header (no counts)")
     head = toks_lines[0][1:] or toks_lines[1]
     start = 1 if toks_lines[0][1:] else 2
+    if len(head) < 2 or not all(re.fullmatch(r"\d+", x) for x in head[:3]):
+        raise InputError(p, f"OFF counts must be integers >= 0 (got {' '.join(head)[:40]!r})")
     nv, nf = int(head[0]), int(head[1])
     rows = toks_lines[start:]
     if len(rows) < nv + nf:
         raise InputError(p, f"truncated: {nv} vertices and {nf} faces announced, {len(rows)} rows found")
-    V = np.array([[float(x) for x in r[:3]] for r in rows[:nv]], np.float64).reshape(-1, 3)
+    if any(len(r) < 3 for r in rows[:nv]):
+        raise InputError(p, "an OFF vertex row has fewer than 3 coordinates")
+    try:
+        V = np.array([[float(x) for x in r[:3]] for r in rows[:nv]], np.float64).reshape(-1, 3)
+    except ValueError:
+        raise InputError(p, "an OFF vertex coordinate is not a number") from None
     faces = []
-    for r in rows[nv:nv + nf]:
+    for j, r in enumerate(rows[nv:nv + nf]):
+        if not all(re.fullmatch(r"[+-]?\d+", x) for x in r[:1 + (int(r[0]) if r[0].isdigit() else 0)]):
+            raise InputError(p, f"OFF face {j}: indices must be integers ({' '.join(r)[:40]!r})")
         k = int(r[0])
+        if k < 3 or len(r) < 1 + k:
+            raise InputError(p, f"OFF face {j}: {k} vertices announced, {len(r) - 1} values given (need >= 3)")
         faces.append([int(x) for x in r[1:1 + k]])
     return PolygonModel(V, faces)
 
@@ -718,6 +940,8 @@ class _VrmlParser:
         self.expect("}")
         if P is None:
             raise InputError(self.path, "IndexedFaceSet without Coordinate points")
+        if not (np.isfinite(idx).all() and (idx == np.round(idx)).all()):
+            raise InputError(self.path, "coordIndex holds a value that is not an integer")
         idx = idx.astype(np.int64)
         bad = (idx < -1) | (idx >= len(P))
         if bad.any():
@@ -826,128 +1050,254 @@ def _theta_u_matrix(tu: np.ndarray) -> np.ndarray:
     return _axis_angle(np.array([*(np.asarray(tu) / th), th]))
 
 
-_CAO_LOAD = re.compile(r'load\s*\(\s*"([^"]+)"\s*(?:,(.*))?\)\s*$')
-_CAO_VEC = re.compile(r"(t|tu)\s*=\s*\[([^\]]*)\]")
+_CAO_INT = re.compile(r"[+-]?\d+")
+_CAO_FLOAT = re.compile(r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?|[+-]?(?:inf|nan)(?![A-Za-z])", re.I)
+_CAO_PARAM = re.compile(r'([A-Za-z_]\w*)\s*=\s*(?:"([^"]*)"|([^\s"]*))')
+_CAO_VEC = re.compile(r"\b(t|tu)\s*=\s*\[([^\]]*)\]")
+_CAO_MAX_COUNT = 10_000_000
 
 
-def read_cao(p: Path, _depth: int = 0) -> PolygonModel:
-    """ViSP ``.cao`` (V1): points, lines, faces from lines, faces from points, cylinders, circles.
+class _CaoCursor:
+    """ViSP-style stream over a ``.cao`` text, with line numbers for messages.
 
-    ``load("sub.cao", t=[tx, ty, tz], tu=[rx, ry, rz])`` lines (before the points) include another
-    model, path relative to this file, its points mapped by ``X = R(tu) X_sub + t`` (tu = theta-u
-    rotation vector, radians; t metres). Faces from lines are turned into point loops. Lines used
-    by no face-from-lines are kept in ``model.lines``; cylinders ``{p1, p2, radius, name}`` and circles
-    ``{radius, center, p1, p2, name}`` are kept as dicts (point indices into ``model.vertices``).
-    ``name=...`` parameters become face names; other parameters (useLod, ...) are ignored.
+    ViSP's ``loadCAOModel`` reads numbers with ``>>`` (whitespace, newlines included, skipped), then
+    drops the rest of the line (counts, points) or parses it as ``key=value`` parameters (lines,
+    faces, cylinders, circles). Text after the expected numbers is therefore a comment whatever it
+    starts with (``#``, ``//``, words); lines whose first non-blank character is ``#`` and blank
+    lines are skipped between statements.
     """
-    if _depth > 16:
-        raise InputError(p, "load() nesting deeper than 16 (a cycle?)")
-    rows: list[str] = []
-    with open(p, encoding="utf-8") as fh:
-        for raw in fh:
-            s = raw.split("#", 1)[0].strip()
-            if s:
-                rows.append(s)
-    parts: list[PolygonModel] = []
-    k = 0
-    if k < len(rows) and rows[k].upper().startswith("V1"):
-        k += 1
-    while k < len(rows) and rows[k].startswith("load"):
-        m = _CAO_LOAD.match(rows[k])
-        if not m:
-            raise InputError(p, f"cannot parse {rows[k]!r}")
-        sub = (p.parent / m.group(1)).resolve()
-        if not sub.is_file():
-            raise InputError(p, f"load(): {m.group(1)} not found (looked at {sub})")
-        vec = {name: np.array([float(x) for x in val.replace(",", " ").split()]) for name, val in _CAO_VEC.findall(m.group(2) or "")}
-        sm = read_cao(sub, _depth + 1)
-        R = _theta_u_matrix(vec.get("tu", np.zeros(3)))
-        t = vec.get("t", np.zeros(3))
-        sm.vertices = sm.vertices @ R.T + t
-        parts.append(sm)
-        k += 1
 
-    def take_count(what: str) -> int:
-        nonlocal k
-        if k >= len(rows):
-            raise InputError(p, f"missing the number of {what}")
-        try:
-            n = int(rows[k].split()[0])
-        except ValueError:
-            raise InputError(p, f"expected the number of {what}, got {rows[k]!r}") from None
-        k += 1
-        if n < 0 or k + n > len(rows):
-            raise InputError(p, f"{n} {what} announced, file truncated")
+    def __init__(self, text: str, path: Path):
+        self.lines = text.splitlines()
+        self.path = path
+        self.ln = 0  # current line index
+        self.col = 0  # position in the current line
+
+    def _skip(self) -> None:
+        while self.ln < len(self.lines):
+            rest = self.lines[self.ln][self.col:]
+            st = rest.lstrip()
+            if not st or (st.startswith("#") and not self.lines[self.ln][:self.col].strip()):
+                self.ln, self.col = self.ln + 1, 0
+                continue
+            self.col += len(rest) - len(st)
+            return
+
+    def at_end(self) -> bool:
+        self._skip()
+        return self.ln >= len(self.lines)
+
+    def peek_char(self) -> str:
+        self._skip()
+        return self.lines[self.ln][self.col] if self.ln < len(self.lines) else ""
+
+    def _token(self, rx: re.Pattern, what: str, same_line: bool = False) -> str:
+        if same_line:  # the statement goes on: its numbers must be on the line
+            if self.ln >= len(self.lines) or not self.lines[self.ln][self.col:].strip():
+                raise InputError(self.path, f"line {self.ln + 1}: {what} missing (fewer numbers than the statement needs)")
+        self._skip()
+        if self.ln >= len(self.lines):
+            raise InputError(self.path, f"file ends where {what} was expected")
+        m = rx.match(self.lines[self.ln], self.col)
+        if not m:
+            got = self.lines[self.ln][self.col:].split()[0][:20]
+            raise InputError(self.path, f"line {self.ln + 1}: expected {what}, got {got!r}")
+        self.col = m.end()
+        return m.group(0)
+
+    def int(self, what: str, same_line: bool = False) -> int:
+        tok = self._token(_CAO_INT, what, same_line)
+        nxt = self.lines[self.ln][self.col:self.col + 1]
+        if nxt in (".", "e", "E"):
+            raise InputError(self.path, f"line {self.ln + 1}: expected {what} (an integer), got {tok + nxt!r}...")
+        return int(tok)
+
+    def count(self, what: str) -> int:
+        n = self.int(f"the number of {what}")
+        if n < 0 or n > _CAO_MAX_COUNT:
+            raise InputError(self.path, f"line {self.ln + 1}: {n} {what} announced (must be 0..{_CAO_MAX_COUNT})")
+        self.rest()
+        if n > len(self.lines) - self.ln:  # one line each at least
+            raise InputError(self.path, f"{n} {what} announced, the file has {len(self.lines) - self.ln} lines left (truncated)")
         return n
 
-    def split_params(s: str) -> tuple[list[str], dict[str, str]]:
-        toks = s.split()
-        vals = [t for t in toks if "=" not in t]
-        params = dict(t.split("=", 1) for t in toks if "=" in t)
-        # name="a b" style: join quoted names
-        mq = re.search(r'name\s*=\s*"([^"]*)"', s)
-        if mq:
-            params["name"] = mq.group(1)
-            vals = s[: mq.start()].split()
-            vals = [t for t in vals if "=" not in t]
-        return vals, params
+    def index(self, what: str, n: int) -> int:
+        i = self.int(what, same_line=True)
+        if not 0 <= i < n:
+            raise InputError(self.path, f"line {self.ln + 1}: {what} {i} out of range (0..{n - 1})")
+        return i
 
-    n = take_count("points")
-    V = np.array([[float(x) for x in rows[k + i].split()[:3]] for i in range(n)], np.float64).reshape(-1, 3)
-    if any(len(rows[k + i].split()) < 3 for i in range(n)):
-        raise InputError(p, "a point needs 3 coordinates")
-    k += n
-    n = take_count("lines")
-    L = []
-    line_names = []
+    def float(self, what: str, same_line: bool = False) -> float:
+        return float(self._token(_CAO_FLOAT, what, same_line))
+
+    def rest(self) -> str:
+        """The rest of the current line (then move to the next line)."""
+        if self.ln >= len(self.lines):
+            return ""
+        r = self.lines[self.ln][self.col:]
+        self.ln, self.col = self.ln + 1, 0
+        return r
+
+    def params(self) -> dict[str, str]:
+        """``key=value`` / ``key="value"`` pairs at the start of the rest of the line (ViSP's
+        parseParameters: ``name``, ``useLod``, ``minLineLengthThreshold``, ``minPolygonAreaThreshold``,
+        and any other key); parsing stops at the first other text (a comment)."""
+        r, out, j = self.rest(), {}, 0
+        while True:
+            while j < len(r) and r[j] in " \t":
+                j += 1
+            m = _CAO_PARAM.match(r, j)
+            if not m:
+                return out
+            out[m.group(1)] = m.group(2) if m.group(2) is not None else m.group(3)
+            j = m.end()
+
+
+def _cao_vector(p: Path, name: str, text: str) -> np.ndarray:
+    """``t=[..]`` (metres) or ``tu=[..]`` (theta-u; each value radians, or with a ``deg``/``rad``
+    unit) of a ``load()``: 3 values separated by ``;`` (ViSP) or ``,``."""
+    vals = [v.strip() for v in re.split(r"[;,]", text)]
+    if len(vals) == 1:  # space-separated
+        vals = text.split()
+    if len(vals) != 3:
+        raise InputError(p, f"load(): {name}=[{text}] needs 3 values separated by ';'")
+    out = []
+    for v in vals:
+        m = re.fullmatch(r"([+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?)\s*(deg|rad)?", v)
+        if not m or (m.group(2) and name != "tu"):
+            raise InputError(p, f"load(): bad value {v!r} in {name}=[{text}]")
+        x = float(m.group(1))
+        out.append(math.radians(x) if m.group(2) == "deg" else x)
+    return np.array(out)
+
+
+def read_cao(p: Path, _stack: tuple[Path, ...] = ()) -> PolygonModel:
+    """ViSP ``.cao`` as ``vpMbTracker::loadCAOModel`` reads it (V1, V2).
+
+    Sections in order: ``V1``/``V2`` header; ``load("sub.cao", t=[tx; ty; tz], tu=[rx; ry; rz])``
+    lines; points (V2: each followed by two image coordinates, ignored); lines ``i j``; faces from
+    lines ``n l1 .. ln``; faces from points ``n p1 .. pn``; cylinders ``p1 p2 radius``; circles
+    ``radius center p1 p2`` (the last two sections optional, as in old files). Text after a
+    statement's numbers is a comment; faces, lines, cylinders and circles may carry ``key=value``
+    parameters (``name=...`` or ``name="a b"`` becomes the face name; ``useLod``, thresholds and
+    others are accepted and ignored).
+
+    ``load()``: the sub-model's path is relative to this file's folder (or absolute); its points are
+    mapped by ``X = R(tu) X_sub + t`` (tu theta-u, radians unless ``deg``; t metres; ``;`` or ``,``
+    between values), nested loads compose. A cycle raises :class:`mst.InputError` (ViSP warns and
+    skips it); a file loaded twice from different places is loaded twice (ViSP keeps only the first).
+
+    Faces from lines become point loops. Lines used by no face-from-lines, and faces from points
+    with only 2 points, are kept in ``model.lines`` (ViSP tracks both as 2-point polygons). Cylinders ``{p1, p2, radius, name}`` and
+    circles ``{radius, center, p1, p2, name}`` cannot be polygon faces: they are kept as dicts
+    (point indices into ``model.vertices``) and written back by :func:`cao_text`; mst's tracker
+    does not use them.
+    """
+    p = Path(p)
+    me = p.resolve()
+    if me in _stack:
+        chain = " -> ".join(q.name for q in (*_stack, me))
+        raise InputError(p, f"load() cycle: {chain}")
+    if len(_stack) > 32:
+        raise InputError(p, "load() nesting deeper than 32")
+    text = p.read_text(encoding="utf-8-sig")
+    if "\x00" in text:
+        raise InputError(p, "not a text .cao file (NUL bytes)")
+    c = _CaoCursor(text, p)
+    version = 1
+    if c.peek_char() in ("V", "v"):
+        lno = c.ln + 1
+        mv = re.match(r"[Vv]\s*(\d+)", c.rest().strip())  # ViSP reads an int after 'V', then skips the line
+        if not mv:
+            raise InputError(p, f"line {lno}: bad version header (expected V1 or V2)")
+        version = int(mv.group(1))
+        if version not in (0, 1, 2):
+            raise InputError(p, f"unsupported .cao version V{version} (V1 or V2)")
+    parts: list[PolygonModel] = []
+    while c.peek_char() in ("l", "L"):
+        lno = c.ln + 1
+        line = c.rest().strip()
+        m = re.match(r'load\s*\(\s*"([^"]+)"\s*([^)]*)\)', line)
+        if not m:
+            raise InputError(p, f"line {lno}: cannot parse {line[:60]!r} (expected load(\"file.cao\", t=[..], tu=[..]))")
+        args = m.group(2).strip()
+        vec = {name: _cao_vector(p, name, val) for name, val in _CAO_VEC.findall(args)}
+        leftover = _CAO_VEC.sub("", args).replace(",", " ").strip()
+        if leftover:
+            raise InputError(p, f"line {lno}: load(): unexpected {leftover[:40]!r} (only t=[..] and tu=[..])")
+        sub = Path(m.group(1))
+        sub = sub if sub.is_absolute() else p.parent / sub
+        if not sub.is_file():
+            raise InputError(p, f"line {lno}: load(): {m.group(1)} not found (looked at {sub})")
+        sm = read_cao(sub, (*_stack, me))
+        R = _theta_u_matrix(vec.get("tu", np.zeros(3)))
+        sm.vertices = sm.vertices @ R.T + vec.get("t", np.zeros(3))
+        parts.append(sm)
+
+    n = c.count("points")
+    V = np.empty((n, 3))
     for i in range(n):
-        vals, par = split_params(rows[k + i])
-        L.append((int(vals[0]), int(vals[1])))
-        line_names.append(par.get("name"))
-    k += n
-    L_arr = np.array(L, np.int64).reshape(-1, 2)
+        V[i] = [c.float("a point coordinate"), c.float("a point coordinate", True), c.float("a point coordinate", True)]
+        if version == 2:
+            c.int("the point's image row (V2)", True)
+            c.int("the point's image column (V2)", True)
+        c.rest()
+    n_l = c.count("lines")
+    L = np.empty((n_l, 2), np.int64)
+    for i in range(n_l):
+        L[i] = [c.int("line point index"), c.int("line point index", True)]
+        if L[i].min() < 0 or L[i].max() >= n:
+            raise InputError(p, f"line {c.ln + 1}: line {i} point index out of range (0..{n - 1})")
+        c.params()
     faces: list[np.ndarray] = []
     names: list[str | None] = []
-    used_lines = np.zeros(len(L_arr), bool)
-    n = take_count("faces from lines")
-    for i in range(n):
-        vals, par = split_params(rows[k + i])
-        cnt = int(vals[0])
-        li = [int(x) for x in vals[1:1 + cnt]]
-        if len(li) != cnt:
-            raise InputError(p, f"face from lines {i}: {cnt} lines announced, {len(li)} given")
-        if li and (min(li) < 0 or max(li) >= len(L_arr)):
-            raise InputError(p, f"face from lines {i}: line index out of range")
+    used_lines = np.zeros(n_l, bool)
+    for i in range(c.count("faces from lines")):
+        k = c.int("the number of lines of a face")
+        if k < 3 or k > n_l:
+            raise InputError(p, f"line {c.ln + 1}: face from lines {i} has {k} lines (need 3..{n_l})")
+        li = [c.index("line index", n_l) for _ in range(k)]
+        par = c.params()
         used_lines[li] = True
-        faces.append(_chain_lines(L_arr[li], p, i))
-        names.append(par.get("name"))
-    k += n
-    n = take_count("faces from points")
-    for i in range(n):
-        vals, par = split_params(rows[k + i])
-        cnt = int(vals[0])
-        pi = [int(x) for x in vals[1:1 + cnt]]
-        if len(pi) != cnt:
-            raise InputError(p, f"face from points {i}: {cnt} points announced, {len(pi)} given")
-        faces.append(np.array(pi, np.int64))
-        names.append(par.get("name"))
-    k += n
+        faces.append(_chain_lines(L[li], p, i))
+        names.append(par.get("name") or None)
+    extra_lines: list[list[int]] = []
+    for i in range(c.count("faces from points")):
+        k = c.int("the number of points of a face")
+        if k < 2 or k > _CAO_MAX_COUNT:
+            raise InputError(p, f"line {c.ln + 1}: face from points {i} has {k} points (need at least 3, or 2 for a line)")
+        idx = [c.index("point index", n) for _ in range(k)]
+        par = c.params()
+        if k == 2:  # ViSP tracks a 2-point "face" as a line
+            extra_lines.append(idx)
+            continue
+        faces.append(np.array(idx, np.int64))
+        names.append(par.get("name") or None)
     cyl: list[dict] = []
     circ: list[dict] = []
-    if k < len(rows):
-        n = take_count("cylinders")
-        for i in range(n):
-            vals, par = split_params(rows[k + i])
-            cyl.append({"p1": int(vals[0]), "p2": int(vals[1]), "radius": float(vals[2]), "name": par.get("name")})
-        k += n
-    if k < len(rows):
-        n = take_count("circles")
-        for i in range(n):
-            vals, par = split_params(rows[k + i])
-            circ.append({"radius": float(vals[0]), "center": int(vals[1]), "p1": int(vals[2]), "p2": int(vals[3]),
-                         "name": par.get("name")})
-        k += n
-    own = PolygonModel(V, faces, names=names, lines=L_arr[~used_lines], cylinders=cyl, circles=circ)
+    if not c.at_end():
+        for _ in range(c.count("cylinders")):
+            p1 = c.int("cylinder point index")
+            p2 = c.index("cylinder point index", n)
+            if not 0 <= p1 < n:
+                raise InputError(p, f"line {c.ln + 1}: cylinder point index {p1} out of range (0..{n - 1})")
+            r = c.float("the cylinder radius", True)
+            if not (r > 0 and math.isfinite(r)):
+                raise InputError(p, f"line {c.ln + 1}: cylinder radius {r} (must be > 0)")
+            cyl.append({"p1": p1, "p2": p2, "radius": r, "name": c.params().get("name") or None})
+    if not c.at_end():
+        for _ in range(c.count("circles")):
+            r = c.float("the circle radius")
+            if not (r > 0 and math.isfinite(r)):
+                raise InputError(p, f"line {c.ln + 1}: circle radius {r} (must be > 0)")
+            ids = [c.index("circle point index", n) for _ in range(3)]
+            circ.append({"radius": r, "center": ids[0], "p1": ids[1], "p2": ids[2],
+                         "name": c.params().get("name") or None})
+    # anything after the circles is ignored, as ViSP does (cube.cao carries its .init there)
+    free_lines = np.concatenate([L[~used_lines], np.array(extra_lines, np.int64).reshape(-1, 2)])
+    own = PolygonModel(V, faces, names=names, lines=free_lines, cylinders=cyl, circles=circ)
+    if not np.isfinite(V).all():
+        own.check_finite(str(p))
     if not parts:
         return own
     return merge_models([*parts, own])
@@ -991,6 +1341,14 @@ def merge_models(models: list[PolygonModel]) -> PolygonModel:
                         lines=np.concatenate(lines) if lines else np.zeros((0, 2), np.int64), cylinders=cyl, circles=circ)
 
 
+def _cao_name(name: str) -> str:
+    """A ``name=`` value as ViSP parses it: one token, or quoted when it holds blanks."""
+    name = str(name).replace('"', "'").replace("\n", " ").strip()
+    if not name:
+        return "_"
+    return f'"{name}"' if re.search(r"\s", name) or "=" in name else name
+
+
 def cao_text(model: PolygonModel) -> str:
     """ViSP ``.cao`` V1 text: points, lines, no faces from lines, faces from points (holes bridged,
     ``name=`` when named), cylinders, circles."""
@@ -1002,16 +1360,16 @@ def cao_text(model: PolygonModel) -> str:
     for f, name in zip(loops, model.names):
         s = f"{len(f)} " + " ".join(str(int(i)) for i in f)
         if name:
-            s += f" name={_token(name)}"
+            s += f" name={_cao_name(name)}"
         out.append(s + "\n")
     out += ["# 3D cylinders\n", f"{len(model.cylinders)}\n"]
     for c in model.cylinders:
         s = f"{int(c['p1'])} {int(c['p2'])} {_fmt_num(c['radius'])}"
-        out.append(s + (f" name={_token(c['name'])}" if c.get("name") else "") + "\n")
+        out.append(s + (f" name={_cao_name(c['name'])}" if c.get("name") else "") + "\n")
     out += ["# 3D circles\n", f"{len(model.circles)}\n"]
     for c in model.circles:
         s = f"{_fmt_num(c['radius'])} {int(c['center'])} {int(c['p1'])} {int(c['p2'])}"
-        out.append(s + (f" name={_token(c['name'])}" if c.get("name") else "") + "\n")
+        out.append(s + (f" name={_cao_name(c['name'])}" if c.get("name") else "") + "\n")
     return "".join(out)
 
 
@@ -1031,10 +1389,26 @@ def read_cityjson(p: Path, lod: str | None = None) -> PolygonModel:
             raise InputError(p, f"not valid JSON: {e}") from None
     if not isinstance(d, dict) or d.get("type") != "CityJSON":
         raise InputError(p, "not a CityJSON file (type != 'CityJSON')")
-    V = np.asarray(d.get("vertices", []), dtype=np.float64).reshape(-1, 3)
+    try:
+        V = np.asarray(d.get("vertices", []), dtype=np.float64)
+    except (ValueError, TypeError):
+        raise InputError(p, "CityJSON 'vertices' is not a list of [x, y, z] numbers") from None
+    if V.size and (V.ndim != 2 or V.shape[1] != 3):
+        raise InputError(p, "CityJSON 'vertices' is not a list of [x, y, z] numbers")
+    V = V.reshape(-1, 3)
     tr = d.get("transform")
-    if tr:
-        V = V * np.asarray(tr["scale"], float) + np.asarray(tr["translate"], float)
+    version = str(d.get("version", ""))
+    if tr is None and version not in ("", "1.0") and len(V):
+        raise InputError(p, f"CityJSON {version} without 'transform' (required since 1.1: vertices are integers to scale)")
+    if tr is not None:
+        try:
+            sc = np.asarray(tr["scale"], float).reshape(3)
+            tl = np.asarray(tr["translate"], float).reshape(3)
+        except (KeyError, TypeError, ValueError):
+            raise InputError(p, "CityJSON 'transform' needs 'scale' and 'translate' of 3 numbers each") from None
+        if not (np.isfinite(sc).all() and np.isfinite(tl).all()) or (sc == 0).any():
+            raise InputError(p, "CityJSON 'transform' scale/translate must be finite, scale non-zero")
+        V = V * sc + tl
     extra_V: list[np.ndarray] = []
     nV = len(V)
     tmpl = d.get("geometry-templates") or {}
@@ -1043,23 +1417,45 @@ def read_cityjson(p: Path, lod: str | None = None) -> PolygonModel:
     holes: list[list[np.ndarray]] = []
     names: list[str | None] = []
 
+    def ring_ok(ring) -> bool:
+        return isinstance(ring, list) and all(type(i) is int for i in ring)
+
     def surfaces(geom: dict):
+        """Surfaces (lists of rings of int vertex indices) of a geometry; wrong nesting or a
+        non-integer index (1.5, "3", null) raises InputError naming the object."""
+        if not isinstance(geom, dict):
+            raise InputError(p, f"city object {cur_oid!r}: a geometry is not a JSON object")
         t = geom.get("type")
         b = geom.get("boundaries", [])
-        if t in ("MultiSurface", "CompositeSurface"):
-            yield from b
-        elif t == "Solid":
-            for shell in b:
-                yield from shell
-        elif t in ("MultiSolid", "CompositeSolid"):
-            for solid in b:
-                for shell in solid:
-                    yield from shell
+        depth = {"MultiSurface": 0, "CompositeSurface": 0, "Solid": 1, "MultiSolid": 2, "CompositeSolid": 2}.get(t)
+        if depth is None:
+            return  # points, lines: no surfaces
+        level = [b]
+        for _ in range(depth + 1):
+            if not all(isinstance(x, list) for x in level):
+                raise InputError(p, f"city object {cur_oid!r}: {t} boundaries are not nested {depth + 3} deep")
+            level = [y for x in level for y in x]
+        for surf in level:
+            if not isinstance(surf, list) or not all(ring_ok(r) for r in surf):
+                raise InputError(p, f"city object {cur_oid!r}: {t} boundary holds a ring that is not a list of "
+                                    "integer vertex indices (wrong nesting, or an index like 1.5)")
+            yield surf
 
-    for oid, obj in d.get("CityObjects", {}).items():
+    cos = d.get("CityObjects", {})
+    if not isinstance(cos, dict):
+        raise InputError(p, "CityJSON 'CityObjects' is not a JSON object")
+    cur_oid = None
+    for oid, obj in cos.items():
+        cur_oid = oid
+        if not isinstance(obj, dict):
+            raise InputError(p, f"city object {oid!r} is not a JSON object")
         geoms = obj.get("geometry", []) or []
+        if not isinstance(geoms, list):
+            raise InputError(p, f"city object {oid!r}: 'geometry' is not a list")
         if not geoms:
             continue
+        if not all(isinstance(g, dict) for g in geoms):
+            raise InputError(p, f"city object {oid!r}: a geometry is not a JSON object")
         lods = [str(g.get("lod", "")) for g in geoms]
         want = lod if lod is not None else max(lods, key=lambda s: (_lod_key(s)))
         for g, gl in zip(geoms, lods):
@@ -1115,9 +1511,12 @@ def start_loops_at_convex_corners(V: np.ndarray, loops: list[np.ndarray], normal
     the face's outward normal (ViSP computes face visibility from them). Vectorised over all loops.
 
     Among the corners whose turn about the face normal is clearly positive (sine > 1e-9), the one
-    with the smallest (vertex index, next vertex index) is chosen: the choice does not depend on
-    where the loop starts, so writing a model read back from our own file gives the same bytes.
-    Loops without such a corner (degenerate) are left as they are.
+    spanning the largest triangle with its two neighbours (``(b - a) x (c - b) . n``) is chosen, ties
+    by the smallest (vertex index, next vertex index): the plane of points 0, 1, 2 is then as well
+    conditioned as the loop allows (a short or nearly straight corner would tilt ViSP's normal; on the
+    real Rotterdam set the first-corner choice put vertices 71 mm off that plane at ``--dist-tol
+    0.01``). The choice does not depend on where the loop starts, so writing a model read back from
+    our own file gives the same bytes. Loops without such a corner (degenerate) are left as they are.
     """
     if not loops:
         return []
@@ -1137,11 +1536,16 @@ def start_loops_at_convex_corners(V: np.ndarray, loops: list[np.ndarray], normal
     scale = np.linalg.norm(a, axis=1) * np.linalg.norm(b, axis=1)
     convex = (turn > 1e-9 * scale) & (scale > 0) & (lens[lid] >= 3)
     big = np.iinfo(np.int64).max
-    k1 = np.where(convex, idx, big)
-    k2 = np.where(convex, nxt, big)
+    # near-ties (within 1e-6 of the loop's best turn: rounding depends on where the loop starts)
+    # are broken by vertex index, so the choice is the same for every rotation of the loop
+    best = np.full(L, -np.inf)
+    np.maximum.at(best, lid, np.where(convex, turn, -np.inf))
+    good = convex & (turn >= best[lid] * (1 - 1e-6))
+    k1 = np.where(good, idx, big)
+    k2 = np.where(good, nxt, big)
     order = np.lexsort((k2, k1, lid))
     first = order[np.concatenate([[0], np.flatnonzero(np.diff(lid[order])) + 1])]
-    shift = np.where(convex[first], (loc[first] - 1) % np.maximum(lens, 1), 0)
+    shift = np.where(good[first], (loc[first] - 1) % np.maximum(lens, 1), 0)
     rotated = idx[ls + (loc + shift[lid]) % ll]
     return np.split(rotated, starts[1:])
 

@@ -27,6 +27,12 @@ import numpy as np
 
 from mst import InputError
 
+#: bounds of plausible intrinsics: a focal length of 1e7 px is a 1000x telescope on a 10k-px sensor;
+#: image sides beyond 1e6 px do not exist; |distortion coefficients| beyond 1e4 overflow the model
+MAX_FOCAL_PX = 1e7
+MAX_SIZE_PX = 1_000_000
+MAX_DIST_COEFF = 1e4
+
 
 @dataclass
 class Camera:
@@ -44,10 +50,20 @@ class Camera:
     dist: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     def __post_init__(self) -> None:
+        """Refuse intrinsics no camera has (ValueError; :func:`read_camera` names the file)."""
         self.dist = np.asarray(self.dist, dtype=np.float64).ravel()
         vals = np.array([self.fx, self.fy, self.cx, self.cy], dtype=float)
         if not np.isfinite(vals).all() or self.fx <= 0 or self.fy <= 0:
             raise ValueError(f"invalid intrinsics fx={self.fx} fy={self.fy} cx={self.cx} cy={self.cy}")
+        if max(self.fx, self.fy) > MAX_FOCAL_PX or np.abs(vals[2:]).max() > MAX_FOCAL_PX:
+            raise ValueError(f"intrinsics beyond {MAX_FOCAL_PX:g} px: fx={self.fx:g} fy={self.fy:g} cx={self.cx:g} "
+                             f"cy={self.cy:g}")
+        if not (0 <= int(self.width) <= MAX_SIZE_PX and 0 <= int(self.height) <= MAX_SIZE_PX):
+            raise ValueError(f"invalid image size {self.width:.6g}x{self.height:.6g}")
+        if len(self.dist) and not np.isfinite(self.dist).all():
+            raise ValueError(f"distortion coefficients hold NaN or inf: {self.dist.tolist()}")
+        if len(self.dist) and np.abs(self.dist).max() > MAX_DIST_COEFF:
+            raise ValueError(f"distortion coefficient beyond {MAX_DIST_COEFF:g}: {self.dist.tolist()}")
 
     @property
     def K(self) -> np.ndarray:
@@ -161,28 +177,35 @@ def _camera_from_mapping(d: dict, path: Path) -> Camera:
 def _read_opencv_yaml(path: Path) -> Camera:
     import cv2
 
-    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+    try:  # OpenCV's parser raises cv2.error, or SystemError from its bindings, on malformed YAML
+        fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+    except (cv2.error, SystemError):
+        raise InputError(path, "OpenCV could not parse the YAML camera file (malformed YAML)") from None
     if not fs.isOpened():
         raise InputError(path, "OpenCV could not parse the YAML camera file")
     try:
         K = fs.getNode("camera_matrix").mat()
         if K is None:
             raise InputError(path, "no camera_matrix in the YAML camera file")
+        if K.shape != (3, 3):
+            raise InputError(path, f"camera_matrix is {K.shape[0]}x{K.shape[1] if K.ndim > 1 else 1}, expected 3x3")
         D = fs.getNode("distortion_coefficients").mat()
         w = fs.getNode("image_width")
         h = fs.getNode("image_height")
         return Camera(K[0, 0], K[1, 1], K[0, 2], K[1, 2], int(w.real()) if not w.empty() else 0,
                       int(h.real()) if not h.empty() else 0, np.zeros(0) if D is None else D.ravel())
+    except (cv2.error, SystemError) as e:
+        raise InputError(path, f"bad YAML camera file ({str(e).strip().splitlines()[-1][:120]})") from None
     finally:
         fs.release()
 
 
 def read_camera(path: str | os.PathLike) -> Camera:
     """Read a camera file (ViSP XML, OpenCV YAML/JSON, or mst JSON), format detected by content."""
-    p = Path(path)
-    if not p.is_file():
-        raise InputError(p, "camera file does not exist")
-    text = p.read_text(errors="replace").lstrip()
+    from mst import read_text, require_file
+
+    p = require_file(path, "camera file")
+    text = p.read_bytes().decode("utf-8-sig", errors="replace").lstrip()
     try:
         if text.startswith("<"):
             return _read_visp_xml(p)
@@ -191,6 +214,9 @@ def read_camera(path: str | os.PathLike) -> Camera:
                 d = json.loads(text)
             except json.JSONDecodeError as e:
                 raise InputError(p, f"not valid JSON ({e.msg}, line {e.lineno})") from None
+            read_text(p, "camera file")  # JSON is UTF-8: a stray byte is an error, not a replacement character
+            if not isinstance(d, dict):
+                raise InputError(p, "camera JSON must be an object with fx fy cx cy (or camera_matrix)")
             return _camera_from_mapping(d, p)
         if text.startswith("%YAML") or "camera_matrix" in text:
             return _read_opencv_yaml(p)

@@ -101,7 +101,27 @@ def _read_cv(path: Path, m_per_unit: float) -> np.ndarray:
     return img.astype(np.float32)  # float TIFF: metres
 
 
+def _check_npy_header(path: Path) -> None:
+    """Refuse a .npy whose header promises more data than the file holds, or a shape no depth frame
+    has, before ``np.load`` allocates it (a corrupt header asked for 671 GiB)."""
+    with open(path, "rb") as fh:
+        try:
+            version = np.lib.format.read_magic(fh)
+            reader = np.lib.format.read_array_header_2_0 if version == (2, 0) else np.lib.format.read_array_header_1_0
+            shape, _, dtype = reader(fh)
+        except (ValueError, OSError, EOFError, SyntaxError, TypeError) as e:
+            raise InputError(path, f"cannot read the .npy depth ({e})") from None
+        start = fh.tell()
+    if len(shape) not in (2, 3) or any(n > 100_000 for n in shape[:2]) or (len(shape) == 3 and shape[2] > 4):
+        raise InputError(path, f"depth .npy has shape {shape}: not a depth frame (H, W)")
+    need = start + int(np.prod(shape, dtype=np.int64)) * dtype.itemsize
+    size = path.stat().st_size
+    if size < need:
+        raise InputError(path, f"depth .npy is truncated: {size} bytes, its header needs {need} for shape {shape}")
+
+
 def _read_npy(path: Path, m_per_unit: float) -> np.ndarray:
+    _check_npy_header(path)
     try:
         a = np.load(path, allow_pickle=False)
     except (ValueError, OSError, EOFError) as e:

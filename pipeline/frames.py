@@ -31,6 +31,12 @@ os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")
 
 
 
+#: the sides a (scaled) frame may have, pixels: 0 px cannot be resized to, above 16384 one frame
+#: takes gigabytes (the --scale of a typo, 1000 instead of 1)
+MIN_SIDE_PX = 1
+MAX_SIDE_PX = 16384
+
+
 def parse_range(text: str | None) -> tuple[int, int | None, int]:
     """``"a:b:step"`` (each part optional, b exclusive) -> ``(start, stop or None, step)``."""
     if text is None or text == "":
@@ -46,7 +52,7 @@ def parse_range(text: str | None) -> tuple[int, int | None, int]:
     if len(parts) == 1 and a is not None:  # "a" alone: from a to the end
         b = None
     a = a or 0
-    s = s or 1
+    s = 1 if s is None else s  # an empty step is 1; a step of 0 is an error, not 1
     if a < 0 or s <= 0 or (b is not None and b <= a):
         raise InputError(None, f"--frames {text!r}: need 0 <= a < b and step > 0")
     return a, b, s
@@ -191,6 +197,9 @@ def open_frames(spec: str | os.PathLike, frames: str | None = None, scale: float
     if not indices:
         raise InputError(spec, f"--frames {frames!r} selects no frame of {n}")
     W, H = int(round(w * scale)), int(round(h * scale))
+    if min(W, H) < MIN_SIDE_PX or max(W, H) > MAX_SIDE_PX:
+        raise InputError("--scale", f"{scale:g} turns the {w}x{h} frames into {W}x{H}: a side must stay within "
+                                    f"{MIN_SIDE_PX}..{MAX_SIDE_PX} px")
     return FrameSource(spec, kind, indices, src_fps, float(scale), W, H, files, w, h)
 
 

@@ -204,6 +204,8 @@ def frame_index_of_times(t: np.ndarray, fps: float | None, traj_path: str | os.P
         if not fps > 0:
             raise InputError(traj_path, f"fps must be positive, got {fps}")
         k = np.rint(t * fps)
+    if np.abs(k).max() > 1e9:
+        raise InputError(traj_path, f"time {t[np.argmax(np.abs(k))]:g} is beyond a billion frames (corrupt value?)")
     k = k.astype(np.int64)
     if (k < 0).any():
         raise InputError(traj_path, f"negative frame index {int(k.min())} (time {t[np.argmin(k)]:g})")
@@ -505,6 +507,9 @@ def fuse(
                      "dropped_range": 0, "dropped_edge": 0, "dropped_grazing": 0, "points_fused": 0,
                      "colored_samples": 0, "landmarks": 0}
 
+    # every input is read or checked before the first frame is fused (a bad landmarks file must not
+    # fail after minutes of fusion)
+    landmarks = read_ply_points(landmarks_path) if landmarks_path is not None else None
     origin: np.ndarray | None = None
     acc = None
     if depth_dir is not None:
@@ -609,8 +614,8 @@ def fuse(
     else:
         X, rgb_out, count = np.empty((0, 3)), np.empty((0, 3), np.uint8), np.empty(0, np.int64)
     with_rgb = color_dir is not None
-    if landmarks_path is not None:
-        L, L_rgb = read_ply_points(landmarks_path)
+    if landmarks is not None:
+        L, L_rgb = landmarks
         summary["landmarks"] = len(L)
         if cfg.voxel > 0 and not cfg.tsdf and len(L):
             lacc = VoxelAccumulator(cfg.voxel)

@@ -22,28 +22,57 @@ import numpy as np
 
 from mst import InputError
 
+#: largest accepted model coordinate (metres) and pixel coordinate of a click: beyond these the
+#: values are corrupt (PnP would overflow or return a camera 1e12 m away)
+MAX_COORD_M = 1e9
+MAX_PIXEL = 1e6
+#: clicks closer than this (px) are one position; the image points must also spread at least this
+#: far off their best-fit line (RMS), or the pose is not determined (a few px of click error)
+MIN_SPREAD_PX = 1.0
 
-def _read_numbers(path: Path) -> list[list[float]]:
+
+def _read_numbers(path: Path, what: str) -> list[list[float]]:
+    from mst import read_text
+
     rows = []
-    for ln, line in enumerate(path.read_text(errors="replace").splitlines(), 1):
+    for ln, line in enumerate(read_text(path, what).splitlines(), 1):
         s = line.split("#", 1)[0].replace(",", " ").strip()
         if not s:
             continue
         try:
             rows.append([float(x) for x in s.split()])
         except ValueError:
-            raise InputError(path, f"line {ln}: not a number: {s!r}") from None
+            raise InputError(path, f"line {ln}: not a number: {s[:60]!r}") from None
     return rows
+
+
+def check_spread(p, a: np.ndarray, what: str, tol: float) -> None:
+    """Refuse (N, d) points that PnP cannot use: fewer than 4 distinct, or all on one line.
+
+    ``tol`` is the distance below which two points are one (metres for model points, px for
+    clicks); the RMS distance of the points from their best-fit line must exceed it too.
+    Raises :class:`mst.InputError` naming file ``p``.
+    """
+    a = np.asarray(a, np.float64)
+    distinct = len(np.unique(np.round(a / tol), axis=0))
+    if distinct < min(4, len(a)):
+        raise InputError(p, f"the {len(a)} {what} are only {distinct} distinct position(s): need 4 different ones")
+    c = a - a.mean(0)
+    sv = np.linalg.svd(c, compute_uv=False)
+    if len(sv) < 2 or sv[1] / np.sqrt(len(a)) < tol:
+        raise InputError(p, f"the {what} lie on one line: the pose is not determined (spread them out)")
 
 
 def read_init_points(path: str | os.PathLike) -> np.ndarray:
     """ViSP ``.init`` file: count, then ``X Y Z`` lines -> (N,3) metres (model frame)."""
     p = Path(path)
-    if not p.is_file():
+    if not p.exists():
         raise InputError(p, "points file does not exist")
-    rows = _read_numbers(p)
+    rows = _read_numbers(p, "points file")
     if not rows or len(rows[0]) != 1:
         raise InputError(p, "expected the point count on the first line (ViSP .init format)")
+    if not (np.isfinite(rows[0][0]) and rows[0][0] == int(rows[0][0]) and 1 <= rows[0][0] <= 1e6):
+        raise InputError(p, f"the point count {rows[0][0]:g} on the first line is not a positive integer")
     n = int(rows[0][0])
     pts = rows[1:]
     if len(pts) != n or any(len(r) != 3 for r in pts):
@@ -52,15 +81,17 @@ def read_init_points(path: str | os.PathLike) -> np.ndarray:
     a = np.array(pts, float).reshape(-1, 3)
     if not np.isfinite(a).all():
         raise InputError(p, "points hold NaN or infinite values")
+    if np.abs(a).max() > MAX_COORD_M:
+        raise InputError(p, f"a point coordinate is beyond {MAX_COORD_M:g} m (corrupt value?)")
     return a
 
 
 def read_clicks(path: str | os.PathLike, points_path: str | os.PathLike | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Return ``(X_model (N,3) metres, uv (N,2) px)`` from a clicks file (+ optional .init file)."""
     p = Path(path)
-    if not p.is_file():
+    if not p.exists():
         raise InputError(p, "clicks file does not exist")
-    rows = _read_numbers(p)
+    rows = _read_numbers(p, "clicks file")
     if not rows:
         raise InputError(p, "no clicks in the file")
     widths = {len(r) for r in rows}
@@ -78,10 +109,19 @@ def read_clicks(path: str | os.PathLike, points_path: str | os.PathLike | None =
             raise InputError(p, "every click line needs 5 numbers 'X Y Z u v' (or 'u v' with --points)")
         a = np.array(rows, float)
         X, uv = a[:, :3], a[:, 3:]
+    x_file = p if points_path is None else Path(points_path)
     if not (np.isfinite(X).all() and np.isfinite(uv).all()):
         raise InputError(p, "clicks hold NaN or infinite values")
     if len(uv) < 4:
         raise InputError(p, f"{len(uv)} clicks, need at least 4")
+    if np.abs(X).max() > MAX_COORD_M:
+        raise InputError(x_file, f"a model point coordinate is beyond {MAX_COORD_M:g} m (corrupt value?)")
+    if np.abs(uv).max() > MAX_PIXEL:
+        raise InputError(p, f"a click is beyond {MAX_PIXEL:g} px (corrupt value?)")
+    # degenerate geometry: blamed on the file that holds it (the model points may be the .init file)
+    extent = float(np.abs(X - X.mean(0)).max())
+    check_spread(x_file, X, "model points", max(1e-9, 1e-6 * extent))
+    check_spread(p, uv, "clicks", MIN_SPREAD_PX)
     return X, uv
 
 
@@ -336,6 +376,8 @@ def run_init(model_path, camera_path, out, *, clicks_path=None, points_path=None
     from mst.pipeline.poses import write_pose_file
     from mst.pipeline.tracker import check_pose_in_view, load_polygon_model
 
+    if overlay_path is not None and image_path is None:
+        raise InputError(overlay_path, "--overlay needs --image (the frame to draw on)")
     model = load_polygon_model(model_path)
     cam = read_camera(camera_path)
     img = None
@@ -376,7 +418,7 @@ def run_init(model_path, camera_path, out, *, clicks_path=None, points_path=None
         if clicks_path:
             raise InputError(clicks_path, "give either --clicks or --from-pose, not both")
         T = pose_from_gps(np.array(from_pose[:3]), *from_pose[3:], mount_ypr_deg=tuple(mount), mount_offset_m=tuple(mount_offset))
-        check_pose_in_view(model, T, cam, out)
+        check_pose_in_view(model, T, cam, "--from-pose")  # the option is wrong, not the output file
         summary["source"] = "from-pose"
     else:
         if not clicks_path:

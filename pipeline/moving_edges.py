@@ -8,7 +8,8 @@ reference convolution ``ref`` (the same mask at the edge in the previous image) 
 test applies: ``conv/ref`` must lie in ``[1-mu1, 1+mu2]`` (same polarity, similar contrast) and the
 likelihood ``|conv + ref|`` must exceed ``2 * threshold``; without a reference (first frame, after
 a loss) the likelihood is ``2 |conv|``. Local maxima of the likelihood are ranked and the best
-``n_candidates`` kept per sample, with a parabolic sub-pixel refinement.
+``n_candidates`` kept per sample, with a parabolic sub-pixel refinement at the true offsets of the
+pixels read.
 
 Units: pixels for positions and offsets; masks are normalised so that a step edge of contrast
 ``c`` gray levels convolves to ``+-c`` (so the threshold is in gray levels, ViSP's normalised
@@ -163,15 +164,27 @@ def search_edges(img: np.ndarray, uv: np.ndarray, normal: np.ndarray, ref: np.nd
     top = np.stack(tops, 1)
     ts = np.stack(tss, 1)
     rows = rows1[:, None]
-    # parabolic sub-pixel refinement on the likelihood
-    l0 = lp[rows, top]  # like[m-1]
-    l1 = like[rows, top]
-    l2 = lp[rows, top + 2]  # like[m+1]
-    den = l0 - 2 * l1 + l2
-    with np.errstate(divide="ignore", invalid="ignore"):
-        delta = np.where(np.isfinite(den) & (den < -1e-9), 0.5 * (l0 - l2) / den, 0.0)
-    delta = np.clip(np.nan_to_num(delta), -0.5, 0.5)
-    off = k_eff[rows, top] + delta
+    # parabolic sub-pixel refinement through the three nearest distinct sampled positions: the
+    # pixels read along a slanted normal are not 1 px apart (a 45 deg normal reads the same pixel
+    # twice, then skips 1.41 px), so the parabola is fitted at their true offsets ``k_eff``; a
+    # unit-spacing fit put the peak up to ~0.5 px off (mean VVS residual on a synthetic 211 m
+    # flyover 0.35 px, now 0.18 px; ATE 0.77 -> 0.51 m)
+    jl = np.clip(top - 1, 0, M - 1)
+    jl = np.where(np.abs(k_eff[rows, jl] - k_eff[rows, top]) < 1e-6, np.clip(top - 2, 0, M - 1), jl)
+    jr = np.clip(top + 1, 0, M - 1)
+    jr = np.where(np.abs(k_eff[rows, jr] - k_eff[rows, top]) < 1e-6, np.clip(top + 2, 0, M - 1), jr)
+    x0, x1, x2 = k_eff[rows, jl], k_eff[rows, top], k_eff[rows, jr]
+    y0, y1, y2 = like[rows, jl], like[rows, top], like[rows, jr]
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        den = (x0 - x1) * (x0 - x2) * (x1 - x2)
+        a = (x2 * (y1 - y0) + x1 * (y0 - y2) + x0 * (y2 - y1)) / den
+        b = (x2 * x2 * (y0 - y1) + x1 * x1 * (y2 - y0) + x0 * x0 * (y1 - y2)) / den
+        xv = -b / (2.0 * a)
+    fit = np.isfinite(xv) & (a < 0) & (x0 < x1) & (x1 < x2)
+    # the vertex of a parabola through a maximum lies within half a spacing of it; where a neighbour
+    # read is not lower (no maximum at this spacing) it is clipped there (clipping to [x0, x2] let
+    # such peaks jump by up to 1.4 px: teabox forward-backward 0.28 -> 0.38 px with KLT)
+    off = np.where(fit, np.clip(xv, x1 - 0.5 * (x1 - x0), x1 + 0.5 * (x2 - x1)), x1)
     valid = np.isfinite(ts)
     off = np.where(valid, off, np.nan)
     return EdgeMatches(off, np.where(valid, ts, 0.0), normal, np.where(valid[:, 0], conv[np.arange(N), top[:, 0]], 0.0))

@@ -213,16 +213,57 @@ def T_to_tum(T_model_cam: np.ndarray) -> np.ndarray:
     return np.concatenate([T[:, :3, 3], quat_from_R(T[:, :3, :3])], axis=1)
 
 
+#: largest accepted coordinate of a position in a pose or trajectory file, metres: 1e9 m is far beyond
+#: any map (Earth-centred coordinates are ~6.4e6 m); larger values are corrupt and overflow later
+MAX_POSITION_M = 1e9
+#: accepted deviation of a file quaternion's norm from 1: files print >= 3 decimals (rounding <= 2e-3),
+#: a norm far from 1 (0 0 0 0, 1e-310) is not a rotation and must not be normalised into one
+QUAT_NORM_TOL = 0.01
+
+
+def check_pose_rows(p: Path, rows: np.ndarray, line_numbers: np.ndarray | None, quat_cols: slice | None = slice(3, 7),
+                    pos_cols: slice = slice(0, 3)) -> None:
+    """Validate pose rows ``(N, k)`` read from file ``p`` (``line_numbers`` (N,) 1-based).
+
+    Raises :class:`mst.InputError` naming the file and the first offending line for NaN/inf, a
+    position beyond :data:`MAX_POSITION_M`, or a quaternion whose norm is not 1 within
+    :data:`QUAT_NORM_TOL`.
+    """
+    rows = np.asarray(rows, np.float64)
+
+    def at(k) -> str:
+        return "" if line_numbers is None else f"line {line_numbers[k]}: "
+
+    bad = ~np.isfinite(rows).all(axis=1)
+    if bad.any():
+        raise InputError(p, f"{at(np.argmax(bad))}NaN or infinite value")
+    far = (np.abs(rows[:, pos_cols]) > MAX_POSITION_M).any(axis=1)
+    if far.any():
+        raise InputError(p, f"{at(np.argmax(far))}position beyond {MAX_POSITION_M:g} m "
+                            "(corrupt value?)")
+    if quat_cols is not None:
+        qn = np.linalg.norm(rows[:, quat_cols], axis=1)
+        off = np.abs(qn - 1.0) > QUAT_NORM_TOL
+        if off.any():
+            k = np.argmax(off)
+            raise InputError(p, f"{at(k)}quaternion norm {qn[k]:.3g} is not 1: not a rotation")
+
+
 def read_tum(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
     """Read a TUM trajectory: returns ``(t (N,) seconds, T_model_cam (N, 4, 4))``.
 
-    Lines starting with ``#`` and blank lines are ignored; every other line needs 8 numbers.
+    Lines starting with ``#`` and blank lines are ignored; every other line needs 8 numbers
+    ``t tx ty tz qx qy qz qw`` (metres; a unit quaternion). UTF-8 text, a byte-order mark is
+    accepted. Raises :class:`mst.InputError` naming the file and line for anything else (see
+    :func:`check_pose_rows`).
     """
+    from mst import read_text
+
     p = Path(path)
-    if not p.is_file():
+    if not p.exists():
         raise InputError(p, "trajectory file does not exist")
-    rows = []
-    for ln, line in enumerate(p.read_text().splitlines(), 1):
+    rows, lines = [], []
+    for ln, line in enumerate(read_text(p, "trajectory file").splitlines(), 1):
         s = line.strip()
         if not s or s.startswith("#"):
             continue
@@ -233,11 +274,14 @@ def read_tum(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
             rows.append([float(x) for x in parts])
         except ValueError:
             raise InputError(p, f"line {ln}: not a number") from None
+        lines.append(ln)
     if not rows:
         raise InputError(p, "trajectory has no poses")
     a = np.asarray(rows)
-    if not np.isfinite(a).all():
-        raise InputError(p, "trajectory holds NaN or infinite values")
+    bad_t = ~np.isfinite(a[:, 0])
+    if bad_t.any():
+        raise InputError(p, f"line {lines[int(np.argmax(bad_t))]}: the timestamp is NaN or infinite")
+    check_pose_rows(p, a[:, 1:], np.asarray(lines))
     return a[:, 0], tum_to_T(a[:, 1:])
 
 
@@ -255,18 +299,26 @@ def write_tum(path: str | os.PathLike, t: np.ndarray, T_model_cam: np.ndarray, h
     Path(path).write_text(text)
 
 
-def _read_numbers(p: Path) -> np.ndarray:
-    """All numbers of a small text file; ``#`` comments, commas and brackets ignored."""
+def _read_numbers(p: Path, what: str = "file") -> np.ndarray:
+    """All numbers of a small text file; ``#`` comments, commas and brackets ignored.
+
+    UTF-8 (byte-order mark accepted); NaN/inf and numbers beyond 1e12 are refused (no rigid
+    transform or pose has them: a corrupt value).
+    """
+    from mst import read_text
+
     vals: list[float] = []
-    for line in p.read_text().splitlines():
+    for ln, line in enumerate(read_text(p, what).splitlines(), 1):
         s = line.split("#", 1)[0].replace(",", " ").replace("[", " ").replace("]", " ")
         try:
             vals.extend(float(x) for x in s.split())
         except ValueError:
-            raise InputError(p, f"not a number in line {line.strip()!r}") from None
+            raise InputError(p, f"line {ln}: not a number in {line.strip()[:60]!r}") from None
     a = np.asarray(vals)
     if not np.isfinite(a).all():
         raise InputError(p, "NaN or infinite values")
+    if len(a) and np.abs(a).max() > MAX_POSITION_M:
+        raise InputError(p, f"value {a[np.argmax(np.abs(a))]:g} beyond {MAX_POSITION_M:g}: corrupt?")
     return a
 
 
@@ -291,9 +343,9 @@ def read_rigid_transform(path: str | os.PathLike, what: str = "transform file") 
     when it is missing, holds another count of numbers, or is not rigid.
     """
     p = Path(path)
-    if not p.is_file():
+    if not p.exists():
         raise InputError(p, f"{what} does not exist")
-    a = _read_numbers(p)
+    a = _read_numbers(p, what)
     if len(a) not in (12, 16):
         raise InputError(p, f"{len(a)} numbers: expected a 4x4 (16) or 3x4 (12) matrix")
     return _rigid_from_rows(a, p)
@@ -309,12 +361,18 @@ def read_pose_file(path: str | os.PathLike) -> np.ndarray:
     * 7: ``tx ty tz qx qy qz qw`` (camera pose in model coordinates).
     """
     p = Path(path)
-    if not p.is_file():
+    if not p.exists():
         raise InputError(p, "pose file does not exist")
-    a = _read_numbers(p)
+    a = _read_numbers(p, "pose file")
     if len(a) in (16, 12):
+        from mst import read_text
+
+        widths = [len(ln.split("#", 1)[0].replace(",", " ").split()) for ln in read_text(p, "pose file").splitlines()]
+        if [w for w in widths if w] == [8, 8]:  # two TUM lines are 16 numbers too: not a matrix
+            raise InputError(p, "holds 2 TUM poses: give one pose (the first frame's), or a 4x4 cMo matrix")
         return _rigid_from_rows(a, p)
     if len(a) in (7, 8):
+        check_pose_rows(p, a[None, -7:], None)
         return inv_T(tum_to_T(a[-7:])[0])
     raise InputError(p, f"{len(a)} numbers: expected 16 (4x4 cMo matrix), 8 (TUM line) or 7")
 

@@ -93,7 +93,7 @@ class Relocaliser:
         tr, H, W = self.tr, gray.shape[0], gray.shape[1]
         c = tr.cfg
         fv = face_visibility(tr.geom, T_cam_model, None, c.angle_appear, c.angle_disappear)
-        iz, _ = inverse_depth_buffer(tr.geom, T_cam_model, tr.K, W, H, fv, c.near_clip, 1.0)
+        iz, _ = inverse_depth_buffer(tr.geom, T_cam_model, tr.K, W, H, fv, tr.near(T_cam_model), 1.0)
         mask = cv2.erode((iz > 0).astype(np.uint8) * 255, np.ones((7, 7), np.uint8))  # off the outline
         kps, desc = self._orb.detectAndCompute(gray, mask)
         self._last_learn = k

@@ -19,12 +19,20 @@ ViSP's tracker XML (e.g. ``teabox.xml``) is read directly::
 
 from __future__ import annotations
 
+import math
 import os
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, fields, replace
 from pathlib import Path
 
 from mst import InputError
+
+#: default near plane: this fraction of the scene depth (median depth of the model vertices in
+#: front of the camera at the first tracked pose); ViSP's fixed 0.1 m clips a 5 cm part entirely
+NEAR_CLIP_REL = 1e-3
+#: default level-of-detail line length, in sample steps (3 samples: the edge's own line is
+#: over-determined and its residual spread measurable)
+LOD_LINE_SAMPLES = 3
 
 
 @dataclass
@@ -41,9 +49,28 @@ class TrackerConfig:
     ``sample_step`` (px between samples along a projected edge), ``n_candidates`` (candidate
     positions kept per sample; the pose solver picks the one closest to the moving line).
     Faces: ``angle_appear``/``angle_disappear`` (deg between face normal and viewing ray,
-    hysteresis), ``near_clip``/``far_clip`` (metres along the optical axis).
+    hysteresis), ``near_clip``/``far_clip`` (metres along the optical axis). Survey-scale defaults
+    (not ViSP's tabletop 0.1 m / 100 m, which stopped a 211 m UAV flyover at frame 0): no far plane
+    unless given (``None``), and a near plane of ``NEAR_CLIP_REL`` x the scene depth at the first
+    tracked pose (``None``; resolved by the tracker). Explicit values (a ViSP XML) apply as given.
+    Level of detail (ViSP ``setLod``): an edge whose projection (clipped at the near/far planes) is
+    shorter than ``lod_min_line_px`` is skipped, and so is an edge whose faces all project smaller
+    than ``lod_min_face_px2``. ``None`` derives them from the moving-edge settings (see
+    :func:`lod_thresholds`): ``LOD_LINE_SAMPLES`` x ``sample_step`` (an edge with fewer samples
+    does not fix its own line, and the per-edge spread weighting of the pose solver needs several)
+    and ``search_range^2`` (in a face smaller than that, opposite edges lie within each other's
+    search windows, so their moving edges jump between them: far, tiny facades add noise). Measured
+    on 10-frame Rotterdam flyovers (edges only): (2 x range)^2 dropped so many roofs at 120 m,
+    320x240 that frame 0 locked 23 m off, and at 250 m, 640x480 nothing trackable was left.
+    ViSP's XML ``<lod><use_lod>0</use_lod>`` turns the rule off; ``<min_line_length_threshold>``
+    and ``<min_polygon_area_threshold>`` set it.
+    ``source``: the settings file these values came from (named in error messages).
     Pose: ``vvs_iters``, ``lm_mu`` (Levenberg-Marquardt damping), ``min_mad_px`` (floor of the
-    robust scale, px), ``tukey_c``.
+    robust scale, px), ``fine_mad_px`` (floor of a second VVS stage from the converged pose with
+    the same matches: 0.15 px, above the 0.11 px worst sub-pixel error of a clean step edge, so a
+    near-perfect fit keeps its own samples, while 0.3 let 1.4 px mismatches of far facades keep
+    weight: Rotterdam 211 m flyover ATE 0.50 -> 0.26 m edges only, 40 m 0.17 -> 0.06 m; real video
+    has a larger MAD and is unaffected; >= ``min_mad_px`` turns the stage off), ``tukey_c``.
     Health: ``max_proj_error_deg`` (mean angle between gradient and model normal above which a
     frame is lost; computed at samples whose gradient is strong), ``min_support`` (fraction of samples
     on a strong gradient), ``min_inlier_ratio``, ``min_samples``.
@@ -63,13 +90,16 @@ class TrackerConfig:
     n_candidates: int = 2
     angle_appear: float = 80.0
     angle_disappear: float = 85.0
-    near_clip: float = 0.1
-    far_clip: float = 100.0
+    near_clip: float | None = None
+    far_clip: float | None = None
+    lod_min_line_px: float | None = None
+    lod_min_face_px2: float | None = None
     hidden_lines: bool = True
     zbuffer_scale: float = 0.5
     vvs_iters: int = 30
     lm_mu: float = 0.01
     min_mad_px: float = 0.3
+    fine_mad_px: float = 0.15
     tukey_c: float = 4.6851
     max_proj_error_deg: float = 25.0
     min_inlier_ratio: float = 0.25
@@ -90,6 +120,7 @@ class TrackerConfig:
     klt_pyramid: int = 3
     klt_border: int = 5
     klt_weight: float = 1.0
+    source: str | None = None
 
     def updated(self, **kw) -> TrackerConfig:
         """A copy with the given (non-None) fields replaced."""
@@ -116,14 +147,93 @@ _XML_MAP = {
     "klt/size_block": ("klt_block", int),
     "klt/pyramid_lvl": ("klt_pyramid", int),
     "klt/mask_border": ("klt_border", int),
+    "lod/min_line_length_threshold": ("lod_min_line_px", float),
+    "lod/min_polygon_area_threshold": ("lod_min_face_px2", float),
 }
+
+
+#: bounds of every numeric setting: field -> (low, high, integer, what). Closed intervals; a value
+#: outside is refused at parse time with the setting's name (ViSP tag or option) and the file.
+#: The upper bounds keep the per-frame work and memory bounded: the moving-edge search reads
+#: samples x (2 range + 1) x mask^2 pixels, so a search range of 10^8 px asked for 547 GiB; 256 px
+#: (half a VGA frame each side) is far beyond any useful inter-frame motion and costs < 0.5 GiB
+#: at the 600-sample cap with the largest mask.
+BOUNDS: dict[str, tuple[float, float, bool, str]] = {
+    "mask_size": (3, 31, True, "px, odd"),
+    "n_masks": (4, 360, True, "mask orientations"),
+    "search_range": (1, 256, True, "px"),
+    "edge_threshold": (0.0, 255.0, False, "gray levels"),
+    "mu1": (0.0, 1.0, False, "contrast ratio tolerance"),
+    "mu2": (0.0, 10.0, False, "contrast ratio tolerance"),
+    "sample_step": (0.5, 1000.0, False, "px"),
+    "n_candidates": (1, 16, True, "candidates per sample"),
+    "angle_appear": (0.0, 90.0, False, "deg"),
+    "angle_disappear": (0.0, 90.0, False, "deg"),
+    "near_clip": (1e-9, 1e12, False, "m, > 0"),
+    "far_clip": (1e-9, 1e15, False, "m, > 0"),
+    "lod_min_line_px": (0.0, 1e4, False, "px"),
+    "lod_min_face_px2": (0.0, 1e8, False, "px^2"),
+    "zbuffer_scale": (0.05, 2.0, False, "x image size"),
+    "vvs_iters": (1, 1000, True, "iterations"),
+    "lm_mu": (0.0, 1e6, False, "damping"),
+    "min_mad_px": (1e-6, 100.0, False, "px"),
+    "fine_mad_px": (1e-6, 100.0, False, "px"),
+    "tukey_c": (0.1, 100.0, False, "MAD units"),
+    "max_proj_error_deg": (0.0, 90.0, False, "deg"),
+    "min_inlier_ratio": (0.0, 1.0, False, "fraction"),
+    "min_support": (0.0, 1.0, False, "fraction"),
+    "min_samples": (6, 100_000, True, "samples"),
+    "pyramid_levels": (1, 6, True, "levels"),
+    "passes": (1, 10, True, "passes"),
+    "recover_range_factor": (1.0, 10.0, False, "x search range"),
+    "max_samples": (0, 1_000_000, True, "samples, 0 = no cap"),
+    "klt_max_features": (1, 100_000, True, "features"),
+    "klt_window": (1, 64, True, "px"),
+    "klt_quality": (1e-6, 1.0, False, "fraction"),
+    "klt_min_distance": (0.0, 1000.0, False, "px"),
+    "klt_harris": (0.0, 1.0, False, "Harris k"),
+    "klt_block": (1, 31, True, "px"),
+    "klt_pyramid": (0, 8, True, "levels"),
+    "klt_border": (0, 1000, True, "px"),
+    "klt_weight": (0.0, 1e3, False, "relative weight"),
+}
+
+_TAG_OF = {name: f"<{tag}>" for tag, (name, _) in _XML_MAP.items()}
+
+
+def setting_label(name: str) -> str:
+    """How a setting is named in messages: its ViSP XML tag when it has one, else the field name."""
+    return _TAG_OF.get(name, name)
+
+
+def check_setting(name: str, value, label: str | None = None) -> str | None:
+    """The problem with one setting's value (None when it is fine): non-finite, non-integral where
+    an integer is needed, or outside :data:`BOUNDS`. ``label`` names it (default: its XML tag)."""
+    label = label or setting_label(name)
+    if value is None or isinstance(value, bool) or name not in BOUNDS:
+        return None
+    lo, hi, integer, what = BOUNDS[name]
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        return f"{label} is not a number: {value!r}"
+    if not math.isfinite(v):
+        return f"{label} = {value} is not finite (need {lo:g}..{hi:g} {what})"
+    if integer and v != round(v):
+        return f"{label} = {value:g} is not an integer ({what})"
+    if not lo <= v <= hi:
+        return f"{label} = {v:g} is out of range (need {lo:g}..{hi:g} {what})"
+    if name == "mask_size" and int(v) % 2 == 0:
+        return f"{label} = {int(v)} must be odd (a mask has a centre pixel)"
+    return None
 
 
 def read_tracker_xml(path: str | os.PathLike, base: TrackerConfig | None = None) -> TrackerConfig:
     """Read ViSP tracker settings (``<conf>`` XML); absent tags keep ``base`` (default) values.
 
-    Raises :class:`mst.InputError` for unparsable XML or non-numeric values. A camera in the same
-    file is ignored here (read it with :func:`mst.pipeline.camera.read_camera`).
+    Raises :class:`mst.InputError` (naming the file and the tag) for unparsable XML, non-numeric
+    or non-finite values and values outside :data:`BOUNDS`. A camera in the same file is ignored
+    here (read it with :func:`mst.pipeline.camera.read_camera`).
     """
     p = Path(path)
     if not p.is_file():
@@ -138,32 +248,48 @@ def read_tracker_xml(path: str | os.PathLike, base: TrackerConfig | None = None)
         el = root.find(tag)
         if el is None or el.text is None or not el.text.strip():
             continue
+        text = el.text.strip()
         try:
-            kw[name] = typ(float(el.text.strip()))
+            v = float(text)
         except ValueError:
-            raise InputError(p, f"<{tag}> is not a number: {el.text.strip()!r}") from None
-    cfg = replace(cfg, **kw)
+            raise InputError(p, f"<{tag}> is not a number: {text!r}") from None
+        problem = check_setting(name, v)
+        if problem:
+            raise InputError(p, f"bad tracker setting: {problem}")
+        kw[name] = typ(v)
+    el = root.find("lod/use_lod")
+    if el is not None and (el.text or "").strip() in ("0", "false", "False"):
+        kw["lod_min_line_px"] = kw["lod_min_face_px2"] = 0.0  # ViSP: level of detail off
+    cfg = replace(cfg, **kw, source=str(p))
     validate_config(cfg, p)
     return cfg
 
 
-def validate_config(cfg: TrackerConfig, path: str | os.PathLike | None = None) -> None:
-    """Raise :class:`mst.InputError` for values the tracker cannot work with."""
-    bad = []
-    if cfg.mask_size < 3:
-        bad.append(f"mask size {cfg.mask_size} < 3")
-    if cfg.n_masks < 4:
-        bad.append(f"{cfg.n_masks} masks < 4")
-    if cfg.search_range < 1:
-        bad.append(f"search range {cfg.search_range} < 1")
-    if cfg.sample_step <= 0:
-        bad.append(f"sample step {cfg.sample_step} <= 0")
-    if not 0 <= cfg.angle_appear <= cfg.angle_disappear <= 90:
-        bad.append(f"face angles appear {cfg.angle_appear} / disappear {cfg.angle_disappear} (need 0 <= appear <= disappear <= 90)")
-    if not 0 < cfg.near_clip < cfg.far_clip:
-        bad.append(f"clipping near {cfg.near_clip} / far {cfg.far_clip} (need 0 < near < far)")
+def validate_config(cfg: TrackerConfig, path: str | os.PathLike | None = None,
+                    labels: dict[str, str] | None = None) -> None:
+    """Raise :class:`mst.InputError` for values the tracker cannot work with (each setting against
+    :data:`BOUNDS`, then the relations between them). ``labels``: how to name fields in the message
+    (e.g. ``{"search_range": "--range"}`` for command-line options); default the XML tag."""
+    labels = labels or {}
+    bad = [pr for f in fields(cfg) if (pr := check_setting(f.name, getattr(cfg, f.name), labels.get(f.name)))]
+    if not bad:
+        if not cfg.angle_appear <= cfg.angle_disappear:
+            bad.append(f"face angles {setting_label('angle_appear')} {cfg.angle_appear:g} > "
+                       f"{setting_label('angle_disappear')} {cfg.angle_disappear:g} (need appear <= disappear)")
+        if cfg.near_clip is not None and cfg.far_clip is not None and not cfg.near_clip < cfg.far_clip:
+            bad.append(f"clipping {setting_label('near_clip')} {cfg.near_clip:g} m >= {setting_label('far_clip')} "
+                       f"{cfg.far_clip:g} m (need near < far)")
     if bad:
-        raise InputError(path, "bad tracker settings: " + "; ".join(bad))
+        src = path if path is not None else (cfg.source if not labels else None)
+        raise InputError(src, "bad tracker settings: " + "; ".join(bad))
+
+
+def lod_thresholds(cfg: TrackerConfig) -> tuple[float, float]:
+    """``(min_line_px, min_face_px2)`` of the level-of-detail rule (explicit or derived, see
+    :class:`TrackerConfig`)."""
+    line = cfg.lod_min_line_px if cfg.lod_min_line_px is not None else LOD_LINE_SAMPLES * cfg.sample_step
+    face = cfg.lod_min_face_px2 if cfg.lod_min_face_px2 is not None else float(cfg.search_range) ** 2
+    return float(line), float(face)
 
 
 def config_to_dict(cfg: TrackerConfig) -> dict:

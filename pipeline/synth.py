@@ -703,7 +703,7 @@ def synthesize(scenario: str, model_path: str | os.PathLike, out_dir: str | os.P
         (tmp / "frames.csv").write_text("frame,time,model_px,edge_px\n"
                                         + "".join(f"{k},{t:.6f},{m},{e}\n" for k, t, m, e in rows))
         spec = {
-            "format": "mst-synth-scene", "version": 1, "mst_version": __version__,
+            "format": "mst-synth-scene", "version": SCENE_VERSION, "mst_version": __version__,
             "scenario": scenario, "seed": int(cfg.seed), "config": asdict(cfg),
             "model": {"source": str(model_source if model_source is not None else model_path), "file": "model.obj",
                       "sha256": _sha256(tmp / "model.obj"), "vertices": len(V), "triangles": len(F)},
@@ -726,6 +726,10 @@ def synthesize(scenario: str, model_path: str | os.PathLike, out_dir: str | os.P
     }
 
 
+#: the scene.json layout this mst writes and reads (a file of another version is refused, never guessed)
+SCENE_VERSION = 1
+
+
 def synthesize_from_scene(scene_json: str | os.PathLike, out_dir: str | os.PathLike,
                           progress: Callable[[int], None] | None = None, overwrite: bool = False) -> dict:
     """Re-render a sequence from its ``scene.json`` (and the ``model.obj`` beside it): identical files."""
@@ -738,6 +742,9 @@ def synthesize_from_scene(scene_json: str | os.PathLike, out_dir: str | os.PathL
         raise InputError(p, f"not valid JSON ({e})") from None
     if not isinstance(spec, dict) or spec.get("format") != "mst-synth-scene":
         raise InputError(p, "not an mst synth scene.json (no 'format': 'mst-synth-scene')")
+    if spec.get("version") != SCENE_VERSION:
+        raise InputError(p, f"scene.json version {spec.get('version')!r} is not the one this mst reads "
+                            f"({SCENE_VERSION}); re-render it with the mst that wrote it")
     try:
         cfg = SynthConfig.from_dict(spec["config"])
         scenario = spec["scenario"]

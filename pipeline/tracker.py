@@ -24,7 +24,7 @@ import numpy as np
 
 from mst import InputError, atomic_outputs
 from mst.pipeline.overlay import OverlayWriter, draw_overlay
-from mst.pipeline.settings import TrackerConfig, config_to_dict
+from mst.pipeline.settings import NEAR_CLIP_REL, TrackerConfig, config_to_dict, lod_thresholds
 
 #: on re-acquisition (the model back after a SLAM-only stretch) an edge pose is healthy only when its
 #: gradient support is at least this fraction of its running mean over the model frames (measured
@@ -35,62 +35,30 @@ REACQUIRE_SUPPORT_RATIO = 0.8
 
 # ---------------------------------------------------------------------------- model loading
 def load_polygon_model(path: str | os.PathLike):
-    """Load a polygon model with :func:`mst.meshtools.io.load_model` (fallback: a small .cao/.obj reader)."""
+    """Load a polygon model with :func:`mst.meshtools.io.load_model` and check it can be tracked.
+
+    Raises :class:`mst.InputError` naming the file for a missing file, a model without faces or
+    lines, non-finite vertices, or degenerate geometry (all vertices at one point or on one line:
+    no edge of it constrains a pose)."""
+    from mst.meshtools.io import load_model
+
     p = Path(path)
     if not p.is_file():
         raise InputError(p, "model file does not exist")
-    try:
-        from mst.meshtools.io import load_model
-    except ImportError:
-        load_model = _fallback_load_model
     model = load_model(p)
     if not len(model.faces) and not len(getattr(model, "lines", [])):
         raise InputError(p, "model has no faces")
     model.check_finite(str(p))
+    V = np.asarray(model.vertices, float).reshape(-1, 3)
+    used = np.unique(np.concatenate([np.asarray(f, np.int64).ravel() for f in model.faces]
+                                    + [np.asarray(getattr(model, "lines", []), np.int64).ravel()]))
+    X = V[used[(used >= 0) & (used < len(V))]]
+    ext = float(np.ptp(X, axis=0).max()) if len(X) else 0.0
+    # rank of the centred vertices: 0 = one point, 1 = one line (relative to the model's size)
+    sv = np.linalg.svd(X - X.mean(0), compute_uv=False) if len(X) >= 2 else np.zeros(1)
+    if ext <= 0.0 or sv.size < 2 or sv[1] <= 1e-9 * max(sv[0], 1e-300):
+        raise InputError(p, "model is degenerate: its vertices lie at one point or on one line")
     return model
-
-
-def _fallback_load_model(p: Path):
-    from mst.meshtools.model import PolygonModel
-
-    text = p.read_text(errors="replace")
-    if p.suffix.lower() == ".obj":
-        V, F = [], []
-        for line in text.splitlines():
-            s = line.split()
-            if not s:
-                continue
-            if s[0] == "v":
-                V.append([float(x) for x in s[1:4]])
-            elif s[0] == "f":
-                F.append([int(x.split("/")[0]) - 1 for x in s[1:]])
-        return PolygonModel(np.array(V), F)
-    if p.suffix.lower() != ".cao":
-        raise InputError(p, "model format not readable without mst.meshtools.io (use .cao or .obj)")
-    toks = []
-    for line in text.splitlines():
-        s = line.split("#", 1)[0].strip()
-        if s and not s.startswith("V1") and not s.startswith("load("):
-            toks.extend(s.split())
-    it = iter(toks)
-    try:
-        nv = int(next(it))
-        V = [[float(next(it)) for _ in range(3)] for _ in range(nv)]
-        nl = int(next(it))
-        lines = [[int(next(it)), int(next(it))] for _ in range(nl)]
-        nfl = int(next(it))
-        faces = []
-        for _ in range(nfl):
-            k = int(next(it))
-            ids = [int(next(it)) for _ in range(k)]
-            faces.append([lines[i][0] for i in ids])
-        nfp = int(next(it))
-        for _ in range(nfp):
-            k = int(next(it))
-            faces.append([int(next(it)) for _ in range(k)])
-    except (StopIteration, ValueError, IndexError):
-        raise InputError(p, "could not parse the .cao model") from None
-    return PolygonModel(np.array(V), faces)
 
 
 # ---------------------------------------------------------------------------- one-frame tracker
@@ -334,17 +302,41 @@ class EdgeTracker:
         self.klt_pts: np.ndarray | None = None  # (M,2) px in prev frame
         self.klt_X: np.ndarray | None = None  # (M,3) model frame
         self.prev_gray: np.ndarray | None = None
+        self.near_m: float | None = cfg.near_clip  # None: set from the scene depth at the first pose
+        self.lod = lod_thresholds(cfg)
         self.health_score = True  #: compute the image evidence of each final pose (HealthMonitor)
         self.surf_X, self.surf_face = _surface_points(model)  # (M,3) model frame, (M,) face index
+        self.sample_provider = None  # render-based edgelets (mst.pipeline.render_edges) instead of polygon edges
 
     # -------------------------------------------------------------- helpers
+    def near(self, T_cam_model: np.ndarray) -> float:
+        """Near clipping distance (m): the configured one, else ``NEAR_CLIP_REL`` x the median depth
+        of the model vertices in front of the camera at the first pose seen (fixed from then on)."""
+        if self.near_m is None:
+            z = self.geom.vertices @ T_cam_model[2, :3] + T_cam_model[2, 3]
+            z = z[z > 0]
+            self.near_m = float(NEAR_CLIP_REL * np.median(z)) if len(z) else 1e-3
+            self.near_m = max(self.near_m, 1e-6)
+        return self.near_m
+
     def _samples(self, T, K, W, H):
         from mst.pipeline.visibility import visible_samples
 
+        if self.sample_provider is not None:
+            return self.sample_provider.samples(T, K, W, H)
         c = self.cfg
-        return visible_samples(self.geom, T, K, W, H, c.sample_step, c.near_clip, c.far_clip, c.angle_appear,
+        lod_line, lod_face = self.lod
+        s = K[0, 0] / self.K[0, 0]  # coarse pyramid levels: the thresholds scale with the image
+        return visible_samples(self.geom, T, K, W, H, c.sample_step, self.near(T), c.far_clip, c.angle_appear,
                                c.angle_disappear, self.prev_faces, border_px=c.mask_size // 2 + 1,
-                               hidden_lines=c.hidden_lines, zbuffer_scale=c.zbuffer_scale, max_samples=c.max_samples)
+                               hidden_lines=c.hidden_lines, zbuffer_scale=c.zbuffer_scale, max_samples=c.max_samples,
+                               lod_min_line_px=lod_line * s, lod_min_face_px2=lod_face * s * s)
+
+    def explain(self, S) -> str:
+        """Why the samples ``S`` of a pose are too few (see :func:`visibility.explain_no_samples`)."""
+        from mst.pipeline.visibility import explain_no_samples
+
+        return explain_no_samples(S.stats, self.near_m or 0.0, self.cfg.far_clip, self.lod)
 
     def _edge_pass(self, img, K, T, search_range, ref_img, ref_T, klt=None, min_mad_px=None):
         from mst.pipeline.moving_edges import canonical_normals, reference_contrast, search_edges
@@ -354,6 +346,7 @@ class EdgeTracker:
         H, W = img.shape
         S = self._samples(T, K, W, H)
         if len(S) < 6:
+            self._fail = self.explain(S)
             return None, S, None, None
         normal, midx = canonical_normals(S.normal, c.n_masks)
         ref = None
@@ -372,6 +365,27 @@ class EdgeTracker:
                              min_mad_px=c.min_mad_px if min_mad_px is None else min_mad_px, tukey_c=c.tukey_c, klt_X_model=kx, klt_uv=ku,
                              klt_weight=c.klt_weight)
         except ValueError:
+            n_m = int(np.isfinite(cand[..., 0]).any(axis=1).sum())
+            self._fail = (f"pose solver failed: only {n_m} of {len(S)} edge samples found a moving edge within "
+                          f"{int(search_range)} px (need 6; no image edge near the projected model)")
+            return None, S, m, None
+        if (min_mad_px is None and c.fine_mad_px < c.min_mad_px and res.sigma_px <= c.min_mad_px
+                and np.isfinite(res.T_cam_model).all()):
+            # the floor binds (the fit's own robust scale is below it): a fine stage from the
+            # converged pose, same matches, a tighter floor. The coarse floor must admit the whole
+            # inter-frame motion at the start (with the fine one from the start a translating
+            # camera's samples were all rejected and it stood still). Real video (MAD above the
+            # floor) skips it
+            try:
+                fine = solve_pose(res.T_cam_model, K, S.X_model, S.edge, S.A_model, S.B_model, cand, iters=c.vvs_iters,
+                                  lm_mu=c.lm_mu, min_mad_px=c.fine_mad_px, tukey_c=c.tukey_c, klt_X_model=kx,
+                                  klt_uv=ku, klt_weight=c.klt_weight)
+                if np.isfinite(fine.T_cam_model).all() and np.isfinite(fine.W).all():
+                    res = fine
+            except ValueError:
+                pass
+        if not np.isfinite(res.T_cam_model).all() or not np.isfinite(res.W).all():
+            self._fail = "pose solver failed: the optimisation diverged (non-finite pose)"
             return None, S, m, None
         return res, S, m, cand
 
@@ -385,7 +399,7 @@ class EdgeTracker:
         fv = self.prev_faces if self.prev_faces is not None else np.ones(len(self.geom.faces), bool)
         from mst.pipeline.visibility import inverse_depth_buffer
 
-        best, _ = inverse_depth_buffer(self.geom, T, self.K, W, H, fv, c.near_clip, 1.0)  # 1/z of the front surface
+        best, _ = inverse_depth_buffer(self.geom, T, self.K, W, H, fv, self.near(T), 1.0)  # 1/z of the front surface
         mask = (best > 0).astype(np.uint8) * 255
         mask = cv2.erode(mask, np.ones((2 * c.klt_border + 1,) * 2, np.uint8))
         ys, xs = np.nonzero(mask[::8, ::8])
@@ -495,7 +509,7 @@ class EdgeTracker:
         H, W = gray.shape
         idx = np.flatnonzero(face_visible[self.surf_face])
         Xc = self.surf_X[idx] @ T[:3, :3].T + T[:3, 3]
-        ok = Xc[:, 2] > self.cfg.near_clip
+        ok = Xc[:, 2] > self.near(T)
         idx, Xc = idx[ok], Xc[ok]
         uv = Xc[:, :2] / Xc[:, 2:3] * [self.K[0, 0], self.K[1, 1]] + self.K[:2, 2]
         ix, iy = np.rint(uv[:, 0]).astype(np.int64), np.rint(uv[:, 1]).astype(np.int64)
@@ -504,7 +518,7 @@ class EdgeTracker:
         if not self.geom.convex and len(idx):
             from mst.pipeline.visibility import inverse_depth_buffer
 
-            buf, sc = inverse_depth_buffer(self.geom, T, self.K, W, H, face_visible, self.cfg.near_clip, 0.5)
+            buf, sc = inverse_depth_buffer(self.geom, T, self.K, W, H, face_visible, self.near(T), 0.5)
             bx = np.clip(np.round((ix + 0.5) * sc - 0.5).astype(np.int64), 0, buf.shape[1] - 1)
             by = np.clip(np.round((iy + 0.5) * sc - 0.5).astype(np.int64), 0, buf.shape[0] - 1)
             vis = iz >= buf[by, bx] * (1.0 - 1e-2)
@@ -545,6 +559,7 @@ class EdgeTracker:
         # first frame / after a loss: several passes, tolerant (wide robust scale) first, then tighter
         passes = 3 if (first or recover) else c.passes
         res = S = S_p = None
+        self._fail = "too few visible edge samples"
         for ps in range(passes):
             rng = R if ps == 0 else max(3, int(round(R / 2 ** ps)))
             mad = max(c.min_mad_px, rng / 3.0) if (first or recover) and ps < passes - 1 else None
@@ -558,10 +573,10 @@ class EdgeTracker:
             T = res.T_cam_model
         if res is None:
             return FrameResult(None, False, 0 if S_p is None else len(S_p), 0, float("nan"), 90.0, None, None,
-                               reason="too few visible edge samples")
+                               reason=self._fail)
         # health: projection error (gradient vs model normal) at the final pose, inlier ratio
         Xc = S.X_model @ T[:3, :3].T + T[:3, 3]
-        ok_z = Xc[:, 2] > c.near_clip * 0.5
+        ok_z = Xc[:, 2] > self.near(T) * 0.5
         z = np.where(ok_z, Xc[:, 2], 1.0)
         uv = np.stack([self.K[0, 0] * Xc[:, 0] / z + self.K[0, 2], self.K[1, 1] * Xc[:, 1] / z + self.K[1, 2]], 1)
         Ae = S.A_model @ T[:3, :3].T + T[:3, 3]
@@ -586,7 +601,8 @@ class EdgeTracker:
         min_ratio = max(c.min_inlier_ratio, 0.5) if recover else c.min_inlier_ratio
         healthy = bool(n_s >= c.min_samples and ratio >= min_ratio and proj_err <= max_pe
                        and support >= c.min_support and np.isfinite(T).all() and ok_z.all())
-        reason = "" if healthy else (f"samples {n_s}" if n_s < c.min_samples else f"inliers {ratio:.0%}"
+        reason = "" if healthy else ("the solved pose puts the model behind the camera" if not ok_z.all()
+                                     else self.explain(S) if n_s < c.min_samples else f"inliers {ratio:.0%}"
                                      if ratio < min_ratio else f"gradient support {support:.0%}"
                                      if support < c.min_support else f"projection error {proj_err:.1f} deg")
         if klt is not None and res.klt_inlier is not None:
@@ -629,9 +645,13 @@ def check_pose_in_view(model, T_cam_model: np.ndarray, cam, path, near: float = 
     V = np.asarray(model.vertices)
     Xc = V @ T_cam_model[:3, :3].T + T_cam_model[:3, 3]
     cz = float(Xc[:, 2].mean())
+    ext = float(np.ptp(V, axis=0).max()) if len(V) else 0.0
+    units = (f"; the model spans {ext:.4g} units: is it in millimetres? mst expects metres" if ext > 50
+             and (-T_cam_model[:3, :3].T @ T_cam_model[:3, 3] > V.min(0)).all()
+             and (-T_cam_model[:3, :3].T @ T_cam_model[:3, 3] < V.max(0)).all() else "")
     if cz <= 0 or (Xc[:, 2] <= near).all():
         raise InputError(path, f"the pose puts the model behind the camera (model centre at z = {cz:.3g} m in the "
-                               "camera frame; expected a cMo / TUM camera pose looking at the model)")
+                               f"camera frame; expected a cMo / TUM camera pose looking at the model){units}")
     front = Xc[:, 2] > near
     uv = Xc[front, :2] / Xc[front, 2:3] * [cam.fx, cam.fy] + [cam.cx, cam.cy]
     inside = (uv[:, 0] >= 0) & (uv[:, 0] < cam.width) & (uv[:, 1] >= 0) & (uv[:, 1] < cam.height)
@@ -640,6 +660,44 @@ def check_pose_in_view(model, T_cam_model: np.ndarray, cam, path, near: float = 
 
 
 # ---------------------------------------------------------------------------- the stage
+def _shift_px(tracker: EdgeTracker, T_a: np.ndarray, T_b: np.ndarray) -> float:
+    """Largest image displacement (px) between two poses of up to ~200 model vertices in front of
+    both cameras (all of them when fewer)."""
+    V = tracker.geom.vertices
+    V = V[:: max(1, len(V) // 200)]
+    K = tracker.K
+    uv = []
+    for T in (T_a, T_b):
+        Xc = V @ T[:3, :3].T + T[:3, 3]
+        uv.append(Xc)
+    ok = (uv[0][:, 2] > 0) & (uv[1][:, 2] > 0)
+    if not ok.any():
+        return float("inf")
+    p = [X[ok, :2] / X[ok, 2:3] * [K[0, 0], K[1, 1]] for X in uv]
+    return float(np.linalg.norm(p[0] - p[1], axis=1).max())
+
+
+#: ``<stem>.cov.csv``: per frame the 6x6 covariance of the edge (VVS) pose, for frames whose output
+#: pose is the edge pose (status ``model``; empty otherwise): the twist ``xi = (v, w)`` of the left
+#: perturbation ``T_cam_model' = exp(xi) T_cam_model`` (v metres, w radians, camera frame),
+#: ``sigma^2 (J^T W J)^-1``; and derived 1-sigma values: the camera position in the model frame
+#: (``std_x_m .. std_z_m``, covariance ``R^T C_vv R``) and the rotation (``std_rot_deg``, the
+#: square root of the largest eigenvalue of ``C_ww``).
+COV_HEADER = (["frame", "status", "std_x_m", "std_y_m", "std_z_m", "std_rot_deg"]
+              + [f"c{i}{j}" for i in range(6) for j in range(6)])
+
+
+def _cov_row(idx: int, status: str, cov: np.ndarray | None, T_cam_model: np.ndarray | None) -> list:
+    """One ``.cov.csv`` row (see :data:`COV_HEADER`)."""
+    if status != "model" or cov is None or T_cam_model is None or not np.isfinite(cov).all():
+        return [idx, status] + [""] * (len(COV_HEADER) - 2)
+    R = T_cam_model[:3, :3]
+    C_pos = R.T @ cov[:3, :3] @ R  # camera centre c = -R^T t moves by -R^T v
+    std = np.sqrt(np.maximum(np.diag(C_pos), 0.0))
+    rot = np.degrees(np.sqrt(max(float(np.linalg.eigvalsh(0.5 * (cov[3:, 3:] + cov[3:, 3:].T)).max()), 0.0)))
+    return [idx, status, *(f"{x:.6g}" for x in std), f"{rot:.6g}", *(f"{x:.6g}" for x in cov.ravel())]
+
+
 def _mean_or_none(vals: list[float]) -> float | None:
     """Mean of the finite values (None when there is none: JSON has no NaN)."""
     a = np.asarray(vals, float)
@@ -667,7 +725,8 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
               frames: str | None = None, scale: float = 1.0, fps: float | None = None, overlay: str | None = None,
               slam: str = "off", depth_dir: str | os.PathLike | None = None, depth_camera_path=None,
               depth_to_color_path=None, landmarks_path: str | os.PathLike | None = None, write_json: bool = False, progress=None, notes: list[str] | None = None,
-              klt: bool | None = None, health_score: bool = True, relocalise: bool = True) -> dict:
+              klt: bool | None = None, health_score: bool = True, relocalise: bool = True,
+              edges: str = "auto") -> dict:
     """Track a model through frames; write ``out_traj`` (TUM, tracked frames), ``.csv`` and ``.json``.
 
     ``slam``: ``'auto'`` = ``'rgbd'`` with ``depth_dir``, else edges + KLT with the mono aid on
@@ -723,8 +782,13 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
     aid, aid_mode = _make_aid(slam, cam, cfg, Path(depth_dir) if depth_dir else None, depth_camera, T_depth_color, notes)
 
     tracker = EdgeTracker(model, cam, cfg)
+    from mst.pipeline.render_edges import attach_render_edges
+
+    edges_used = attach_render_edges(tracker, model, model_path, edges, T0, notes)  # --edges auto|polygon|render
     out_traj = Path(out_traj)
     csv_path = out_traj.with_suffix(".csv")
+    cov_path = out_traj.with_suffix(".cov.csv")
+    cov_rows: list[list] = []
     json_path = out_traj.with_suffix(".json") if write_json else None
     rows, times, poses = [], [], []
     ov = OverlayWriter(Path(overlay), src.fps or 30.0) if overlay else None
@@ -773,6 +837,13 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
                     T_pred = (T_prev @ inv_T(T_prev2)) @ T_prev  # constant velocity (camera-frame motion)
                 T_start = T_pred if T_pred is not None else (T_hint if T_hint is not None else T_prev)
                 T_hint = None
+                if (aid is not None and T_pred is not None and prev_status == "model" and lost_streak == 0
+                        and not first and _shift_px(tracker, T_pred, T_prev) < 0.5 * cfg.search_range):
+                    # slow motion: the edges' own last pose is inside the search range already; the
+                    # SLAM pose (its map triangulated from earlier edge poses) would only pass its
+                    # error on along the edges' weakly observed direction (250 m flyover: 2.5-3.9 m
+                    # predictions, the edges followed). The aid predicts where the motion is large
+                    T_start = T_prev
                 # re-acquisition: the model comes back after a SLAM-only stretch (or after a loss).
                 # The SLAM prediction has drifted (mono: ~1 deg = several pixels), the previous image
                 # holds no model edges to take contrasts from: widened coarse-to-fine search, and the
@@ -805,14 +876,18 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
                             fr, relocalised = fr_r, True
                             tracker._klt_next = None
                 healthy = fr.healthy
-                if healthy and reacq and support_ref is not None and fr.support < REACQUIRE_SUPPORT_RATIO * support_ref:
+                # the same guard after a loss (edges only, or the aid lost too): a pose found by the
+                # widened search on its first frame back has too little history for the health score
+                # (few edges in view: wide binomial floors) and can lock onto texture edges
+                recovering = reacq or lost_streak > 0
+                if healthy and recovering and support_ref is not None and fr.support < REACQUIRE_SUPPORT_RATIO * support_ref:
                     healthy = False
                     fr.reason = f"gradient support {fr.support:.0%} (usual {support_ref:.0%})"
                 if aid is not None:
                     T_out, status = aid.update(idx, gray, fr.T_cam_model, fr.W, healthy)
                 else:
                     T_out, status = (fr.T_cam_model, "model") if healthy else (None, "lost")
-                if status == "model" and not reacq:
+                if status == "model" and not recovering:
                     support_ref = fr.support if support_ref is None else 0.9 * support_ref + 0.1 * fr.support
                 if relocalised and status == "model":
                     status = "relocalised"
@@ -850,6 +925,7 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
                              f"{fr.proj_error_deg:.3f}", f"{ms:.3f}",
                              f"{fr.score:.3f}" if np.isfinite(fr.score) else "nan", aid_state,
                              "" if status in ("model", "relocalised") else (fr.reason or "edge pose not used")])
+                cov_rows.append(_cov_row(idx, status, fr.cov, T_out))
                 if T_out is not None:
                     times.append(t_s)
                     poses.append(inv_T(T_out))
@@ -869,8 +945,15 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
     if n_tr == 0:
         if ov is not None:
             ov.close(commit=False)
+        reason = first_reason or "lost"
+        if "far clipping plane" in reason:
+            # the setting is to blame, not the pose
+            raise InputError(cfg.source, f"no frame could be tracked: frame {rows[0][0]}: {reason}; raise or remove "
+                                         "<far_clipping> (default: no far plane)")
+        hint = ("the model is too far or too small for this camera" if "too small" in reason
+                else "check the pose, the camera and the model units")
         raise InputError(init_pose_path, f"no frame could be tracked from this initial pose (frame {rows[0][0]}: "
-                                         f"{first_reason or 'lost'}); check the pose, the camera and the model units")
+                                         f"{reason}); {hint}")
     statuses = [r[2] for r in rows]
     scores = np.array([float(r[8]) for r in rows])
     scores = scores[np.isfinite(scores)]
@@ -885,11 +968,13 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
         "health_score_rejects": n_score_rejects,
         "health_score_median": float(np.median(scores)) if len(scores) else None,
         "health_score_min": float(scores.min()) if len(scores) else None,
-        "aid": aid_mode, "traj": str(out_traj), "csv": str(csv_path), "notes": notes,
+        "aid": aid_mode, "edges": edges_used, "traj": str(out_traj), "csv": str(csv_path), "cov_csv": str(cov_path), "notes": notes,
         "camera": cam.to_dict(), "config": config_to_dict(cfg),
     }
     from mst.pipeline.poses import format_tum
 
+    if tracker.sample_provider is not None:
+        summary["render_edges"] = tracker.sample_provider.stats()
     if landmarks is not None:
         summary["landmarks"] = int(len(landmarks))
     if reloc is not None:
@@ -906,7 +991,8 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
         summary["aid_wake_frames"] = list(aid.stats["wake_frames"])
         summary["aid_active_frames"] = int(aid.stats["frames_active"])
         summary["aid_wake_ms"] = float(aid.timing_ms["wake"])
-    with atomic_outputs(out_traj, csv_path, json_path, landmarks_path) as (tmp_traj, tmp_csv, tmp_json, tmp_lm):
+    with atomic_outputs(out_traj, csv_path, cov_path, json_path, landmarks_path) as (tmp_traj, tmp_csv, tmp_cov, tmp_json,
+                                                                                  tmp_lm):
         if tmp_lm is not None:
             from mst.pipeline.fusion import write_ply
 
@@ -919,6 +1005,11 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
                     "reason"])
         w.writerows(rows)
         tmp_csv.write_text(buf.getvalue())
+        buf = io.StringIO()
+        w = csv.writer(buf, lineterminator="\n")
+        w.writerow(COV_HEADER)
+        w.writerows(cov_rows)
+        tmp_cov.write_text(buf.getvalue())
         if tmp_json is not None:
             import json
 

@@ -21,12 +21,52 @@ def shared_data() -> Path:
     return SHARED
 
 
+#: MST_TEST_SUBPROCESS=1 runs every ``mst`` call of the suite in a fresh interpreter (the way users
+#: run it). The default runs it in-process through the same entry point (``mst.cli.main.main``, with
+#: its error handling and exit codes) with stdout/stderr captured: the suite then pays the ~1 s import
+#: of open3d/cv2/numba once instead of once per call. Tests of what a fresh process imports
+#: (test_core_cli.py) start their own subprocesses either way.
+SUBPROCESS = os.environ.get("MST_TEST_SUBPROCESS", "0") == "1"
+
+
+def _run_in_process(args: list[str], input: str | None, cwd: str | Path | None) -> subprocess.CompletedProcess:
+    import traceback
+
+    from click.testing import CliRunner
+
+    from mst.cli.main import main
+
+    old_cwd = os.getcwd()
+    code = 0
+    with CliRunner().isolation(input=input) as (out, err, _):
+        try:
+            if cwd is not None:
+                os.chdir(cwd)
+            main(args)
+        except SystemExit as e:
+            code = e.code if isinstance(e.code, int) else (0 if e.code is None else 1)
+        except BaseException:  # what a subprocess would print as an uncaught traceback
+            traceback.print_exc(file=sys.stderr)
+            code = 1
+        finally:
+            os.chdir(old_cwd)
+            sys.stdout.flush()
+            sys.stderr.flush()
+        stdout, stderr = out.getvalue().decode("utf-8", "replace"), err.getvalue().decode("utf-8", "replace")
+    return subprocess.CompletedProcess(["mst", *args], code, stdout, stderr)
+
+
 def run_mst(*args: str, check: bool = True, input: str | None = None, cwd: str | Path | None = None) -> subprocess.CompletedProcess:
-    """Run the ``mst`` CLI in a subprocess (the way users run it) and capture stdout/stderr."""
-    cmd = [sys.executable, "-m", "mst.cli.main", *map(str, args)]
-    r = subprocess.run(cmd, capture_output=True, text=True, input=input, cwd=cwd)
+    """Run the ``mst`` CLI and capture stdout/stderr (in-process, or in a subprocess with
+    ``MST_TEST_SUBPROCESS=1``); returns a ``CompletedProcess``."""
+    argv = [str(a) for a in args]
+    if SUBPROCESS:
+        cmd = [sys.executable, "-m", "mst.cli.main", *argv]
+        r = subprocess.run(cmd, capture_output=True, text=True, input=input, cwd=cwd)
+    else:
+        r = _run_in_process(argv, input, cwd)
     if check and r.returncode != 0:
-        raise AssertionError(f"mst {' '.join(map(str, args))} failed ({r.returncode}):\n{r.stderr}")
+        raise AssertionError(f"mst {' '.join(argv)} failed ({r.returncode}):\n{r.stderr}")
     return r
 
 

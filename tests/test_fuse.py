@@ -248,8 +248,10 @@ def test_tsdf_surface_close_to_mesh(seq, tmp_path):
     X, _ = read_ply_points(tmp_path / "t.ply")
     assert s["mode"] == "tsdf" and len(X) > 1000
     dist = _distance(seq["mesh"], X)
-    # measured: median 0.1 mm, 95 % 4.8 mm (corners and edges of the box are rounded by the TSDF)
-    assert np.median(dist) < 0.001 and np.quantile(dist, 0.95) < 0.008
+    # budget: the zero crossing is interpolated linearly between voxel centres, exact on a plane up
+    # to the depth quantisation (0.5 mm): median < 1 mm; the box's edges and corners are rounded over
+    # about one voxel, a band of < 5 % of the surface: 95 % within 0.4 voxel (8 mm)
+    assert np.median(dist) < 0.001 and np.quantile(dist, 0.95) < 0.4 * 0.02
     assert b"property uint count" not in (tmp_path / "t.ply").read_bytes()[:400]
 
 

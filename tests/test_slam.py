@@ -111,7 +111,9 @@ def render_sequence(scene, Ts, tmp_path, with_depth=True):
 def edge_pose(T_true, rng, gain=50.0):
     """A synthetic edge-tracker result: W from the cube corners' Jacobian, pose = GT + N(0, W^-1)."""
     W = slam.pose_information(CAM.K, CUBE @ T_true[:3, :3].T + T_true[:3, 3]) * gain
-    delta = rng.multivariate_normal(np.zeros(6), np.linalg.inv(W))
+    # Cholesky, not numpy's default SVD: the SVD's singular-vector signs and last bits depend on the
+    # LAPACK kernel (OPENBLAS_CORETYPE), which changed the drawn noise in its 3rd digit between CPUs
+    delta = rng.multivariate_normal(np.zeros(6), np.linalg.inv(W), method="cholesky")
     return se3_exp(delta) @ T_true, W
 
 
@@ -251,12 +253,20 @@ def test_corridor_model_out_of_view_no_loss(scene, tmp_path, mode):
     assert not (st == "lost").any()
     assert (st[~vis] == "slam").all()
     assert (st[vis] == "model").mean() > 0.95
+    # Drift while out of view, against the aid's own drift model: its filter grows the pose
+    # covariance by a random walk of drift_rel x depth (position) and drift_deg (rotation) per frame,
+    # and at the model's return the chi-square gate compares the edge pose with that covariance. A
+    # drift beyond 3 sigma of the walk after the stretch would make the gate reject the correct edge
+    # pose, so 3 sigma is the property (the max of a random walk exceeds it with probability < 0.3 %
+    # per axis). The drift itself is a random variable: over seeds and BLAS kernels it spans about
+    # 1.2-1.7 % (rgbd) and 3.5-4.5 % (mono) of the 3 m distance; the old bounds (1.5 %, 6 %) had
+    # been fitted to one run and failed on another CPU.
     dist = 3.0
-    # drift while out of view (fraction of the distance; measured 0.8 % rgbd, 4.7 % mono: a 70 deg
-    # pan with little translation leaves mono with low-parallax landmarks)
-    bound = 0.015 if mode == "rgbd" else 0.06
-    assert np.nanmax(err[~vis, 0]) < bound * dist
-    assert np.nanmax(err[~vis, 1]) < (0.5 if mode == "rgbd" else 2.0)
+    rate = aid.cfg.drift_rel_per_frame or (0.001 if mode == "rgbd" else 0.005)
+    deg = aid.cfg.drift_deg_per_frame or (0.05 if mode == "rgbd" else 0.2)
+    walk = np.sqrt(len(out))
+    assert np.nanmax(err[~vis, 0]) < 3 * rate * dist * walk
+    assert np.nanmax(err[~vis, 1]) < 3 * deg * walk
     assert len(aid.kfs) <= aid.cfg.ba_window
     aid.close()
 

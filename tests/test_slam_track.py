@@ -62,7 +62,12 @@ def test_corridor_rgbd_carries_the_pose_while_the_model_is_away(corridor, tmp_pa
     # it reports them lost instead of outputting poses locked onto the floor/wall texture
     assert (e_off["status"] == "lost").sum() + np.nansum(e_off["rel"] > 0.05) > 10
     assert np.nanmax(e_off["rel"]) < 0.01 and np.nanmax(e_off["deg"]) < 2.0  # the bound: 1 % or 2 deg
-    assert np.nanmean(e["rel"]) <= np.nanmean(e_off["rel"])
+    # where both give a pose, the aid costs no accuracy: the paired difference is within two of its
+    # standard errors (over all frames the aid's mean also counts its drift while the model is away,
+    # where the edge tracker has no pose at all)
+    both = np.isfinite(e["rel"]) & np.isfinite(e_off["rel"])
+    d = e["rel"][both] - e_off["rel"][both]
+    assert both.sum() >= 10 and d.mean() <= 2.0 * d.std(ddof=1) / np.sqrt(len(d))
 
 
 @pytest.mark.parametrize("mode", ["mono", "auto"])
