@@ -304,7 +304,7 @@ def test_relocalisation_after_blackout(scene, tmp_path):
     assert np.nanmax(err[34:, 0]) < 0.05
 
 
-@pytest.mark.parametrize("mode", ["rgbd", "mono"])
+@pytest.mark.parametrize("mode", ["rgbd", pytest.param("mono", marks=pytest.mark.slow)])
 def test_static_world_check_object_on_a_turntable(scene, tmp_path, mode):
     """The camera orbits slowly; from frame 20 the object turns on a turntable (2 deg/frame) in the
     still room that the map is made of. The edge poses (object frame) keep disagreeing with the map
