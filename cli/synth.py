@@ -6,7 +6,7 @@ import click
 
 from mst.cli.common import NON_NEGATIVE, POSITIVE, emit_json, info, json_option, progress_bar, quiet_option
 
-SCENARIOS = ("orbit", "corridor", "flyover", "fast")
+SCENARIOS = ("orbit", "corridor", "flyover", "fast", "turntable", "occluder", "blackout")
 
 
 def _check_not_inputs(out_dir, inputs) -> None:
@@ -80,7 +80,9 @@ def synth(scenario, model, out_dir, from_scene, as_json, quiet, overwrite, nav_l
     \b
     SCENARIO: orbit (circle the model, always in view), corridor (walk past it; it
     leaves the view for a stretch), flyover (UAV pass above it, pitched toward the
-    facades), fast (any --base scenario keeping every --drop-th frame).
+    facades), fast (any --base scenario keeping every --drop-th frame); turntable,
+    occluder, blackout (pipeline/synth_dynamic: the object turns in a still room, a slab
+    sweeps in front of it, black and blurred frames; frames.csv holds the truth).
 
     \b
     Writes DIR/rgb/%06d.png, depth/%06d.png (uint16 mm) + .npy (float32 m),

@@ -25,6 +25,8 @@ from mst.cli.common import POSITIVE, emit_json, info, json_option, progress_bar,
 @click.option("--constant-velocity", is_flag=True, help="Predict each pose by repeating the last motion (no SLAM aid).")
 @click.option("--klt/--no-klt", default=None,
               help="Add KLT points inside visible faces (ViSP hybrid tracker); default: on with --slam auto without --depth, else off.")
+@click.option("--relocalise/--no-relocalise", default=True, show_default=True,
+              help="Learn the object's keypoints while tracked and re-acquire a lost pose without clicks (status relocalised).")
 @click.option("--overlay", default=None, type=click.Path(), help="Write an overlay video (.mp4) or a folder of PNGs.")
 @click.option("--slam", type=click.Choice(["auto", "mono", "rgbd", "off"]), default="auto", show_default=True,
               help="SLAM aid: auto = rgbd with --depth, else edges + KLT with the mono aid switched on only when the edges weaken; off = edges only.")
@@ -40,7 +42,8 @@ from mst.cli.common import POSITIVE, emit_json, info, json_option, progress_bar,
 @json_option
 @quiet_option
 def track(frames_src, model_path, camera_path, init_path, out, settings_path, frame_range, scale, fps, search_range,
-          sample_step, pyramid_levels, constant_velocity, klt, overlay, slam, depth_dir, depth_camera, depth_to_color, landmarks_path, edges, as_json, quiet):
+          sample_step, pyramid_levels, constant_velocity, klt, relocalise, overlay, slam, depth_dir, depth_camera, depth_to_color,
+          landmarks_path, edges, as_json, quiet):
     """Track MODEL through FRAMES (video, image folder, glob or printf pattern) from an initial pose.
 
     Per frame: visible model edges are sampled, moving edges searched along their normals (ViSP's
@@ -94,7 +97,7 @@ def track(frames_src, model_path, camera_path, init_path, out, settings_path, fr
     summary = run_track(frames_src, model_path, camera_path, init_path, out, cfg, frames=frame_range, scale=scale,
                         fps=fps, overlay=overlay, slam=slam, depth_dir=depth_dir, depth_camera_path=depth_camera,
                         depth_to_color_path=depth_to_color, landmarks_path=landmarks_path, write_json=as_json, notes=notes, klt=klt,
-                        progress=lambda total: progress_bar(total, "tracking", quiet), edges=edges)
+                        relocalise=relocalise, progress=lambda total: progress_bar(total, "tracking", quiet), edges=edges)
     for nt in notes:
         info(f"note: {nt}", quiet)
     res = summary["mean_residual_px"]

@@ -114,6 +114,15 @@ class SlamConfig:
     consensus_min: int = 4           #: rejected edges are accepted when this many recent ones agree
     consensus_rel: float = 0.003     #: agreement: offsets within this x scene depth ...
     consensus_deg: float = 0.5       #: ... and this many degrees
+    #: static-world check: this many healthy, strong edge poses in a row rejected by the gate without
+    #: a consensus (each off by a different offset) = the object moves in the map's world; the same
+    #: count of agreeing frames ends it
+    static_world_frames: int = 3
+    #: a healthy strong edge pose rejected by the gate that differs from the map pose by more than
+    #: this x scene depth or these degrees (the accuracy promised for output poses) leaves the frame
+    #: lost: no map pose is output against its image's evidence
+    disagree_rel: float = 0.01
+    disagree_deg: float = 2.0
     reloc_keyframes: int = 40        #: keyframes kept for relocalisation
     reloc_min_inliers: int = 20
     reloc_features: int = 800        #: ORB features on a frame being relocalised
@@ -344,6 +353,10 @@ class ModelAidedSlam:
         self.stats = {"keyframes": 0, "ba_runs": 0, "ba_prior_accepted": 0, "ba_prior_downweighted": 0,
                       "ba_prior_dropped": 0, "gate_rejects": 0, "consensus_resets": 0, "relocalisations": 0, "reloc_attempts": 0}
         self.timing_ms = {"predict": 0.0, "update": 0.0, "ba": 0.0}
+        self.moving_hold = False          # static-world check fired: the map does not bridge
+        self._disagree_streak = 0
+        self._agree_streak = 0
+        self.static_world_fired: list[int] = []
 
     # ------------------------------------------------------------------ public interface
     def predict(self, k: int, gray: np.ndarray, T_cam_model_prev: np.ndarray | None) -> np.ndarray | None:
@@ -367,6 +380,10 @@ class ModelAidedSlam:
         self._cur = st
         self._cur_gray = gray
         self.timing_ms["predict"] += (time.perf_counter() - t0) * 1e3
+        if self._disagree_streak > 0 or self.moving_hold:
+            # the map is in doubt or its world moves: predict the object's motion from the last
+            # output (edge) poses instead
+            return None if T_cv is None else T_cv.copy()
         if st.T is not None:
             return st.T.copy()
         return None
@@ -388,7 +405,18 @@ class ModelAidedSlam:
         if self.P is not None:
             self.P = self.P + self._process_noise()
         reset = False
-        if edge_ok and slam_ok:
+        moving = False
+        contradicted = False  # a healthy strong edge pose contradicts the map beyond the accuracy bound
+        if edge_ok and slam_ok and self.moving_hold:
+            # the object moves in the map's world: no gate, the map follows the model pose; leave this
+            # state after static_world_frames frames in a row in which the map agrees again
+            agree_now = self._consistent(T_cam_model_edges, W, st, fresh=True)
+            self._agree_streak = self._agree_streak + 1 if agree_now else 0
+            if self._agree_streak >= self.cfg.static_world_frames:
+                self.moving_hold = False
+            else:
+                reset = moving = True
+        elif edge_ok and slam_ok:
             strong = self._strong_enough(W)
             passed = strong and self._gate(T_cam_model_edges, W, st)
             # a weak (partial-view, ill-conditioned) edge pose never votes for a consensus reset
@@ -402,20 +430,53 @@ class ModelAidedSlam:
                     self.P = None
                     self._recent_offsets.clear()
                     self.stats["consensus_resets"] += 1
+                elif strong and agree > 0:
+                    self._disagree_streak = 0  # the same offset again: a wrong match or drift, not motion
+                    contradicted = self._beyond_bound(T_cam_model_edges, st.T)
+                elif strong:
+                    self._disagree_streak += 1
+                    contradicted = self._beyond_bound(T_cam_model_edges, st.T)
+                    if self._disagree_streak >= self.cfg.static_world_frames:
+                        # static-world check: healthy, strong edge poses keep disagreeing with the
+                        # map, each by a different offset (no consensus): the object moves in the
+                        # map's world (carried, turntable). Stop bridging with the map, follow the
+                        # model, re-anchor the map to it every frame until they agree again
+                        edge_ok = reset = moving = True
+                        self.moving_hold = True
+                        self._agree_streak = 0
+                        self.static_world_fired.append(int(k))
+                        self.stats["static_world_breaks"] = self.stats.get("static_world_breaks", 0) + 1
+            else:
+                self._disagree_streak = 0
         if edge_ok:
             T_out, status = np.asarray(T_cam_model_edges, float).copy(), STATUS_MODEL
             if W is not None:
-                T_fused = self._fuse(T_out, W, st if slam_ok else _FrameState(k))
+                T_fused = self._fuse(T_out, W, st if slam_ok and not moving else _FrameState(k))
                 if self.cfg.fuse_output if self.cfg.fuse_output is not None else self.mode == "rgbd":
                     T_out = T_fused
             if slam_ok and (self.frames_since_fix > 0 or reset):
                 self._reanchor(T_out, st.T, everything=reset)  # reset the map to the model
+            if moving:
+                self.P = None
+                self._recent_offsets.clear()
+                self.n_rejects = 0
             self.frames_since_fix = 0
             if W is not None:
                 tr = float(np.trace(W))
                 self.info_ref = tr if self.info_ref is None else 0.9 * self.info_ref + 0.1 * tr
-        elif slam_ok:
+        elif slam_ok and not self.moving_hold and not contradicted and self._disagree_streak == 0:
             T_out, status = st.T, STATUS_SLAM
+            self.frames_since_fix += 1
+        elif contradicted or (slam_ok and self._disagree_streak > 0):
+            # the image supports another pose than the map by more than the output accuracy (a wrong
+            # edge match, or the object moving in the map's world): which is right is not known
+            # yet, so neither is output; the map is kept (not dragged) until the check decides
+            T_out, status = None, STATUS_LOST
+            self.frames_since_fix += 1
+            self.stats["contradictions"] = self.stats.get("contradictions", 0) + 1
+        elif self.moving_hold:
+            # the map's world moves against the object: a map pose is no model pose
+            T_out, status = None, STATUS_LOST
             self.frames_since_fix += 1
         else:
             T_out = self._relocalise(gray)
@@ -596,6 +657,28 @@ class ModelAidedSlam:
                 n += 1
         self._recent_offsets.append((C, rejected))
         return n
+
+    def _beyond_bound(self, T_a: np.ndarray, T_b: np.ndarray) -> bool:
+        """The two poses differ by more than ``disagree_rel`` x scene depth or ``disagree_deg``."""
+        D = np.asarray(T_a, float) @ inv_T(T_b)
+        ang = math.degrees(np.linalg.norm(se3_log(D)[3:]))
+        dpos = np.linalg.norm(inv_T(T_a)[:3, 3] - inv_T(T_b)[:3, 3])
+        return dpos > self.cfg.disagree_rel * self.scene_depth or ang > self.cfg.disagree_deg
+
+    def _consistent(self, T_edges: np.ndarray, W_edges: np.ndarray | None, st: _FrameState, fresh: bool = False) -> bool:
+        """The chi-square test of :meth:`_gate` without its bookkeeping (True: edges and map agree).
+
+        ``fresh``: the map was re-anchored onto the previous frame's edge pose, so its anchoring
+        covariance is that pose's (about this frame's edge covariance), not the filter's ``P``."""
+        if W_edges is None or st.W is None or (st.n_inliers < self.cfg.gate_min_inliers and not fresh):
+            return not fresh
+        delta = se3_log(np.asarray(T_edges, float) @ inv_T(st.T))
+        Se = self.cfg.edge_sigma_px**2 * np.linalg.inv(_reg(np.asarray(W_edges, float)))
+        if fresh:
+            cov = 2.0 * Se + self.cfg.slam_sigma_px**2 * np.linalg.inv(_reg(st.W))
+        else:
+            cov = self._slam_cov(st) + Se
+        return float(delta @ np.linalg.solve(cov, delta)) <= self.cfg.gate_chi2
 
     def _strong_enough(self, W: np.ndarray | None) -> bool:
         """Edge information (trace of W) against its running mean over accepted frames: a model
@@ -1115,12 +1198,18 @@ class StandbyAid:
         self.info_ref: float | None = None
         self.n_strong = 0
         self._retired: list[np.ndarray] = []
+        self._fired: list[int] = []
         self.stats = {"wakes": 0, "sleeps": 0, "frames_active": 0, "wake_frames": []}
         self.timing_ms = {"wake": 0.0}
 
     @property
     def standby(self) -> bool:
         return self.aid is None
+
+    @property
+    def static_world_fired(self) -> list[int]:
+        """Frames where the static-world check of the (current or an earlier) mono map fired."""
+        return self._fired + (self.aid.static_world_fired if self.aid is not None else [])
 
     def _strong(self, W: np.ndarray | None) -> bool:
         if W is None or not np.isfinite(W).all():
@@ -1167,6 +1256,7 @@ class StandbyAid:
         self.n_strong = self.n_strong + 1 if (status == STATUS_MODEL and healthy and self._strong(W)) else 0
         if self.n_strong >= self.sleep_after:
             self._retired.append(self.aid.landmarks())
+            self._fired += self.aid.static_world_fired
             self.aid.close()
             self.aid = None
             self.stats["sleeps"] += 1
@@ -1181,6 +1271,7 @@ class StandbyAid:
     def close(self) -> None:
         if self.aid is not None:
             self._retired.append(self.aid.landmarks())
+            self._fired += self.aid.static_world_fired
             self.aid.close()
             self.aid = None
         self.buf.clear()

@@ -59,9 +59,9 @@ from mst.pipeline.camera import Camera, write_camera
 from mst.pipeline.poses import format_tum, inv_T, look_at, make_T  # noqa: F401  (look_at re-exported)
 from mst.pipeline.render import row_ids
 
-SCENARIOS = ("orbit", "corridor", "flyover", "fast")
+SCENARIOS = ("orbit", "corridor", "flyover", "fast", "turntable", "occluder", "blackout")  # the last 3: synth_dynamic
 BASE_SCENARIOS = ("orbit", "corridor", "flyover")
-DEFAULT_FRAMES = {"orbit": 120, "corridor": 150, "flyover": 120, "fast": 60}
+DEFAULT_FRAMES = {"orbit": 120, "corridor": 150, "flyover": 120, "fast": 60, "turntable": 80, "occluder": 60, "blackout": 60}
 UP_AXES = {"z": (0, 0, 1), "-z": (0, 0, -1), "y": (0, 1, 0), "-y": (0, -1, 0), "x": (1, 0, 0), "-x": (-1, 0, 0)}
 
 # material ids (also the ``label`` face property of scene.ply)
@@ -607,6 +607,10 @@ def synthesize(scenario: str, model_path: str | os.PathLike, out_dir: str | os.P
     from mst.pipeline import render_kernels as rk
 
     cfg = config or SynthConfig()
+    if scenario in ("turntable", "occluder", "blackout"):  # moving object / interrupted view
+        from mst.pipeline.synth_dynamic import synthesize_dynamic
+
+        return synthesize_dynamic(scenario, model_path, out_dir, cfg, progress=progress, overwrite=overwrite)
     _check_config(scenario, cfg)
     model_path = Path(model_path)
     V, F = load_model_triangles(model_path)

