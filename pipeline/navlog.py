@@ -101,19 +101,10 @@ def read_mount_rotation(path: str | os.PathLike) -> np.ndarray:
     it is missing, holds another count of numbers, or is not a rotation (not orthonormal, a
     reflection, or a quaternion whose norm is not 1 within 1e-3).
     """
+    from mst.pipeline.poses import read_numbers
+
     p = Path(path)
-    if not p.is_file():
-        raise InputError(p, "mount rotation file does not exist")
-    vals: list[float] = []
-    for line in p.read_text().splitlines():
-        s = line.split("#", 1)[0].replace(",", " ").replace("[", " ").replace("]", " ")
-        try:
-            vals.extend(float(v) for v in s.split())
-        except ValueError:
-            raise InputError(p, f"not a number in line {line.strip()!r}") from None
-    a = np.asarray(vals)
-    if not np.isfinite(a).all():
-        raise InputError(p, "mount rotation holds NaN or infinite values")
+    a = read_numbers(p, "mount rotation file")  # UTF-8 checked, NaN/inf refused, the line of a bad number
     if len(a) == 9:
         return check_rotation(a.reshape(3, 3), p)
     if len(a) == 4:

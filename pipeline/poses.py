@@ -299,7 +299,7 @@ def write_tum(path: str | os.PathLike, t: np.ndarray, T_model_cam: np.ndarray, h
     Path(path).write_text(text)
 
 
-def _read_numbers(p: Path, what: str = "file") -> np.ndarray:
+def read_numbers(p: Path, what: str = "file") -> np.ndarray:
     """All numbers of a small text file; ``#`` comments, commas and brackets ignored.
 
     UTF-8 (byte-order mark accepted); NaN/inf and numbers beyond 1e12 are refused (no rigid
@@ -345,7 +345,7 @@ def read_rigid_transform(path: str | os.PathLike, what: str = "transform file") 
     p = Path(path)
     if not p.exists():
         raise InputError(p, f"{what} does not exist")
-    a = _read_numbers(p, what)
+    a = read_numbers(p, what)
     if len(a) not in (12, 16):
         raise InputError(p, f"{len(a)} numbers: expected a 4x4 (16) or 3x4 (12) matrix")
     return _rigid_from_rows(a, p)
@@ -363,7 +363,7 @@ def read_pose_file(path: str | os.PathLike) -> np.ndarray:
     p = Path(path)
     if not p.exists():
         raise InputError(p, "pose file does not exist")
-    a = _read_numbers(p, "pose file")
+    a = read_numbers(p, "pose file")
     if len(a) in (16, 12):
         from mst import read_text
 
