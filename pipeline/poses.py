@@ -385,3 +385,19 @@ def write_pose_file(path: str | os.PathLike, T_cam_model: np.ndarray, t: float =
         "# mst pose: TUM line 't tx ty tz qx qy qz qw' (camera pose in model frame)\n"
         "# cMo (model-to-camera, 4x4) for reference:\n" + cmo + "\n" + format_tum(np.array([t]), inv_T(T)[None])
     )
+
+
+def pnp_ransac(X_model: np.ndarray, uv_px: np.ndarray, K: np.ndarray, dist, iterations: int, reproj_px: float,
+               flags: int):
+    """``cv2.solvePnPRansac`` of model points ``X_model (N, 3)`` m and pixels ``uv_px (N, 2)``.
+
+    Returns ``(ok, rvec, tvec, inliers)``; ``ok`` is False (no pose) where OpenCV refuses the data
+    instead of solving it: SQPnP asserts on point sets of too little spread (repeated points, e.g.
+    several keypoints matched to one landmark), which is no pose rather than a crash."""
+    import cv2
+
+    try:
+        return cv2.solvePnPRansac(X_model, uv_px, K, dist, iterationsCount=iterations, reprojectionError=reproj_px,
+                                  confidence=0.999, flags=flags)
+    except cv2.error:
+        return False, None, None, None

@@ -123,9 +123,10 @@ class Relocaliser:
         qi, ti = np.array(pairs).T
         uv = np.array([kps[i].pt for i in qi], np.float64)
         X = X_kf[ti].astype(np.float64)
-        ok, rvec, tvec, inl = cv2.solvePnPRansac(X, uv, self.tr.K, None, iterationsCount=self.cfg.ransac_iters,
-                                                 reprojectionError=self.cfg.reproj_px, confidence=0.999,
-                                                 flags=cv2.SOLVEPNP_EPNP)
+        from mst.pipeline.poses import pnp_ransac
+
+        ok, rvec, tvec, inl = pnp_ransac(X, uv, self.tr.K, None, self.cfg.ransac_iters, self.cfg.reproj_px,
+                                         cv2.SOLVEPNP_EPNP)
         if not ok or inl is None:
             return None
         inl = inl.ravel()

@@ -55,7 +55,7 @@ import numpy as np
 
 from mst import InputError
 from mst.pipeline.camera import Camera
-from mst.pipeline.poses import inv_T, se3_exp, se3_log
+from mst.pipeline.poses import inv_T, pnp_ransac, se3_exp, se3_log
 
 STATUS_MODEL, STATUS_SLAM, STATUS_LOST = "model", "slam", "lost"
 
@@ -389,8 +389,14 @@ class ModelAidedSlam:
         return None
 
     def update(self, k: int, gray: np.ndarray, T_cam_model_edges: np.ndarray | None,
-               W: np.ndarray | None, healthy: bool) -> tuple[np.ndarray | None, str]:
-        """Fuse the edge tracker's pose for frame ``k``; return ``(T_cam_model_out or None, status)``."""
+               W: np.ndarray | None, healthy: bool, weak_edge_pose: np.ndarray | None = None
+               ) -> tuple[np.ndarray | None, str]:
+        """Fuse the edge tracker's pose for frame ``k``; return ``(T_cam_model_out or None, status)``.
+
+        ``weak_edge_pose``: an edge pose that passed the tracker's absolute tests but not its
+        calibrated health score (too weak to be output or to move the map). When the map pose lies
+        beyond the output bound from it, the image supports another pose than the map (the object
+        moving in the map's world, or the map gone wrong): neither is output (``lost``)."""
         import time
 
         if self._cur is None or self._cur.k != k:
@@ -448,6 +454,10 @@ class ModelAidedSlam:
                         self.stats["static_world_breaks"] = self.stats.get("static_world_breaks", 0) + 1
             else:
                 self._disagree_streak = 0
+        if (not healthy and slam_ok and not contradicted and weak_edge_pose is not None
+                and np.isfinite(weak_edge_pose).all() and self._beyond_bound(weak_edge_pose, st.T)):
+            contradicted = True
+            self.stats["weak_contradictions"] = self.stats.get("weak_contradictions", 0) + 1
         if edge_ok:
             T_out, status = np.asarray(T_cam_model_edges, float).copy(), STATUS_MODEL
             if W is not None:
@@ -588,9 +598,7 @@ class ModelAidedSlam:
         if len(has) < max(6, self.cfg.pnp_min_inliers):
             return None, None, 0
         Xh, uvh = X[has], self.pts[has].astype(np.float64)
-        ok, rvec, tvec, inl = cv2.solvePnPRansac(Xh, uvh, self.K, self.dist, iterationsCount=100,
-                                                 reprojectionError=self.cfg.pnp_reproj_px, confidence=0.999,
-                                                 flags=cv2.SOLVEPNP_SQPNP)
+        ok, rvec, tvec, inl = pnp_ransac(Xh, uvh, self.K, self.dist, 100, self.cfg.pnp_reproj_px, cv2.SOLVEPNP_SQPNP)
         if not ok or inl is None or len(inl) < 6:
             return None, None, 0
         inl = inl.ravel()
@@ -1144,9 +1152,7 @@ class ModelAidedSlam:
                 continue
             qi, ti = np.array(good).T
             X, uv = kf.X_desc[qi].astype(np.float64), uv_all[ti]
-            ok, rvec, tvec, inl = cv2.solvePnPRansac(X, uv, self.K, self.dist, iterationsCount=200,
-                                                     reprojectionError=self.cfg.pnp_reproj_px, confidence=0.999,
-                                                     flags=cv2.SOLVEPNP_SQPNP)
+            ok, rvec, tvec, inl = pnp_ransac(X, uv, self.K, self.dist, 200, self.cfg.pnp_reproj_px, cv2.SOLVEPNP_SQPNP)
             if not ok or inl is None or len(inl) < self.cfg.reloc_min_inliers:
                 continue
             inl = inl.ravel()
@@ -1242,7 +1248,8 @@ class StandbyAid:
         return None if self.aid is None else self.aid.predict(k, gray, T_cam_model_prev)
 
     def update(self, k: int, gray: np.ndarray, T_cam_model_edges: np.ndarray | None,
-               W: np.ndarray | None, healthy: bool) -> tuple[np.ndarray | None, str]:
+               W: np.ndarray | None, healthy: bool, weak_edge_pose: np.ndarray | None = None
+               ) -> tuple[np.ndarray | None, str]:
         """As :meth:`ModelAidedSlam.update`; asleep, a healthy strong edge pose is output as is."""
         if self.aid is None and not self.needs_wake(healthy, W):
             self.buf.append((k, _to_gray(gray), np.asarray(T_cam_model_edges, float).copy(), np.asarray(W, float)))
@@ -1251,7 +1258,7 @@ class StandbyAid:
             return np.asarray(T_cam_model_edges, float).copy(), STATUS_MODEL
         if self.aid is None:  # the loop did not call wake() (hook contract): wake now
             self.wake(k, gray, T_cam_model_edges)
-        T_out, status = self.aid.update(k, gray, T_cam_model_edges, W, healthy)
+        T_out, status = self.aid.update(k, gray, T_cam_model_edges, W, healthy, weak_edge_pose)
         self.stats["frames_active"] += 1
         self.n_strong = self.n_strong + 1 if (status == STATUS_MODEL and healthy and self._strong(W)) else 0
         if self.n_strong >= self.sleep_after:

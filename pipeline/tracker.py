@@ -886,7 +886,11 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
                     healthy = False
                     fr.reason = f"gradient support {fr.support:.0%} (usual {support_ref:.0%})"
                 if aid is not None:
-                    T_out, status = aid.update(idx, gray, fr.T_cam_model, fr.W, healthy)
+                    # an edge pose refused only by the health score still says where the image
+                    # puts the object: the aid outputs no map pose that contradicts it
+                    weak = (fr.T_cam_model if not healthy and fr.T_cam_model is not None
+                            and (fr.reason or "").startswith("health score") else None)
+                    T_out, status = aid.update(idx, gray, fr.T_cam_model, fr.W, healthy, weak_edge_pose=weak)
                 else:
                     T_out, status = (fr.T_cam_model, "model") if healthy else (None, "lost")
                 if status == "model" and not recovering:

@@ -85,19 +85,25 @@ def test_corridor_mono_rejects_wrong_edge_poses_on_the_return(corridor, tmp_path
     hidden = out_of_view(corridor)
     summ, e = _track(corridor, mode, tmp_path / "mono.txt")
     st = e["status"]
-    assert summ["aid"] == {"mono": "mono", "auto": "mono-standby"}[mode] and not (st == "lost").any()
+    assert summ["aid"] == {"mono": "mono", "auto": "mono-standby"}[mode]
     if mode == "auto":  # the default: the mono aid woke before the model left the view
         assert summ["aid_wakes"] >= 1 and min(summ["aid_wake_frames"]) < np.flatnonzero(hidden)[0]
-    assert (st[hidden] == "slam").all()
+    # while the model is away the SLAM carries the pose (a frame may be lost at the end of the
+    # stretch, where the returning model's edges already contradict the drifted map)
+    assert not (st[hidden] == "model").any() and (st[hidden] == "slam").mean() > 0.9
     ret = np.flatnonzero(hidden)[-1] + 1
     rows = list(csv.DictReader(open(tmp_path / "mono.csv")))
-    # the edge tracker did run on the returning model (edge samples found) ... (mono: the default's
-    # map, replayed from 20 frames when it woke, drifts differently; its return may fall outside)
+    # the returning model's edges were found and refused by the health score: the path tested (mono
+    # only: the default's map, replayed from 20 frames when it woke, drifts differently)
     if mode == "mono":
-        assert sum(int(r["samples"]) > 50 for r in rows[ret:]) >= 10
+        assert any(r["reason"].startswith("health score") for r in rows[ret - 5:])
     # ... and every pose output as a model pose after the return is a correct one (320x240 edge noise)
     after = np.arange(len(st)) >= ret
     assert np.all(e["rel"][after & (st == "model")] < 0.01)
+    # ... and no map pose either: the drifted map (its pose was 45-63 % of the distance off after the
+    # return, output as `slam` before the aid heard of the weak edge poses) is contradicted by the
+    # image, so those frames are lost, not tracked
+    assert np.all(e["rel"][after & (st != "lost")] < 0.01)
 
 
 @pytest.mark.parametrize("drop", [8, 10])

@@ -66,10 +66,7 @@ def turntable(tmp_path_factory):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("mode", ["auto", pytest.param("mono", marks=pytest.mark.xfail(strict=True, reason=(
-    "open since the merge with main: the health score now rejects the turning object's edge poses "
-    "before the map's gate sees them, so the static-world check never fires and the always-on mono "
-    "map bridges with poses of the still room (52 slam frames up to 89 deg off)")))])
+@pytest.mark.parametrize("mode", ["auto", "mono"])
 def test_turntable_no_map_pose_while_the_object_turns(turntable, tmp_path, mode):
     s, st, rel, deg, truth = _track(turntable, mode, tmp_path / "t.txt")
     moving = np.array([r["object_moving"] == "1" for r in truth])

@@ -240,7 +240,7 @@ def test_slam_aid_hook_contract(shared_data, tmp_path, monkeypatch):
             calls.append(("predict", k, gray.shape, T_prev.shape))
             return None if k % 2 else T_prev
 
-        def update(self, k, gray, T_edges, W, healthy):
+        def update(self, k, gray, T_edges, W, healthy, weak_edge_pose=None):
             calls.append(("update", k, W.shape, bool(np.allclose(W, W.T)), float(np.linalg.eigvalsh(W).min()), healthy))
             return T_edges, ("slam" if k == 3 else "model")
 
