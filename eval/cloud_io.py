@@ -26,12 +26,6 @@ import numpy as np
 
 from mst import InputError, require_file
 
-PLY_TYPES = {
-    "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1",
-    "short": "i2", "int16": "i2", "ushort": "u2", "uint16": "u2",
-    "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
-    "float": "f4", "float32": "f4", "double": "f8", "float64": "f8",
-}
 TEXT_SUFFIXES = {".xyz", ".txt", ".csv", ".asc", ".pts"}
 CLOUD_SUFFIXES = {".ply", ".pcd", ".las", ".laz"} | TEXT_SUFFIXES
 
@@ -83,23 +77,6 @@ def read_cloud(path: str | os.PathLike) -> np.ndarray:
 
 
 # ----------------------------------------------------------------------------------------- PLY
-def _read_header_lines(p: Path, magic: bytes, end: bytes, limit: int = 1 << 20) -> tuple[list[str], int]:
-    with open(p, "rb") as f:
-        head = f.read(limit)
-    if not head.startswith(magic):
-        raise InputError(p, f"not a {magic.decode().strip()} file (bad magic)")
-    lines, pos = [], 0
-    while True:
-        nl = head.find(b"\n", pos)
-        if nl < 0:
-            raise InputError(p, "truncated or corrupt header")
-        line = head[pos:nl].decode("ascii", "replace").strip()
-        pos = nl + 1
-        lines.append(line)
-        if line.startswith(end.decode()):
-            return lines, pos
-
-
 def _ascii_reader(p: Path, start: int, n: int, cols, what: str, unit: str):
     """Chunked reader of ``n`` whitespace-separated rows from byte ``start``: columns ``cols`` as float64.
 
@@ -125,44 +102,15 @@ def _ascii_reader(p: Path, start: int, n: int, cols, what: str, unit: str):
 
 
 def _open_ply(p: Path) -> CloudSource:
-    lines, data_start = _read_header_lines(p, b"ply", b"end_header")
-    fmt = None
-    elements: list[tuple[str, int, list[tuple[str, str]]]] = []
-    for line in lines[1:]:
-        tok = line.split()
-        if not tok:
-            continue
-        if tok[0] == "format":
-            fmt = tok[1] if len(tok) > 1 else None
-        elif tok[0] == "element":
-            if len(tok) != 3 or not re.fullmatch(r"\d+", tok[2]):
-                raise InputError(p, f"PLY header: bad element line {line[:60]!r} (count must be an integer >= 0)")
-            elements.append((tok[1], int(tok[2]), []))
-        elif tok[0] == "property":
-            if not elements:
-                raise InputError(p, "property before any element in the header")
-            if len(tok) >= 2 and tok[1] == "list":
-                if len(tok) != 5 or tok[2] not in PLY_TYPES or tok[3] not in PLY_TYPES:
-                    raise InputError(p, f"PLY header: bad list property {line[:60]!r}")
-                if elements[-1][0] == "vertex" and tok[4] in ("x", "y", "z"):
-                    raise InputError(p, f"PLY header: vertex coordinate {tok[4]!r} declared as a list")
-                elements[-1][2].append((tok[-1], "list"))
-            else:
-                if len(tok) != 3 or tok[1] not in PLY_TYPES:
-                    raise InputError(p, f"PLY header: bad property line {line[:60]!r}")
-                elements[-1][2].append((tok[2], PLY_TYPES[tok[1]]))
-        elif tok[0] not in ("ply", "comment", "obj_info", "end_header"):
-            raise InputError(p, f"PLY header: unexpected line {line[:60]!r}")
-    if fmt not in ("ascii", "binary_little_endian", "binary_big_endian"):
-        raise InputError(p, f"unsupported PLY format {fmt!r}")
-    names = [e[0] for e in elements]
-    if "vertex" not in names:
-        raise InputError(p, "no 'vertex' element")
-    vi = names.index("vertex")
+    from mst.meshtools.io import PLY_TYPES, ply_header
+
+    # the strict header parser the mesh reader uses (counts, types, lists, vertex x/y/z, body size)
+    fmt, raw, data_start = ply_header(p)
+    elements = [(name, count, [(pr[-1], "list") if pr[0] == "list" else (pr[1], PLY_TYPES[pr[0]]) for pr in props])
+                for name, count, props in raw]
+    vi = [e[0] for e in elements].index("vertex")  # ply_header refused a PLY without vertex x, y, z
     _, n, props = elements[vi]
     pnames = [q[0] for q in props]
-    if not {"x", "y", "z"} <= set(pnames):
-        raise InputError(p, "vertex element lacks x, y, z properties")
     xyz_dtype = np.dtype(max((dict(props)[k] for k in "xyz"), key=lambda s: np.dtype(s).itemsize))
     if fmt == "ascii":
         if any(e[1] > 0 for e in elements[:vi]):

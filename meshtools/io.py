@@ -236,7 +236,7 @@ def _trimesh_load(p: Path) -> tuple[np.ndarray, np.ndarray]:
     return V, F
 
 
-def _ply_header(p: Path) -> tuple[str, list[tuple[str, int, list[list[str]]]], int]:
+def ply_header(p: Path) -> tuple[str, list[tuple[str, int, list[list[str]]]], int]:
     """Strictly parsed PLY header: ``(format, [(element, count, [property tokens])], data offset)``.
 
     Raises :class:`mst.InputError` for a missing ``end_header``, an unknown format or type, a
@@ -247,7 +247,7 @@ def _ply_header(p: Path) -> tuple[str, list[tuple[str, int, list[list[str]]]], i
     with open(p, "rb") as fh:
         head = fh.read(1 << 20)
     if not head.startswith(b"ply"):
-        raise InputError(p, "not a PLY file (no 'ply' magic)")
+        raise InputError(p, "not a PLY file (bad magic: it does not start with 'ply')")
     m = re.search(rb"end_header[ \t]*\r?\n", head)
     if not m:
         raise InputError(p, "PLY header has no 'end_header' line (truncated or corrupt)")
@@ -270,11 +270,11 @@ def _ply_header(p: Path) -> tuple[str, list[tuple[str, int, list[list[str]]]], i
             if not elems:
                 raise InputError(p, "PLY header: property before any element")
             if len(t) >= 2 and t[1] == "list":
-                if len(t) != 5 or t[2] not in _PLY_TYPES or t[3] not in _PLY_TYPES:
+                if len(t) != 5 or t[2] not in PLY_TYPES or t[3] not in PLY_TYPES:
                     raise InputError(p, f"PLY header: bad list property {ln.strip()[:60]!r}")
                 if elems[-1][0] == "vertex" and t[4] in ("x", "y", "z"):
                     raise InputError(p, f"PLY header: vertex coordinate {t[4]!r} declared as a list")
-            elif len(t) != 3 or t[1] not in _PLY_TYPES:
+            elif len(t) != 3 or t[1] not in PLY_TYPES:
                 raise InputError(p, f"PLY header: bad property {ln.strip()[:60]!r}")
             elems[-1][2].append(t[1:])
         else:
@@ -293,9 +293,9 @@ def _ply_header(p: Path) -> tuple[str, list[tuple[str, int, list[list[str]]]], i
             per = 0
             for pr in props:
                 if pr[0] == "list":  # at least the count and, for faces, 3 indices
-                    per += np.dtype(_PLY_TYPES[pr[1]]).itemsize + (3 * np.dtype(_PLY_TYPES[pr[2]]).itemsize if name == "face" else 0)
+                    per += np.dtype(PLY_TYPES[pr[1]]).itemsize + (3 * np.dtype(PLY_TYPES[pr[2]]).itemsize if name == "face" else 0)
                 else:
-                    per += np.dtype(_PLY_TYPES[pr[0]]).itemsize
+                    per += np.dtype(PLY_TYPES[pr[0]]).itemsize
             need += per * count
         have = p.stat().st_size - m.end()
         if have < need:
@@ -317,7 +317,7 @@ def _read_ply_mesh(p: Path) -> tuple[np.ndarray, np.ndarray]:
     trimesh after the header check; ASCII: one element instance per line, every line checked.
     Bad headers, short bodies and missing faces raise :class:`mst.InputError`.
     """
-    fmt, elems, start = _ply_header(p)
+    fmt, elems, start = ply_header(p)
     names = [e[0] for e in elems]
     if "face" not in names:
         raise InputError(p, "PLY has no 'face' element (a point cloud, not a mesh)")
@@ -425,7 +425,8 @@ def _read_stl(p: Path) -> tuple[np.ndarray, np.ndarray]:
     return V, np.arange(len(V), dtype=np.int64).reshape(-1, 3)
 
 
-_PLY_TYPES = {"char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2", "int16": "i2",
+#: PLY scalar type names -> numpy dtype codes (the one table of the project)
+PLY_TYPES = {"char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2", "int16": "i2",
               "ushort": "u2", "uint16": "u2", "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
               "float": "f4", "float32": "f4", "double": "f8", "float64": "f8"}
 
@@ -463,7 +464,7 @@ def _read_ply_triangles_fast(p: Path) -> tuple[np.ndarray, np.ndarray] | None:
     for name, count, props in elems:
         if name == "vertex":
             try:
-                dt = np.dtype([(pr[1], bo + _PLY_TYPES[pr[0]]) for pr in props])
+                dt = np.dtype([(pr[1], bo + PLY_TYPES[pr[0]]) for pr in props])
             except (KeyError, IndexError):
                 return None
             if not {"x", "y", "z"} <= set(dt.names):
@@ -476,7 +477,7 @@ def _read_ply_triangles_fast(p: Path) -> tuple[np.ndarray, np.ndarray] | None:
             if len(props) != 1 or props[0][0] != "list" or props[0][3] not in ("vertex_indices", "vertex_index"):
                 return None
             try:
-                ct, it = _PLY_TYPES[props[0][1]], _PLY_TYPES[props[0][2]]
+                ct, it = PLY_TYPES[props[0][1]], PLY_TYPES[props[0][2]]
             except KeyError:
                 return None
             dt = np.dtype([("n", bo + ct), ("i", bo + it, (3,))])
@@ -494,7 +495,7 @@ def _read_ply_triangles_fast(p: Path) -> tuple[np.ndarray, np.ndarray] | None:
                     break
                 return None
             try:
-                pos += count * sum(np.dtype(_PLY_TYPES[pr[0]]).itemsize for pr in props)
+                pos += count * sum(np.dtype(PLY_TYPES[pr[0]]).itemsize for pr in props)
             except KeyError:
                 return None
     if V is None or F is None or pos > len(data):

@@ -393,16 +393,13 @@ def write_ply(path: str | os.PathLike, X: np.ndarray, rgb: np.ndarray | None = N
         f.write(a.tobytes())
 
 
-_PLY_TYPES = {"char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2", "int16": "i2",
-              "ushort": "u2", "uint16": "u2", "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
-              "float": "f4", "float32": "f4", "double": "f8", "float64": "f8"}
-
-
 def read_ply_points(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray | None]:
     """Read the vertices of a PLY point cloud: ``(X (N, 3) float64, rgb (N, 3) uint8 or None)``.
 
     Handles ASCII and binary PLY whose first element is ``vertex`` with scalar properties.
     """
+    from mst.meshtools.io import PLY_TYPES
+
     p = require_file(path, "point cloud")
     raw = p.read_bytes()
     end = raw.find(b"end_header")
@@ -428,9 +425,9 @@ def read_ply_points(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray | N
         elif w[0] == "property" and len(elements) == 1 and len(w) > 2:
             if w[1] == "list":
                 raise InputError(p, "list properties in the vertex element are not supported")
-            if w[1] not in _PLY_TYPES:
+            if w[1] not in PLY_TYPES:
                 raise InputError(p, f"unknown PLY property type {w[1]!r}")
-            props.append((w[2], _PLY_TYPES[w[1]]))
+            props.append((w[2], PLY_TYPES[w[1]]))
     first = elements[0] if elements else None
     if first != "vertex" or n is None:
         raise InputError(p, "the first PLY element must be 'vertex'")
