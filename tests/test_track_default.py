@@ -21,13 +21,9 @@ def teabox_frames(shared_data, tmp_path_factory):
 
     t = shared_data / "visp-teabox"
     d = tmp_path_factory.mktemp("teabox_fb")
-    cap = cv2.VideoCapture(str(t / "teabox.mp4"))
-    frames = []
-    while True:
-        ok, f = cap.read()
-        if not ok:
-            break
-        frames.append(f)
+    from mst.pipeline.frames import open_frames
+
+    frames = [bgr for _, _, bgr in open_frames(t / "teabox.mp4")]
     (d / "fwd").mkdir()
     (d / "bwd").mkdir()
     for i, f in enumerate(frames):

@@ -87,13 +87,9 @@ def test_teabox_reacquired_after_jump(shared_data, tmp_path):
     from mst.pipeline.tracker import load_polygon_model, run_track
 
     t = shared_data / "visp-teabox"
-    cap = cv2.VideoCapture(str(t / "teabox.mp4"))
-    frames = []
-    while True:
-        ok, f = cap.read()
-        if not ok:
-            break
-        frames.append(f)
+    from mst.pipeline.frames import open_frames
+
+    frames = [bgr for _, _, bgr in open_frames(t / "teabox.mp4")]
     seq = frames + [np.zeros_like(frames[0])] * 4 + frames[:12]
     (tmp_path / "rgb").mkdir()
     for i, f in enumerate(seq):
