@@ -1,11 +1,15 @@
 """mst: model-based survey tracking.
 
-Subpackages: :mod:`mst.cli` (click commands), :mod:`mst.pipeline` (camera, poses, rendering,
-moving edges, pose optimisation, SLAM, fusion), :mod:`mst.meshtools` (model I/O, TIN to polygons),
-:mod:`mst.eval` (cloud-to-mesh, trajectory metrics, benchmarks).
+Packages, dependencies pointing one way (foundation <- stages <- runners <- CLI):
+:mod:`mst.core` (the foundation: camera, poses, KLT, file formats, configuration),
+:mod:`mst.meshtools` (model I/O, TIN to polygons), :mod:`mst.pipeline` (rendering and visibility,
+moving edges, pose optimisation, tracking, SLAM, fusion, synthesis, navigation),
+:mod:`mst.eval` (cloud-to-mesh, trajectory metrics, reports; benchmarks in :mod:`mst.eval.bench`),
+:mod:`mst.cli` (click commands only).
 
-This module stays import-light: it holds the version, the error types every stage raises for bad
-input, and the atomic-output helper that keeps partial files from ever appearing.
+This module stays import-light: it holds the version, re-exports the error types of
+:mod:`mst.errors`, and the input/output helpers (atomic outputs) that keep partial files from ever
+appearing. It imports the standard library and :mod:`mst.errors` only.
 """
 
 from __future__ import annotations
@@ -17,26 +21,9 @@ import tempfile
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 
+from mst.errors import ConfigError, InputError, MstError  # noqa: F401  (the public error types)
+
 __version__ = "0.1.0"
-
-
-class MstError(Exception):
-    """An error the CLI reports as one line (no traceback) with a non-zero exit."""
-
-    exit_code = 1
-
-
-class InputError(MstError):
-    """Bad input: names the offending file and the problem.
-
-    >>> str(InputError("clicks.txt", "3 clicks, need at least 4"))
-    'clicks.txt: 3 clicks, need at least 4'
-    """
-
-    def __init__(self, path: str | os.PathLike | None, problem: str):
-        self.path = None if path is None else str(path)
-        self.problem = problem
-        super().__init__(f"{self.path}: {problem}" if self.path else problem)
 
 
 def require_file(path: str | os.PathLike, what: str = "file") -> Path:

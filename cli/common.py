@@ -130,3 +130,101 @@ def print_table(title: str, columns: Iterable[str], rows: Iterable[Iterable[Any]
     for r in rows:
         t.add_row(*[str(x) for x in r])
     stderr_console().print(t)
+
+
+# -- configuration: --config FILE, --preset NAME, --set KEY=VALUE, shared by every command -------
+
+def config_options(presets: bool = False):
+    """Decorator adding ``--config FILE`` (``.yaml``/``.json``), ``--set KEY=VALUE`` (repeatable,
+    dotted names) and, with ``presets``, ``--preset NAME`` to a command. Explicit options of the
+    command override ``--set``, which overrides the file, which overrides the preset."""
+
+    def deco(f):
+        f = click.option("--set", "set_values", multiple=True, metavar="KEY=VALUE",
+                         help="Set one setting by its dotted name (e.g. slam.fb_max_px=2); repeatable; "
+                              "overrides --config. `mst <command> --show-config` lists them.")(f)
+        f = click.option("--config", "config_file", type=click.Path(dir_okay=False), default=None,
+                         help="Settings file (.yaml/.yml/.json), e.g. the 'config' block of an earlier "
+                              "run's --json summary, to repeat it exactly.")(f)
+        if presets:
+            f = click.option("--preset", default=None, metavar="NAME",
+                             help="Named settings preset (listed by --show-config).")(f)
+        return f
+
+    return deco
+
+
+def parse_set_values(values: Iterable[str]) -> dict[str, Any]:
+    """``["slam.fb_max_px=2", "edges.passes=3"]`` -> ``{"slam.fb_max_px": 2, "edges.passes": 3}``.
+
+    Values are read as YAML scalars/lists (``2``, ``true``, ``null``, ``[8, 6]``); a malformed item is
+    a usage error naming ``--set``.
+    """
+    out: dict[str, Any] = {}
+    for item in values:
+        key, sep, raw = item.partition("=")
+        key = key.strip()
+        if not sep or not key:
+            raise click.BadParameter(f"{item!r} is not KEY=VALUE", param_hint="'--set'")
+        try:
+            import yaml
+
+            val = yaml.safe_load(raw) if raw.strip() else ""
+        except Exception:  # noqa: BLE001 - any YAML problem: keep the text as a string
+            val = raw
+        out[key] = val
+    return out
+
+
+def build_config(cls, *, config_file=None, set_values: Iterable[str] = (), preset: str | None = None,
+                 options: dict[str, Any] | None = None, flags: dict[str, str] | None = None,
+                 section_name: str | None = None, base: dict[str, Any] | None = None):
+    """The effective ``cls`` config of a command: defaults < ``base`` < preset < ``--config`` <
+    ``--set`` < explicit ``options`` (dotted field -> value; ``None`` values are "not given").
+
+    A :class:`~mst.errors.ConfigError` on a field that an option sets is reported under the
+    option's name (``flags``: dotted field -> ``"--voxel"``), so the user reads the flag they typed.
+    """
+    from mst.core.config import resolve
+    from mst.errors import ConfigError
+
+    overrides = parse_set_values(set_values)
+    overrides.update({k: v for k, v in (options or {}).items() if v is not None})
+    try:
+        return resolve(cls, preset=preset, file=config_file, section_name=section_name,
+                       overrides=overrides, base=base)
+    except ConfigError as e:
+        flag = (flags or {}).get(e.field)
+        if flag is not None and e.source is None and options and options.get(e.field) is not None:
+            raise click.BadParameter(e.problem, param_hint=f"'{flag}'") from None
+        raise
+
+
+def verbosity_options(f):
+    """``-q/--quiet`` (no progress, summary or notes on stderr) and ``-v/--verbose`` (debug notes)."""
+    f = click.option("-v", "--verbose", count=True, help="More messages on stderr (-vv: debug).")(f)
+    return f
+
+
+def setup_logging(quiet: bool = False, verbose: int = 0, prog: str = "mst") -> None:
+    """Route the library's ``logging`` messages (``mst.*`` loggers) to stderr as ``prog: note: ...``.
+
+    Default level INFO (the notes a user should read: a derived setting, a skipped frame);
+    ``quiet`` shows errors only, ``verbose`` DEBUG.
+    """
+    import logging
+
+    class Handler(logging.Handler):
+        def emit(self, record: logging.LogRecord) -> None:
+            kind = {logging.DEBUG: "debug", logging.INFO: "note", logging.WARNING: "warning"}.get(record.levelno, "error")
+            click.echo(f"{prog}: {kind}: {record.getMessage()}", err=True)
+
+    log = logging.getLogger("mst")
+    for h in list(log.handlers):
+        if getattr(h, "_mst_cli", False):
+            log.removeHandler(h)
+    h = Handler()
+    h._mst_cli = True
+    log.addHandler(h)
+    log.propagate = False
+    log.setLevel(logging.ERROR if quiet else (logging.DEBUG if verbose else logging.INFO))

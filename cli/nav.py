@@ -59,8 +59,8 @@ def simulate_nav_files(gt_path, out_path, cfg) -> dict:
     from pathlib import Path
 
     from mst import atomic_outputs
+    from mst.core.poses import read_tum
     from mst.pipeline.navlog import simulate_nav, write_sim_outputs
-    from mst.pipeline.poses import read_tum
 
     t, T = read_tum(gt_path)
     res = simulate_nav(t, T, cfg)
@@ -143,6 +143,7 @@ def fuse(traj_path, nav_path, out, cov_path, mode, offset, lever, mount_path, m2
     import numpy as np
 
     from mst import InputError, atomic_outputs
+    from mst.core.poses import format_tum, read_rigid_transform, read_tum
     from mst.pipeline.navfusion import (
         FusionConfig,
         cov_path_for,
@@ -151,7 +152,6 @@ def fuse(traj_path, nav_path, out, cov_path, mode, offset, lever, mount_path, m2
         read_cov_csv,
     )
     from mst.pipeline.navlog import read_mount_rotation, read_navlog
-    from mst.pipeline.poses import format_tum, read_rigid_transform, read_tum
 
     t_v, T_v = read_tum(traj_path)
     nav = read_navlog(nav_path, offset=offset)

@@ -22,7 +22,7 @@ W, H, N_BASE = 640, 480, 24
 def _scene_and_poses():
     import open3d as o3d
 
-    from mst.pipeline.poses import make_T
+    from mst.core.poses import make_T
 
     box = o3d.geometry.TriangleMesh.create_box(1.0, 0.6, 0.8)
     box.translate((-0.5, -0.3, 0.0))
@@ -44,8 +44,8 @@ def make_inputs(work: Path) -> tuple[Path, Path, np.ndarray]:
     """Render the base frames once: ``(depth folder, camera.json, T_model_cam (24, 4, 4))``."""
     import open3d as o3d
 
-    from mst.pipeline.camera import Camera, write_camera
-    from mst.pipeline.poses import inv_T
+    from mst.core.camera import Camera, write_camera
+    from mst.core.poses import inv_T
 
     base = work / "base"
     base.mkdir(parents=True, exist_ok=True)
@@ -68,7 +68,7 @@ def make_inputs(work: Path) -> tuple[Path, Path, np.ndarray]:
 
 def make_sequence(work: Path, base: Path, poses: np.ndarray, n: int) -> tuple[Path, Path]:
     """``n`` frames as symbolic links to the base frames + the matching trajectory (t = index)."""
-    from mst.pipeline.poses import write_tum
+    from mst.core.poses import write_tum
 
     d = work / f"seq{n}"
     d.mkdir(parents=True, exist_ok=True)

@@ -18,7 +18,7 @@ from mst.eval.bench import mst_cmd, timed_command
 
 
 def _flight(duration_s: float, fps: float):
-    from mst.pipeline.poses import look_at
+    from mst.core.poses import look_at
 
     t = np.arange(0.0, duration_s, 1.0 / fps)
     w = 6.0 / 60.0
@@ -28,8 +28,8 @@ def _flight(duration_s: float, fps: float):
 
 
 def run(workdir: Path) -> list[dict]:
+    from mst.core.poses import so3_exp, write_tum
     from mst.pipeline.navlog import NavSimConfig, simulate_nav, write_sim_outputs
-    from mst.pipeline.poses import so3_exp, write_tum
 
     workdir.mkdir(parents=True, exist_ok=True)
     t, T = _flight(600.0, 30.0)
@@ -48,10 +48,10 @@ def run(workdir: Path) -> list[dict]:
 
     import cv2
 
+    from mst.core.camera import Camera
+    from mst.core.poses import inv_T, look_at
     from mst.meshtools.generate import l_shape_model
     from mst.pipeline.autoinit import auto_init
-    from mst.pipeline.camera import Camera
-    from mst.pipeline.poses import inv_T, look_at
     from mst.pipeline.render import Renderer
 
     m = l_shape_model()

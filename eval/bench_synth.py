@@ -34,8 +34,8 @@ SAMPLE = ROOT / "samples" / "building_tin.obj"
 def _render_rows() -> list[dict]:
     import cv2
 
-    from mst.pipeline.poses import inv_T
-    from mst.pipeline.synth import SynthConfig, _build_scene, load_model_triangles
+    from mst.core.poses import inv_T
+    from mst.pipeline.synth import SynthConfig, build_scene, load_model_triangles
 
     V, F = load_model_triangles(SAMPLE)
     rows = []
@@ -44,7 +44,7 @@ def _render_rows() -> list[dict]:
                                (0, 16, "render_640x480_all_threads")):
         cv2.setNumThreads(1 if nthreads == 1 else n_cv)  # OpenCV's remap is multi-threaded too
         cfg = SynthConfig(nthreads=nthreads)
-        cam, R_cm, scene, renderer, _ = _build_scene("orbit", cfg, V, F)
+        cam, R_cm, scene, renderer, _ = build_scene("orbit", cfg, V, F)
         poses = [inv_T(scene.pose(k / 30.0)) for k in range(20)]
         renderer.render(cam, poses[0])  # warm-up (BVH, caches)
         t_tot, t_cpu, t_cast, edge_px, mad = [], [], [], [], []

@@ -21,8 +21,8 @@ from pathlib import Path
 import numpy as np
 
 from mst import InputError
+from mst.core.poses import read_tum
 from mst.pipeline.navlog import R_MOUNT_CAM, NavLog, interpolate_poses, read_navlog
-from mst.pipeline.poses import read_tum
 
 
 @dataclass

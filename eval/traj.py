@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from mst import InputError, read_text
-from mst.pipeline.poses import R_from_quat, check_pose_rows, inv_T, make_T, read_tum, rotation_angle_deg
+from mst.core.poses import R_from_quat, check_pose_rows, inv_T, make_T, read_tum, rotation_angle_deg
 
 NADIR_LIMIT_DEG = 10.0
 

@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from mst import InputError
-from mst.pipeline.poses import inv_T, so3_exp, so3_log
+from mst.core.poses import inv_T, so3_exp, so3_log
 
 
 @dataclass
@@ -251,9 +251,9 @@ def run_autoinit(model_path, camera_path, out, nav_path, image_path, *, nav_time
     import cv2
 
     from mst import atomic_outputs
-    from mst.pipeline.camera import read_camera
+    from mst.core.camera import read_camera
+    from mst.core.poses import write_pose_file
     from mst.pipeline.init_pose import _read_image, draw_model
-    from mst.pipeline.poses import write_pose_file
     from mst.pipeline.tracker import load_polygon_model
 
     if image_path is None:

@@ -23,11 +23,35 @@ from __future__ import annotations
 
 import os
 import re
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from mst import InputError
+from mst.core.config import Config, param
+
+
+@dataclass
+class DepthConfig(Config):
+    """How depth frames are read and which depths are trusted (shared by ``track`` and ``fuse``).
+
+    ``scale``: raw integer units per metre (1000 = millimetres; 5000 = TUM RGB-D; a value below 1
+    is read as metres per unit, ViSP's 0.001); ``min_m``/``max_m``: depths outside are invalid;
+    ``edge_rel``: a pixel whose local depth spread exceeds this x its depth lies on a depth
+    discontinuity and is dropped (0: off).
+    """
+
+    scale: float = param(1000.0, min=0, min_open=True, help="raw depth units per metre (TUM RGB-D: 5000)")
+    min_m: float = param(0.1, min=0, help="nearer depths are invalid, m")
+    max_m: float = param(50.0, min=0, min_open=True, help="farther depths are invalid, m")
+    edge_rel: float = param(0.03, min=0, max=10, help="depth-discontinuity bound, x depth (0: off)")
+
+    def check(self) -> None:
+        from mst.errors import ConfigError
+
+        if not self.min_m < self.max_m:
+            raise ConfigError("min_m", f"must be below max_m ({self.max_m:g} m), got {self.min_m:g}")
 
 #: suffixes read as depth, in the order preferred when a folder holds several formats of the same
 #: frames (a ``mst synth`` ``depth/`` folder holds both ``000000.npy`` and ``000000.png``): exact

@@ -36,9 +36,9 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from mst import InputError, atomic_output, require_file
-from mst.pipeline.camera import Camera, read_camera
+from mst.core.camera import Camera, read_camera
+from mst.core.poses import inv_T, read_rigid_transform, read_tum
 from mst.pipeline.depth_io import list_depth_frames, list_image_frames, read_depth
-from mst.pipeline.poses import inv_T, read_rigid_transform, read_tum
 
 
 @dataclass

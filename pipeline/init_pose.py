@@ -142,7 +142,7 @@ def _T_from_rt(rvec, tvec) -> np.ndarray:
 
 def refine_pose(T: np.ndarray, K: np.ndarray, X: np.ndarray, uv: np.ndarray, iters: int = 30, huber_px: float = 2.0) -> np.ndarray:
     """Robust LM (Huber) refinement of the reprojection error; perturbation ``se3_exp(xi) @ T``."""
-    from mst.pipeline.poses import se3_exp
+    from mst.core.poses import se3_exp
     from mst.pipeline.vvs import _point_jacobian
 
     fx, fy = K[0, 0], K[1, 1]
@@ -294,7 +294,7 @@ def pose_from_gps(position_m: np.ndarray, yaw_deg: float, pitch_deg: float, roll
     T_model_cam = np.eye(4)
     T_model_cam[:3, :3] = R_model_cam
     T_model_cam[:3, 3] = t_model_cam
-    from mst.pipeline.poses import inv_T
+    from mst.core.poses import inv_T
 
     return inv_T(T_model_cam)
 
@@ -372,8 +372,8 @@ def run_init(model_path, camera_path, out, *, clicks_path=None, points_path=None
     import cv2
 
     from mst import atomic_output, atomic_outputs
-    from mst.pipeline.camera import read_camera
-    from mst.pipeline.poses import write_pose_file
+    from mst.core.camera import read_camera
+    from mst.core.poses import write_pose_file
     from mst.pipeline.tracker import check_pose_in_view, load_polygon_model
 
     if overlay_path is not None and image_path is None:

@@ -47,10 +47,10 @@ from pathlib import Path
 import numpy as np
 
 from mst import InputError
+from mst.core.poses import so3_exp, so3_log
 from mst.pipeline.navfusion_kernels import kf_rts as _kf_rts
 from mst.pipeline.navfusion_kernels import mekf_attitude as _mekf
 from mst.pipeline.navlog import NavLog, mount_ypr_deg_from_R
-from mst.pipeline.poses import so3_exp, so3_log
 
 
 @dataclass

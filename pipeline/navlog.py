@@ -101,7 +101,7 @@ def read_mount_rotation(path: str | os.PathLike) -> np.ndarray:
     it is missing, holds another count of numbers, or is not a rotation (not orthonormal, a
     reflection, or a quaternion whose norm is not 1 within 1e-3).
     """
-    from mst.pipeline.poses import read_numbers
+    from mst.core.poses import read_numbers
 
     p = Path(path)
     a = read_numbers(p, "mount rotation file")  # UTF-8 checked, NaN/inf refused, the line of a bad number
@@ -111,7 +111,7 @@ def read_mount_rotation(path: str | os.PathLike) -> np.ndarray:
         n = np.linalg.norm(a)
         if abs(n - 1.0) > 1e-3:
             raise InputError(p, f"mount quaternion has norm {n:.4g}, not 1: not a rotation")
-        from mst.pipeline.poses import R_from_quat
+        from mst.core.poses import R_from_quat
 
         return R_from_quat(a)
     raise InputError(p, f"{len(a)} numbers: expected 9 (3x3 rotation) or 4 (quaternion qx qy qz qw)")
@@ -309,7 +309,7 @@ def simulate_nav(t_gt: np.ndarray, T_model_cam: np.ndarray, cfg: NavSimConfig | 
     random-walk bias + multipath outliers (random direction, magnitude in ``outlier_m``) and
     ``dropouts`` stretches with fix = 0. AHRS: yaw/pitch/roll + white noise + a constant yaw bias.
     """
-    from mst.pipeline.poses import inv_T, make_T
+    from mst.core.poses import inv_T, make_T
 
     cfg = cfg or NavSimConfig()
     rng = np.random.default_rng(cfg.seed)

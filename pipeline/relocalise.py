@@ -29,7 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mst.pipeline.poses import inv_T, se3_log
+from mst.core.poses import inv_T, se3_log
 
 
 @dataclass
@@ -123,7 +123,7 @@ class Relocaliser:
         qi, ti = np.array(pairs).T
         uv = np.array([kps[i].pt for i in qi], np.float64)
         X = X_kf[ti].astype(np.float64)
-        from mst.pipeline.poses import pnp_ransac
+        from mst.core.poses import pnp_ransac
 
         ok, rvec, tvec, inl = pnp_ransac(X, uv, self.tr.K, None, self.cfg.ransac_iters, self.cfg.reproj_px,
                                          cv2.SOLVEPNP_EPNP)

@@ -38,7 +38,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from mst.pipeline.camera import Camera
+from mst.core.camera import Camera
 
 INVALID = np.uint32(0xFFFFFFFF)
 

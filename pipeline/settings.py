@@ -245,7 +245,7 @@ def read_tracker_xml(path: str | os.PathLike, base: TrackerConfig | None = None)
 
     Raises :class:`mst.InputError` (naming the file and the tag) for unparsable XML, non-numeric
     or non-finite values and values outside :data:`BOUNDS`. A camera in the same file is ignored
-    here (read it with :func:`mst.pipeline.camera.read_camera`).
+    here (read it with :func:`mst.core.camera.read_camera`).
     """
     p = Path(path)
     if not p.is_file():

@@ -40,7 +40,7 @@ keyframes, and landmarks pruned to those still tracked or observed in the window
 map (:meth:`ModelAidedSlam.landmarks`, bounded by ``max_export_points``) grows with the explored area.
 
 Conventions: ``T_cam_model`` maps model points to the camera frame (ViSP's cMo); twists and ``W``
-are in the order ``(v, w)`` (translation then rotation) as :func:`mst.pipeline.poses.se3_exp`;
+are in the order ``(v, w)`` (translation then rotation) as :func:`mst.core.poses.se3_exp`;
 pose perturbations are on the left (camera frame): ``T = exp(delta) @ T0``. Pixels, metres, degrees.
 """
 
@@ -54,8 +54,8 @@ from pathlib import Path
 import numpy as np
 
 from mst import InputError
-from mst.pipeline.camera import Camera
-from mst.pipeline.poses import inv_T, pnp_ransac, se3_exp, se3_log
+from mst.core.camera import Camera
+from mst.core.poses import inv_T, pnp_ransac, se3_exp, se3_log
 
 STATUS_MODEL, STATUS_SLAM, STATUS_LOST = "model", "slam", "lost"
 

@@ -55,8 +55,8 @@ from pathlib import Path
 import numpy as np
 
 from mst import InputError, MstError, __version__
-from mst.pipeline.camera import Camera, write_camera
-from mst.pipeline.poses import format_tum, inv_T, look_at, make_T  # noqa: F401  (look_at re-exported)
+from mst.core.camera import Camera, write_camera
+from mst.core.poses import format_tum, inv_T, look_at, make_T  # noqa: F401  (look_at re-exported)
 from mst.pipeline.render import row_ids
 
 SCENARIOS = ("orbit", "corridor", "flyover", "fast", "turntable", "occluder", "blackout")  # the last 3: synth_dynamic
@@ -462,7 +462,7 @@ def kinect_depth(z: np.ndarray, cos_inc: np.ndarray, focal_px: float, rng: np.ra
 
 
 # ---------------------------------------------------------------------------- the stage
-def _build_scene(scenario: str, cfg: SynthConfig, V: np.ndarray, F: np.ndarray):
+def build_scene(scenario: str, cfg: SynthConfig, V: np.ndarray, F: np.ndarray):
     """Camera, resolved scenario, the combined mesh and the shaded renderer."""
     from mst.pipeline.render import Lighting, Material, ShadedRenderer
     from mst.pipeline.textures import Texture
@@ -615,7 +615,7 @@ def synthesize(scenario: str, model_path: str | os.PathLike, out_dir: str | os.P
     model_path = Path(model_path)
     V, F = load_model_triangles(model_path)
     t_start = time.perf_counter()
-    cam, R_cm, scene, renderer, (V_all, F_all, mat_all) = _build_scene(scenario, cfg, V, F)
+    cam, R_cm, scene, renderer, (V_all, F_all, mat_all) = build_scene(scenario, cfg, V, F)
     t_setup = time.perf_counter() - t_start
     p = scene.params
     frames, drop, fps = p["frames"], p["drop"], float(cfg.fps)

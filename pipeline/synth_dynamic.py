@@ -31,8 +31,8 @@ from pathlib import Path
 
 import numpy as np
 
-from mst.pipeline.camera import Camera
-from mst.pipeline.poses import inv_T, look_at, make_T
+from mst.core.camera import Camera
+from mst.core.poses import inv_T, look_at, make_T
 
 DYNAMIC_SCENARIOS = ("turntable", "occluder", "blackout")
 DEFAULT_FRAMES_DYNAMIC = {"turntable": 80, "occluder": 60, "blackout": 60}
@@ -198,9 +198,9 @@ def synthesize_dynamic(scenario: str, model_path: str | os.PathLike, out_dir: st
 
     import cv2
 
+    from mst.core.camera import write_camera
+    from mst.core.poses import format_tum, write_pose_file
     from mst.meshtools.io import save_triangles
-    from mst.pipeline.camera import write_camera
-    from mst.pipeline.poses import format_tum, write_pose_file
     from mst.pipeline.synth import _commit_out_dir, _prepare_out_dir, load_model_triangles, model_corners
 
     t0 = time.perf_counter()

@@ -24,11 +24,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mst.pipeline.poses import se3_exp as _se3_exp_batch
+from mst.core.poses import se3_exp as _se3_exp_batch
 
 
 def se3_exp(xi: np.ndarray) -> np.ndarray:
-    """Fast exact SE(3) exponential of one twist ``(v, w)`` (same as :func:`mst.pipeline.poses.se3_exp`)."""
+    """Fast exact SE(3) exponential of one twist ``(v, w)`` (same as :func:`mst.core.poses.se3_exp`)."""
     v0, v1, v2, w0, w1, w2 = np.asarray(xi, float).tolist()
     th2 = w0 * w0 + w1 * w1 + w2 * w2
     if th2 < 1e-16:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from mst.pipeline.poses import look_at, so3_exp
+from mst.core.poses import look_at, so3_exp
 
 #: vision noise budget of the tests: white, per axis (a building tracked from ~70 m: the tracker's
 #: depth error at 640 px is a few decimetres, its rotation error a few tenths of a degree)

@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from mst.pipeline.poses import inv_T
-from mst.pipeline.poses import look_at as poses_look_at
+from mst.core.poses import inv_T
+from mst.core.poses import look_at as poses_look_at
 
 
 def look_at(eye, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:
@@ -21,7 +21,7 @@ def render_views(model, cam, poses, seed: int = 0, ground: float | None = 0.0, n
     """Render ``model`` (PolygonModel) from each ``T_cam_model`` in ``poses`` -> list of BGR uint8."""
     import cv2
 
-    from mst.pipeline.camera import Camera
+    from mst.core.camera import Camera
     from mst.pipeline.render import Renderer
 
     V, F = model.triangulate()
@@ -78,7 +78,7 @@ def render_textured(model, cam, poses, seed=0, noise=2.0, cell=0.06):
     background; 2x supersampled. Poses ``T_cam_model``; (H, W) uint8 each."""
     import cv2
 
-    from mst.pipeline.camera import Camera
+    from mst.core.camera import Camera
     from mst.pipeline.render import Renderer
 
     V, F = model.triangulate()

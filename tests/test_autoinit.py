@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 from synth_helpers import render_views
 
+from mst.core.camera import Camera
+from mst.core.poses import inv_T, look_at, pose_error, so3_exp
 from mst.pipeline.autoinit import AutoInitConfig, auto_init
-from mst.pipeline.camera import Camera
-from mst.pipeline.poses import inv_T, look_at, pose_error, so3_exp
 
 DIST = 40.0
 
@@ -78,10 +78,10 @@ def test_refuses_a_texture_full_of_edges(view):
 def test_cli_from_nav_converges_or_refuses_a_frame_without_the_model(view, tmp_path, mst):
     import cv2
 
+    from mst.core.camera import write_camera
+    from mst.core.poses import read_pose_file
     from mst.meshtools.io import save_model
-    from mst.pipeline.camera import write_camera
     from mst.pipeline.navlog import R_MOUNT_CAM, NavLog, format_navlog, ypr_deg_from_R
-    from mst.pipeline.poses import read_pose_file
 
     m, cam, T_mc, img, _ = view
     save_model(tmp_path / "model.obj", m)

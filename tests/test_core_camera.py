@@ -1,4 +1,4 @@
-"""Camera files and projection (mst.pipeline.camera)."""
+"""Camera files and projection (mst.core.camera)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from mst import InputError
-from mst.pipeline.camera import Camera, read_camera, write_camera
+from mst.core.camera import Camera, read_camera, write_camera
 
 
 def test_visp_tracker_xml(shared_data):

@@ -1,4 +1,4 @@
-"""Poses, quaternions, SE(3) and pose/trajectory files (mst.pipeline.poses)."""
+"""Poses, quaternions, SE(3) and pose/trajectory files (mst.core.poses)."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from mst import InputError
-from mst.pipeline import poses as P
+from mst.core import poses as P
 
 RNG = np.random.default_rng(0)
 

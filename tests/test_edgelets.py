@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mst.pipeline.poses import inv_T, look_at
+from mst.core.poses import inv_T, look_at
 
 pytest.importorskip("open3d")
 
@@ -154,7 +154,7 @@ def test_edges_auto_rule(tmp_path):
 def test_provider_samples_and_rerender_rule():
     """Samples for the tracker: one local line per edgelet through X; reprojection without a re-render for a
     small motion, a re-render once the camera centre moved by more than a_max * D."""
-    from mst.pipeline.camera import Camera
+    from mst.core.camera import Camera
     from mst.pipeline.render_edges import RenderEdgeProvider
 
     V, F = _icosphere()

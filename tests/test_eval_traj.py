@@ -7,8 +7,8 @@ import json
 import numpy as np
 import pytest
 
+from mst.core.poses import make_T, se3_exp, so3_exp, write_tum
 from mst.eval import traj as tj
-from mst.pipeline.poses import make_T, se3_exp, so3_exp, write_tum
 
 evo_metrics = pytest.importorskip("evo.core.metrics")
 from evo.core import sync  # noqa: E402

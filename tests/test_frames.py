@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from mst import InputError
-from mst.pipeline.camera import Camera
+from mst.core.camera import Camera
 from mst.pipeline.frames import check_camera_size, open_frames, parse_range
 
 

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from mst import InputError
-from mst.pipeline.camera import Camera, write_camera
+from mst.core.camera import Camera, write_camera
+from mst.core.poses import inv_T, look_at, se3_exp, write_tum
 from mst.pipeline.fusion import (
     FuseConfig,
     VoxelAccumulator,
@@ -19,7 +20,6 @@ from mst.pipeline.fusion import (
     read_ply_points,
     write_ply,
 )
-from mst.pipeline.poses import inv_T, look_at, se3_exp, write_tum
 
 W, H = 160, 120
 CAM = Camera(140.0, 140.0, 79.5, 59.5, W, H)

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 from synth_helpers import look_at
 
-from mst.pipeline.camera import Camera, write_camera
+from mst.core.camera import Camera, write_camera
+from mst.core.poses import inv_T, pose_error, read_pose_file
 from mst.pipeline.init_pose import init_from_clicks, pose_from_gps, project
-from mst.pipeline.poses import inv_T, pose_error, read_pose_file
 
 
 def _teabox_args(d: Path) -> list[str]:

@@ -15,6 +15,7 @@ import pytest
 from nav_helpers import flight, noisy_vision
 
 from mst import InputError
+from mst.core.poses import inv_T, so3_log
 from mst.pipeline.navfusion import FusionConfig, _rot_mean, format_cov_csv, fuse_navigation, read_cov_csv
 from mst.pipeline.navlog import (
     NavSimConfig,
@@ -23,7 +24,6 @@ from mst.pipeline.navlog import (
     mount_ypr_deg_from_R,
     simulate_nav,
 )
-from mst.pipeline.poses import inv_T, so3_log
 
 LEVER = (0.10, 0.0, -0.15)
 
@@ -199,7 +199,7 @@ def test_cov_side_file_round_trip(tmp_path):
 def test_cli_fuse_chain_and_bad_log(tmp_path, mst, scene):
     import json
 
-    from mst.pipeline.poses import read_tum, write_tum
+    from mst.core.poses import read_tum, write_tum
 
     t, T, t_v, T_v, C_v, keep, _ = scene
     write_tum(tmp_path / "gt.txt", t, T)

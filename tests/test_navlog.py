@@ -7,6 +7,7 @@ import pytest
 from nav_helpers import flight
 
 from mst import InputError
+from mst.core.poses import inv_T
 from mst.pipeline.init_pose import pose_from_gps
 from mst.pipeline.navlog import (
     NavLog,
@@ -20,7 +21,6 @@ from mst.pipeline.navlog import (
     simulate_nav,
     ypr_deg_from_R,
 )
-from mst.pipeline.poses import inv_T
 
 HEADER = "t,x,y,z,yaw,pitch,roll\n"
 
@@ -128,7 +128,7 @@ def test_simulator_error_model():
 
 
 def test_cli_simulate_writes_log_and_truth_and_rejects_bad_gt(tmp_path, mst):
-    from mst.pipeline.poses import write_tum
+    from mst.core.poses import write_tum
 
     t, T = flight(duration_s=20.0, fps=10.0)
     write_tum(tmp_path / "gt.txt", t, T)

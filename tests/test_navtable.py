@@ -11,10 +11,10 @@ import json
 
 from nav_helpers import VISION_SIGMA_M, flight, noisy_vision
 
+from mst.core.poses import write_tum
 from mst.eval.navtable import nav_table_from_files
 from mst.pipeline.navfusion import FusionConfig, fuse_navigation
 from mst.pipeline.navlog import NavSimConfig, simulate_nav, write_sim_outputs
-from mst.pipeline.poses import write_tum
 
 
 def test_nav_table_columns_match_the_noise_budget(tmp_path, mst):

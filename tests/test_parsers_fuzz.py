@@ -19,11 +19,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from mst import InputError
-from mst.eval.traj import read_trajectory
-from mst.pipeline.camera import Camera, read_camera, write_camera
-from mst.pipeline.depth_io import read_depth
-from mst.pipeline.init_pose import read_clicks, read_init_points
-from mst.pipeline.poses import (
+from mst.core.camera import Camera, read_camera, write_camera
+from mst.core.poses import (
     format_tum,
     inv_T,
     look_at,
@@ -32,6 +29,9 @@ from mst.pipeline.poses import (
     read_tum,
     write_pose_file,
 )
+from mst.eval.traj import read_trajectory
+from mst.pipeline.depth_io import read_depth
+from mst.pipeline.init_pose import read_clicks, read_init_points
 
 SETTINGS = settings(max_examples=60, deadline=None, derandomize=True,
                     suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])

@@ -26,12 +26,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from mst import InputError
-from mst.eval.cloud_io import read_cloud, write_cloud
-from mst.eval.traj import read_trajectory
-from mst.meshtools import generate as gen
-from mst.meshtools.io import load_model, load_triangles, save_model, save_triangles
-from mst.meshtools.model import PolygonModel
-from mst.pipeline.poses import (
+from mst.core.poses import (
     inv_T,
     make_T,
     read_pose_file,
@@ -41,6 +36,11 @@ from mst.pipeline.poses import (
     write_pose_file,
     write_tum,
 )
+from mst.eval.cloud_io import read_cloud, write_cloud
+from mst.eval.traj import read_trajectory
+from mst.meshtools import generate as gen
+from mst.meshtools.io import load_model, load_triangles, save_model, save_triangles
+from mst.meshtools.model import PolygonModel
 
 SETTINGS = dict(derandomize=True, deadline=None, database=None,
                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large, HealthCheck.filter_too_much])

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mst.pipeline.camera import Camera
-from mst.pipeline.poses import inv_T
+from mst.core.camera import Camera
+from mst.core.poses import inv_T
 from mst.pipeline.render import Material, Renderer, ShadedRenderer, aa_pattern
 from mst.pipeline.synth import look_at
 from mst.pipeline.textures import Texture

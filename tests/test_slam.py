@@ -15,10 +15,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from mst.core.camera import Camera
+from mst.core.poses import inv_T, make_T, pose_error, se3_exp
+from mst.core.poses import look_at as poses_look_at
 from mst.pipeline import slam
-from mst.pipeline.camera import Camera
-from mst.pipeline.poses import inv_T, make_T, pose_error, se3_exp
-from mst.pipeline.poses import look_at as poses_look_at
 
 W_PX, H_PX = 320, 240
 CAM = Camera(250.0, 250.0, 159.5, 119.5, W_PX, H_PX)

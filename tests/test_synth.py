@@ -9,10 +9,10 @@ import cv2
 import numpy as np
 import pytest
 
+from mst.core.camera import read_camera
+from mst.core.poses import inv_T, read_pose_file, read_tum
 from mst.meshtools.generate import box, gabled_house
 from mst.meshtools.io import save_triangles
-from mst.pipeline.camera import read_camera
-from mst.pipeline.poses import inv_T, read_pose_file, read_tum
 from mst.pipeline.synth import SynthConfig, synthesize, synthesize_from_scene
 
 SMALL = dict(width=160, height=120, texture_size=64)

@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 from synth_helpers import look_at, orbit_poses, render_views
 
-from mst.pipeline.camera import Camera, write_camera
+from mst.core.camera import Camera, write_camera
+from mst.core.poses import inv_T, pose_error, read_tum, write_pose_file
 from mst.pipeline.init_pose import project
-from mst.pipeline.poses import inv_T, pose_error, read_tum, write_pose_file
 
 
 @pytest.fixture(scope="module")
@@ -255,7 +255,7 @@ def test_slam_aid_hook_contract(shared_data, tmp_path, monkeypatch):
 
     monkeypatch.setattr(slam_mod, "make_aid", fake_make_aid)
     t = shared_data / "visp-teabox"
-    from mst.pipeline.camera import read_camera
+    from mst.core.camera import read_camera
     from mst.pipeline.init_pose import init_from_clicks, read_clicks
 
     X, uv = read_clicks(t / "teabox.clicks", t / "teabox.init")

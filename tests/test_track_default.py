@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mst.pipeline.poses import inv_T, read_tum, write_pose_file
+from mst.core.poses import inv_T, read_tum, write_pose_file
 
 
 @pytest.fixture(scope="module")
@@ -29,7 +29,7 @@ def teabox_frames(shared_data, tmp_path_factory):
     for i, f in enumerate(frames):
         cv2.imwrite(str(d / "fwd" / f"{i:06d}.png"), f)
         cv2.imwrite(str(d / "bwd" / f"{len(frames) - 1 - i:06d}.png"), f)
-    from mst.pipeline.camera import read_camera
+    from mst.core.camera import read_camera
     from mst.pipeline.init_pose import init_from_clicks, read_clicks
 
     X, uv = read_clicks(t / "teabox.clicks", t / "teabox.init")
@@ -39,7 +39,7 @@ def teabox_frames(shared_data, tmp_path_factory):
 
 def _forward_backward(t, d, n, slam, name):
     """Per-frame forward/backward corner distance (px) and the two summaries."""
-    from mst.pipeline.camera import read_camera
+    from mst.core.camera import read_camera
     from mst.pipeline.settings import read_tracker_xml
     from mst.pipeline.tracker import load_polygon_model, run_track
 

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 from synth_helpers import look_at, render_textured
 
-from mst.pipeline.camera import Camera
+from mst.core.camera import Camera
 
 
 def _score(tracker, monitor, gray, T):
@@ -154,9 +154,9 @@ def test_synthetic_pose_on_mirror_image_rejected(box_scene, axis):
 # ------------------------------------------------------------------ real tea box
 @pytest.fixture(scope="module")
 def teabox_scene(shared_data, tmp_path_factory):
-    from mst.pipeline.camera import read_camera
+    from mst.core.camera import read_camera
+    from mst.core.poses import inv_T, read_tum, write_pose_file
     from mst.pipeline.init_pose import init_from_clicks, read_clicks
-    from mst.pipeline.poses import inv_T, read_tum, write_pose_file
     from mst.pipeline.settings import read_tracker_xml
     from mst.pipeline.tracker import EdgeTracker, load_polygon_model, run_track
 

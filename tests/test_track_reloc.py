@@ -17,8 +17,8 @@ import numpy as np
 import pytest
 from synth_helpers import look_at, render_textured
 
-from mst.pipeline.camera import Camera, write_camera
-from mst.pipeline.poses import inv_T, pose_error, read_tum, write_pose_file
+from mst.core.camera import Camera, write_camera
+from mst.core.poses import inv_T, pose_error, read_tum, write_pose_file
 from mst.pipeline.relocalise import RelocConfig
 
 
@@ -81,7 +81,7 @@ def test_synthetic_reacquired_after_covered_camera(covered_box, tmp_path, slam):
 
 def test_teabox_reacquired_after_jump(shared_data, tmp_path):
     """Real video: frames 0-38, 4 black frames, then frames 0-11 again (the camera 'jumps back')."""
-    from mst.pipeline.camera import read_camera
+    from mst.core.camera import read_camera
     from mst.pipeline.init_pose import init_from_clicks, read_clicks
     from mst.pipeline.settings import read_tracker_xml
     from mst.pipeline.tracker import load_polygon_model, run_track

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 from synth_helpers import orbit_poses, render_views
 
-from mst.pipeline.camera import Camera, write_camera
-from mst.pipeline.poses import inv_T, pose_error, read_tum, write_pose_file
+from mst.core.camera import Camera, write_camera
+from mst.core.poses import inv_T, pose_error, read_tum, write_pose_file
 
 pytest.importorskip("open3d")
 
@@ -110,9 +110,9 @@ def _one_frame(tmp_path, model_path, T0, cam):
 def test_bad_meshes(tmp_path, mst):
     """Degenerate-only triangles and a model in millimetres: one clear error line, exit 1, no output;
     a featureless image: no frame marked tracked."""
+    from mst.core.poses import look_at
     from mst.meshtools.generate import torus
     from mst.meshtools.io import save_triangles
-    from mst.pipeline.poses import look_at
 
     cam = Camera(300, 300, 159.5, 119.5, 320, 240)
     T0 = inv_T(look_at(np.array([0.6, 0.0, 0.4]), np.array([0.0, 0.0, 0.05]), (0, 0, 1)))
@@ -142,10 +142,10 @@ def test_bad_meshes(tmp_path, mst):
 def test_no_silhouette_in_view_is_lost(tmp_path):
     """A torus tracked, then the camera turned away from it: the frames without the object in view are
     `lost` (no contour, too few samples), never `model`."""
+    from mst.core.poses import look_at
     from mst.meshtools.generate import torus
     from mst.meshtools.io import save_triangles
     from mst.meshtools.model import PolygonModel
-    from mst.pipeline.poses import look_at
 
     V, F = torus(aspect=0.8)
     save_triangles(tmp_path / "t.obj", V, F)

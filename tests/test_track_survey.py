@@ -25,7 +25,7 @@ def _cli(*args) -> None:
 
 
 def _ate(traj, gt):
-    from mst.pipeline.poses import read_tum
+    from mst.core.poses import read_tum
 
     tg, Tg = read_tum(gt)
     te, Te = read_tum(traj)
@@ -156,7 +156,7 @@ def test_reason_behind_the_camera_at_a_later_pose(tmp_path):
     """A tracker whose predicted pose puts the model behind the camera says so (not "too few samples")."""
     import cv2
 
-    from mst.pipeline.camera import read_camera
+    from mst.core.camera import read_camera
     from mst.pipeline.settings import TrackerConfig
     from mst.pipeline.tracker import EdgeTracker, load_polygon_model
 
@@ -182,7 +182,7 @@ def test_mono_aid_without_landmarks_predicts_nothing(tmp_path):
     prediction, doubled the weakly observed depth error every frame of a 211 m flyover."""
     import cv2
 
-    from mst.pipeline.camera import read_camera
+    from mst.core.camera import read_camera
     from mst.pipeline.slam import make_aid
 
     fr, obj, cam, pose, _ = _box_scene(tmp_path, 30.0, frames=0)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from synth_helpers import look_at
 
-from mst.pipeline.camera import Camera
+from mst.core.camera import Camera
 from mst.pipeline.visibility import ModelGeometry, visible_samples
 
 
