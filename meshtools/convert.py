@@ -30,7 +30,7 @@ Algorithm (all vectorised with numpy/scipy except the fallback queue and pinch v
 6. **Simplify**: a vertex is removed when it is a straight pass-through (within ``collinear_tol``)
    in *every* loop that uses it; a vertex where any loop turns (corners, T-junctions of three
    regions) is kept in all loops, so neighbouring polygons share the same vertices and no crack opens.
-7. **Write** ``.wrl``, ``.cao`` or ``.obj`` (holes bridged: see :mod:`mst.meshtools.io`), atomically.
+7. **Write** ``.wrl``, ``.cao`` or ``.obj`` (holes bridged: see :mod:`mst.meshtools.formats`), atomically.
 
 Units: metres (or the file's unit) for lengths, degrees for ``angle_tol_deg``.
 """
@@ -77,11 +77,11 @@ def convert_model(input_path: str | Path, output_path: str | Path, config: Conve
     outlines, write). Raises :class:`mst.InputError` for unreadable or degenerate input; nothing is
     written then.
     """
-    from mst.meshtools.io import WRITE_SUFFIXES, _suffix, load_triangles, save_model
+    from mst.meshtools.formats import WRITE_SUFFIXES, load_triangles, model_suffix, save_model
 
     cfg = config or ConvertConfig()
     out = Path(output_path)
-    if _suffix(out) not in WRITE_SUFFIXES:
+    if model_suffix(out) not in WRITE_SUFFIXES:
         raise InputError(out, f"unknown output format {out.suffix!r} (use .wrl, .cao or .obj)")
     if not out.parent.is_dir():
         raise InputError(out, "output folder does not exist")
@@ -576,7 +576,7 @@ def outlines(X, F, region, n_regions, cr, E: _Edges, col_tol: float, diag: float
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
-    from mst.meshtools.io import _split_simple
+    from mst.meshtools.polygons import split_simple
 
     R = n_regions
     # region normals (area-weighted) for planar coordinates
@@ -697,7 +697,7 @@ def outlines(X, F, region, n_regions, cr, E: _Edges, col_tol: float, diag: float
         if not repeated[li]:
             loops.append((r, float(area_by_loop[li]), seq))
             continue
-        for sub in _split_simple(seq.tolist()):
+        for sub in split_simple(seq.tolist()):
             P = X[sub]
             a = 0.5 * float(np.cross(P, np.roll(P, -1, axis=0)).sum(0) @ nR[r])
             loops.append((r, a, np.asarray(sub, np.int64)))
@@ -736,9 +736,9 @@ def _resolve_pinches(X, bu, bv, br, nR, o, lo, hi, multi, succ):
     """At vertices with several outgoing boundary half-edges of one region, pair each incoming
     half-edge with the first outgoing one met turning clockwise from the reversed incoming
     direction (the region's wedges close locally). Loops that still pass a vertex twice are split
-    there afterwards (``io._split_simple``), so every output loop is simple; holes may touch
+    there afterwards (:func:`~mst.meshtools.polygons.split_simple`), so every output loop is simple; holes may touch
     the outer loop or each other at single vertices (as OGC simple features allow)."""
-    from mst.meshtools.io import _plane_basis
+    from mst.meshtools.polygons import plane_basis
 
     succ = succ.copy()
     groups: dict[tuple[int, int], list[int]] = {}
@@ -747,7 +747,7 @@ def _resolve_pinches(X, bu, bv, br, nR, o, lo, hi, multi, succ):
     for (a, b), incoming in groups.items():
         outs = o[a:b].tolist()
         r = int(br[incoming[0]])
-        Bm = _plane_basis(nR[r])
+        Bm = plane_basis(nR[r])
         v = X[bv[incoming[0]]]
         ang_out = {h: np.arctan2(*((X[bv[h]] - v) @ Bm)[::-1]) for h in outs}
         free = set(outs)

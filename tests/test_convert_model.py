@@ -11,7 +11,7 @@ import pytest
 from mst import InputError
 from mst.meshtools import generate as gen
 from mst.meshtools.convert import ConvertConfig, tin_to_polygons
-from mst.meshtools.io import load_model, read_cao, read_obj, read_vrml, save_model, save_triangles
+from mst.meshtools.formats import load_model, read_cao, read_obj, read_vrml, save_model, save_triangles
 from mst.meshtools.model import PolygonModel
 
 

@@ -11,7 +11,7 @@ import pytest
 
 from mst.meshtools import generate as gen
 from mst.meshtools.convert import ConvertConfig, tin_to_polygons
-from mst.meshtools.io import load_model, save_triangles
+from mst.meshtools.formats import load_model, save_triangles
 
 
 def max_plane_distance(model) -> np.ndarray:
