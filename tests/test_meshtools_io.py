@@ -338,3 +338,16 @@ def test_vrml_switch_and_lod(tmp_path):
     m = load_model(p)
     assert m.n_faces == 2
     assert sorted(m.vertices[:, 0].tolist()) == [2, 2, 2, 4, 4, 4]
+
+
+def test_load_tracking_model_refuses_degenerate_geometry(tmp_path):
+    from mst.meshtools.formats import load_tracking_model
+
+    p = tmp_path / "line.obj"
+    p.write_text("v 0 0 0\nv 1 0 0\nv 2 0 0\nf 1 2 3\n")
+    assert load_model(p).n_faces == 1  # a valid file ...
+    with pytest.raises(InputError, match="degenerate") as e:  # ... but nothing to track
+        load_tracking_model(p)
+    assert str(p) in str(e.value)
+    save_model(tmp_path / "box.obj", gen.box_model())
+    assert load_tracking_model(tmp_path / "box.obj").n_faces == 6

@@ -118,6 +118,31 @@ def _load_model(p: Path, suf: str) -> PolygonModel:
     return m
 
 
+
+def load_tracking_model(path: str | os.PathLike) -> PolygonModel:
+    """Read a polygon model with :func:`load_model` and check that it can be tracked.
+
+    Raises :class:`mst.InputError` naming the file for a missing file, a model without faces or
+    lines, non-finite vertices, or degenerate geometry (all vertices at one point or on one line:
+    no edge of it constrains a pose). The model loader of ``mst track``, ``init`` and auto-init."""
+    p = Path(path)
+    if not p.is_file():
+        raise InputError(p, "model file does not exist")
+    model = load_model(p)
+    if not len(model.faces) and not len(getattr(model, "lines", [])):
+        raise InputError(p, "model has no faces")
+    model.check_finite(str(p))
+    V = np.asarray(model.vertices, float).reshape(-1, 3)
+    used = np.unique(np.concatenate([np.asarray(f, np.int64).ravel() for f in model.faces]
+                                    + [np.asarray(getattr(model, "lines", []), np.int64).ravel()]))
+    X = V[used[(used >= 0) & (used < len(V))]]
+    ext = float(np.ptp(X, axis=0).max()) if len(X) else 0.0
+    # rank of the centred vertices: 0 = one point, 1 = one line (relative to the model's size)
+    sv = np.linalg.svd(X - X.mean(0), compute_uv=False) if len(X) >= 2 else np.zeros(1)
+    if ext <= 0.0 or sv.size < 2 or sv[1] <= 1e-9 * max(sv[0], 1e-300):
+        raise InputError(p, "model is degenerate: its vertices lie at one point or on one line")
+    return model
+
 def load_triangles(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
     """Read any supported model as a triangle mesh.
 
@@ -217,5 +242,5 @@ def _validate(m: PolygonModel, path) -> None:
         raise InputError(path, f"line vertex index out of range (vertices: {n})")
 
 
-__all__ = ["MODEL_SUFFIXES", "WRITE_SUFFIXES", "load_model", "load_triangles", "model_suffix", "save_model",
-           "save_triangles", "read_cao", "read_cityjson", "read_obj", "read_off", "read_vrml"]
+__all__ = ["MODEL_SUFFIXES", "WRITE_SUFFIXES", "load_model", "load_tracking_model", "load_triangles", "model_suffix",
+           "save_model", "save_triangles", "read_cao", "read_cityjson", "read_obj", "read_off", "read_vrml"]
