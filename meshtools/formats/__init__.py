@@ -45,6 +45,7 @@ Bad files raise :class:`mst.InputError` naming the file and the problem.
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -62,6 +63,25 @@ from mst.meshtools.polygons import unbridge_faces
 
 MODEL_SUFFIXES = (".obj", ".wrl", ".vrml", ".cao", ".off", ".ply", ".stl", ".json")
 WRITE_SUFFIXES = (".obj", ".wrl", ".vrml", ".cao")
+
+
+def _triangle_model(read: Callable[[Path], tuple[np.ndarray, np.ndarray]]) -> Callable[[Path], PolygonModel]:
+    """A polygon model reader from a triangle reader (each triangle one face)."""
+
+    def load(p: Path) -> PolygonModel:
+        V, F = read(p)
+        return PolygonModel(V, list(F))
+
+    return load
+
+
+#: suffix -> polygon model reader (``.city.json`` is ``.json``)
+READERS: dict[str, Callable[[Path], PolygonModel]] = {
+    ".obj": read_obj, ".wrl": read_vrml, ".vrml": read_vrml, ".cao": read_cao, ".off": read_off,
+    ".ply": _triangle_model(read_ply_mesh), ".stl": _triangle_model(read_stl), ".json": read_cityjson}
+#: suffix -> polygon model text writer
+WRITERS: dict[str, Callable[[PolygonModel], str]] = {".obj": obj_text, ".wrl": vrml_text, ".vrml": vrml_text,
+                                                     ".cao": cao_text}
 
 
 def model_suffix(path: Path) -> str:
@@ -86,24 +106,10 @@ def load_model(path: str | os.PathLike) -> PolygonModel:
 
 def _load_model(p: Path, suf: str) -> PolygonModel:
     try:
-        if suf == ".obj":
-            m = read_obj(p)
-        elif suf in (".wrl", ".vrml"):
-            m = read_vrml(p)
-        elif suf == ".cao":
-            m = read_cao(p)
-        elif suf == ".off":
-            m = read_off(p)
-        elif suf == ".ply":
-            V, F = read_ply_mesh(p)
-            m = PolygonModel(V, list(F))
-        elif suf == ".stl":
-            V, F = read_stl(p)
-            m = PolygonModel(V, list(F))
-        elif suf == ".json":
-            m = read_cityjson(p)
-        else:
+        reader = READERS.get(suf)
+        if reader is None:
             raise InputError(p, f"unknown model format {p.suffix!r} (expected one of {', '.join(MODEL_SUFFIXES)})")
+        m = reader(p)
     except InputError:
         raise
     except UnicodeDecodeError:
@@ -186,14 +192,10 @@ def save_model(path: str | os.PathLike, model: PolygonModel) -> None:
     """
     p = Path(path)
     suf = model_suffix(p)
-    if suf in (".wrl", ".vrml"):
-        text = vrml_text(model)
-    elif suf == ".cao":
-        text = cao_text(model)
-    elif suf == ".obj":
-        text = obj_text(model)
-    else:
+    writer = WRITERS.get(suf)
+    if writer is None:
         raise InputError(p, f"cannot write {p.suffix!r} (expected one of {', '.join(WRITE_SUFFIXES)})")
+    text = writer(model)
     with open(p, "w", encoding="utf-8", newline="\n") as fh:
         fh.write(text)
 
