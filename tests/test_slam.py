@@ -142,36 +142,6 @@ def drive(aid, Ts, imgs, rng, visible=None, tamper=None):
 
 
 # ---------------------------------------------------------------------------- unit tests
-def test_pose_information_matches_numeric_jacobian():
-    rng = np.random.default_rng(3)
-    X_cam = rng.uniform([-1, -1, 2], [1, 1, 4], (20, 3))
-    T0 = np.eye(4)
-    J = np.zeros((40, 6))
-    proj = lambda T: ((X_cam @ T[:3, :3].T + T[:3, 3])[:, :2] / (X_cam @ T[:3, :3].T + T[:3, 3])[:, 2:]  # noqa: E731
-                      * [CAM.fx, CAM.fy]).ravel()
-    for i in range(6):
-        e = np.zeros(6)
-        e[i] = 1e-6
-        J[:, i] = (proj(se3_exp(e) @ T0) - proj(se3_exp(-e) @ T0)) / 2e-6
-    assert np.allclose(slam.pose_information(CAM.K, X_cam), J.T @ J, rtol=1e-4, atol=1e-3)
-
-
-def test_prior_covariance_is_reordered_to_rotation_first():
-    W = np.diag([1.0, 2.0, 3.0, 10.0, 20.0, 30.0])  # (v, w)
-    cov = slam.prior_covariance_wv(W, sigma_px=2.0)
-    assert np.allclose(np.diag(cov), 4.0 / np.array([10.0, 20.0, 30.0, 1.0, 2.0, 3.0]), rtol=1e-6)
-
-
-def test_triangulate_two_view_recovers_points():
-    rng = np.random.default_rng(0)
-    X = rng.uniform(-1, 1, (50, 3))
-    T1, T2 = look_at([3, 0, 1]), look_at([3, 0.5, 1.2])
-    x1 = (X @ T1[:3, :3].T + T1[:3, 3])
-    x2 = (X @ T2[:3, :3].T + T2[:3, 3])
-    Xt = slam.triangulate_two_view(T1[:3], T2[:3], x1[:, :2] / x1[:, 2:], x2[:, :2] / x2[:, 2:])
-    assert np.abs(Xt - X).max() < 1e-9
-
-
 def test_depth_lift_honours_depth_camera_and_extrinsic(scene, tmp_path):
     """A depth frame in a separate depth camera (other intrinsics, 5 cm baseline) lifts colour
     pixels to the same model points as a registered depth frame."""
