@@ -316,3 +316,33 @@ def test_static_world_check_object_on_a_turntable(scene, tmp_path, mode):
     # after the stop the map agrees again and bridges the frames without edges
     assert not aid.moving_hold and (st[[45, 46]] == "slam").all()
     aid.close()
+
+
+def test_rgbd_reads_depth_with_the_depth_scale(scene, tmp_path):
+    """TUM RGB-D style depth (16-bit PNG, 5000 per metre) read with ``depth.scale = 5000`` gives the
+    same poses as the same depth in millimetres (the default scale): the integers differ by x5, the
+    metres only by the float32 rounding of the two scale factors. Read with the default scale, the
+    5000-scaled depth is 5x too far and the map is wrong (before #10 ``track`` read 16-bit depth as
+    millimetres only)."""
+    import cv2
+
+    Ts = orbit(20)
+    imgs = render_sequence(scene, Ts, tmp_path)
+    for name in ("mm", "tum"):
+        (tmp_path / name).mkdir()
+    for i in range(len(Ts)):
+        mm = np.rint(np.load(tmp_path / "depth" / f"{i:06d}.npy") * 1000.0).astype(np.uint16)
+        cv2.imwrite(str(tmp_path / "mm" / f"{i:06d}.png"), mm)
+        cv2.imwrite(str(tmp_path / "tum" / f"{i:06d}.png"), mm * np.uint16(5))
+    runs = {}
+    for name, scale in (("mm", 1000.0), ("tum", 5000.0), ("tum_as_mm", 1000.0)):
+        folder = tmp_path / name.split("_")[0]
+        aid = slam.make_aid("rgbd", CAM, {}, folder, None, None, slam.slam_depth_config().replace(scale=scale))
+        runs[name] = drive(aid, Ts, imgs, np.random.default_rng(4), visible=np.arange(len(Ts)) < 10)
+    (st_mm, e_mm), (st_tum, e_tum), (_, e_bad) = runs["mm"], runs["tum"], runs["tum_as_mm"]
+    assert (st_mm[10:] == "slam").all() and list(st_tum) == list(st_mm)
+    # the two scale factors' float32 roundings (1e-7 relative) move the poses by micrometres; a
+    # tenth of the depth step (1 mm) and 0.001 deg leave a wide margin, a wrong scale does not pass
+    assert np.abs(e_tum[:, 0] - e_mm[:, 0]).max() < 1e-4 and np.abs(e_tum[:, 1] - e_mm[:, 1]).max() < 1e-3
+    assert np.nanmax(e_mm[10:, 0]) < 0.02
+    assert not (e_bad[10:, 0] < 0.02).all()  # lost (NaN) or wrong: not the bridged poses
