@@ -1,8 +1,6 @@
-"""mst.pipeline.slam: the model-aided SLAM aid of ``mst track`` (KLT/PnP front end, mono/rgbd
-landmarks, keyframes, guarded local BA, the edge/SLAM fusion policy, standby, relocalisation).
+"""mst.pipeline.slam: the model-aided SLAM aid of ``mst track`` (front end, landmarks, keyframes, local BA, fusion policy, standby).
+Imports mst.core, mst.errors, mst.pipeline.depth_io, numpy, OpenCV, pycolmap/pyceres (lazily); the tracker imports it, never back.
 
-May import :mod:`mst.core`, :mod:`mst.errors`, :mod:`mst.pipeline.depth_io`, numpy, OpenCV and (for
-the local BA, lazily) pycolmap/pyceres; the tracker imports it, never the other way round.
 The story is in :mod:`mst.pipeline.slam.aid`; this package re-exports the public names.
 """
 

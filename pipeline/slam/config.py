@@ -35,7 +35,7 @@ def slam_depth_config() -> DepthConfig:
 
 @dataclass
 class StandbyConfig(Config):
-    """The default aid's standby (``--slam auto`` without depth: the mono aid switched on when needed)."""
+    """The default aid's standby (aid auto without depth frames: the mono aid switched on when needed)."""
 
     buffer_frames: int = param(20, min=2, max=10_000, help="recent frames kept asleep, replayed on waking")
     wake_info_ratio: float = param(0.7, min=0, help="asleep, an edge pose with trace(W) below this x its running mean wakes the aid")
