@@ -1,7 +1,9 @@
-"""mst.pipeline.slam: the model-aided SLAM aid of ``mst track`` (front end, landmarks, keyframes, local BA, fusion policy, standby).
-Imports mst.core, mst.errors, mst.pipeline.depth_io, numpy, OpenCV, pycolmap/pyceres (lazily); the tracker imports it, never back.
+"""mst.pipeline.slam: the model-aided SLAM aid of ``mst track``: KLT/PnP front end, mono/rgbd
+landmarks, keyframes, guarded local BA, the edge/SLAM fusion policy, standby, relocalisation.
 
-The story is in :mod:`mst.pipeline.slam.aid`; this package re-exports the public names.
+May import mst.core, mst.errors and mst.pipeline.depth_io (pycolmap/pyceres lazily, for the BA);
+never the tracker, mst.eval or mst.cli. The story is in :mod:`mst.pipeline.slam.aid`; this package
+re-exports the public names.
 """
 
 from mst.pipeline.slam.aid import ModelAidedSlam
