@@ -132,8 +132,11 @@ class ModelAidedSlam(FrontEnd, Landmarks, AidPolicy, KeyframeMap, LocalBA):
         self.scene_depth = 1.0
         self._cur: FrameState | None = None
         self._cur_gray: np.ndarray | None = None
+        #: event counts (each key from the start: no key appears later)
         self.stats = {"keyframes": 0, "ba_runs": 0, "ba_prior_accepted": 0, "ba_prior_downweighted": 0,
-                      "ba_prior_dropped": 0, "gate_rejects": 0, "consensus_resets": 0, "relocalisations": 0, "reloc_attempts": 0}
+                      "ba_prior_dropped": 0, "ba_errors": 0, "gate_rejects": 0, "consensus_resets": 0,
+                      "relocalisations": 0, "reloc_attempts": 0, "reanchors": 0, "contradictions": 0,
+                      "weak_contradictions": 0, "static_world_breaks": 0}
         self.timing_ms = {"predict": 0.0, "update": 0.0, "ba": 0.0}
         self.moving_hold = False          # static-world check fired: the map does not bridge
         self._disagree_streak = 0
@@ -196,7 +199,7 @@ class ModelAidedSlam(FrontEnd, Landmarks, AidPolicy, KeyframeMap, LocalBA):
         if (not healthy and slam_ok and not v.contradicted and weak_edge_pose is not None
                 and np.isfinite(weak_edge_pose).all() and self._beyond_bound(weak_edge_pose, st.T)):
             v.contradicted = True
-            self.stats["weak_contradictions"] = self.stats.get("weak_contradictions", 0) + 1
+            self.stats["weak_contradictions"] += 1
         T_out, status = self._output(k, gray, T_cam_model_edges, W, st, slam_ok, v)
         if T_out is not None:
             W_prior = W if status == STATUS_MODEL else None

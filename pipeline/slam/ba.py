@@ -125,7 +125,7 @@ class LocalBA:
         try:
             return self._local_ba_impl(status)
         except (RuntimeError, ValueError, np.linalg.LinAlgError):  # a degenerate window: skip this BA
-            self.stats["ba_errors"] = self.stats.get("ba_errors", 0) + 1
+            self.stats["ba_errors"] += 1
             return self.kfs[-1].T_cam_model.copy()
         finally:
             self.timing_ms["ba"] += (time.perf_counter() - t0) * 1e3

@@ -79,7 +79,7 @@ class AidPolicy:
                         self.moving_hold = True
                         self._agree_streak = 0
                         self.static_world_fired.append(int(k))
-                        self.stats["static_world_breaks"] = self.stats.get("static_world_breaks", 0) + 1
+                        self.stats["static_world_breaks"] += 1
             else:
                 self._disagree_streak = 0
         return v
@@ -113,7 +113,7 @@ class AidPolicy:
             # yet, so neither is output; the map is kept (not dragged) until the check decides
             T_out, status = None, STATUS_LOST
             self.frames_since_fix += 1
-            self.stats["contradictions"] = self.stats.get("contradictions", 0) + 1
+            self.stats["contradictions"] += 1
         elif self.moving_hold:
             # the map's world moves against the object: a map pose is no model pose
             T_out, status = None, STATUS_LOST
@@ -235,4 +235,4 @@ class AidPolicy:
                 kf.T_cam_model = kf.T_cam_model @ Ci
         if len(self.first_P):
             self.first_P = self.first_P @ Ci
-        self.stats["reanchors"] = self.stats.get("reanchors", 0) + 1
+        self.stats["reanchors"] += 1
