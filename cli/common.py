@@ -144,7 +144,7 @@ def config_options(presets: bool = False):
                          help="List every setting of this command (dotted name, default, help), its "
                               "presets, and exit.")(f)
         f = click.option("--set", "set_values", multiple=True, metavar="KEY=VALUE",
-                         help="Set one setting by its dotted name (e.g. slam.fb_max_px=2); repeatable; "
+                         help="Set one setting by its dotted name (e.g. slam.klt.fb_max_px=2); repeatable; "
                               "overrides --config. `mst <command> --show-config` lists them.")(f)
         f = click.option("--config", "config_file", type=click.Path(dir_okay=False), default=None,
                          help="Settings file (.yaml/.yml/.json), e.g. the 'config' block of an earlier "
@@ -194,7 +194,7 @@ def _show_config(ctx: click.Context, param: click.Parameter, value: bool) -> Non
 
 
 def parse_set_values(values: Iterable[str]) -> dict[str, Any]:
-    """``["slam.fb_max_px=2", "edges.passes=3"]`` -> ``{"slam.fb_max_px": 2, "edges.passes": 3}``.
+    """``["slam.klt.fb_max_px=2", "edges.passes=3"]`` -> ``{"slam.klt.fb_max_px": 2, "edges.passes": 3}``.
 
     Values are read as YAML scalars/lists (``2``, ``true``, ``null``, ``[8, 6]``); a malformed item is
     a usage error naming ``--set``.
