@@ -6,7 +6,6 @@ import sys
 
 import click
 
-from mst import check_outputs
 from mst.cli.common import (
     NON_NEGATIVE,
     build_config,
@@ -65,7 +64,6 @@ def convert_model(input_path: str, output_path: str, angle_tol: float | None, di
     from mst.meshtools.convert import convert_model as run
 
     setup_logging(quiet, verbose, "mst convert-model")
-    check_outputs([output_path], [input_path])
     cfg = build_config(ConvertConfig, config_file=config_file, set_values=set_values, section_name="convert-model",
                        options={"angle_tol_deg": angle_tol, "dist_tol_m": dist_tol, "weld_tol_m": weld_tol},
                        flags=FLAGS)

@@ -51,7 +51,7 @@ from typing import Any
 
 import numpy as np
 
-from mst import InputError, atomic_output
+from mst import InputError, atomic_output, check_outputs
 from mst.core.config import Config, param
 from mst.meshtools.model import PolygonModel
 from mst.meshtools.outlines import outlines
@@ -138,12 +138,9 @@ def convert_model(input_path: str | Path, output_path: str | Path, config: Conve
 
     cfg = config or ConvertConfig()
     out = Path(output_path)
+    check_outputs([out], [input_path])  # not over the input; the folder exists and is writable
     if model_suffix(out) not in WRITE_SUFFIXES:
         raise InputError(out, f"unknown output format {out.suffix!r} (use .wrl, .cao or .obj)")
-    if not out.parent.is_dir():
-        raise InputError(out, "output folder does not exist")
-    if out.exists() and Path(input_path).exists() and out.resolve() == Path(input_path).resolve():
-        raise InputError(out, "the output would overwrite the input")
     t0 = time.perf_counter()
     step = progress or (lambda name: None)
     V, F = load_triangles(input_path)
