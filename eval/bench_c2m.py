@@ -76,7 +76,7 @@ def sample_surface(V: np.ndarray, F: np.ndarray, n: int, sigma: float, outliers:
 
 def _ensure(workdir: Path) -> dict[str, tuple[Path, Path]]:
     from mst.eval.cloud_io import PlyChunkWriter
-    from mst.meshtools.io import save_triangles
+    from mst.meshtools.formats import save_triangles
 
     workdir.mkdir(parents=True, exist_ok=True)
     cases = {}

@@ -24,7 +24,7 @@ def run(workdir: Path) -> list[dict]:
     import numpy as np
 
     from mst.meshtools import generate
-    from mst.meshtools.io import save_triangles
+    from mst.meshtools.formats import save_triangles
 
     workdir = Path(workdir)
     workdir.mkdir(parents=True, exist_ok=True)

@@ -33,7 +33,7 @@ SAMPLE_MODEL = ROOT / "samples" / "building_tin.obj"
 # ---------------------------------------------------------------------------- evaluation helpers
 def model_centre(seq: Path) -> np.ndarray:
     """Centre (metres, model frame) of the bounding box of ``seq/model.obj``."""
-    from mst.meshtools.io import load_triangles
+    from mst.meshtools.formats import load_triangles
 
     V, _ = load_triangles(seq / "model.obj")
     return 0.5 * (V.min(0) + V.max(0))

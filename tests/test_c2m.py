@@ -10,8 +10,8 @@ import pytest
 from mst import InputError
 from mst.eval import c2m
 from mst.eval.cloud_io import write_cloud
+from mst.meshtools.formats import save_triangles
 from mst.meshtools.generate import box
-from mst.meshtools.io import save_triangles
 
 BOX = (4.0, 6.0, 2.0)  # box from (0,0,0) to (4,6,2), outward winding
 
@@ -326,7 +326,7 @@ def test_grid_compiled_and_numpy_paths_agree():
 
 def test_polygon_models_cao_and_wrl_give_the_same_distances(tmp_path, mst, shared_data):
     """The real teabox model as ViSP .cao and as VRML: triangulated on load, identical C2M results."""
-    from mst.meshtools.io import load_triangles
+    from mst.meshtools.formats import load_triangles
 
     cao, wrl = shared_data / "visp-teabox" / "teabox.cao", shared_data / "visp-teabox" / "teabox.wrl"
     V, F = load_triangles(cao)

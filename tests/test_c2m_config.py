@@ -12,8 +12,8 @@ import pytest
 from mst import ConfigError
 from mst.eval import c2m
 from mst.eval.cloud_io import write_cloud
+from mst.meshtools.formats import save_triangles
 from mst.meshtools.generate import box
-from mst.meshtools.io import save_triangles
 
 
 @pytest.fixture()

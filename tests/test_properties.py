@@ -39,7 +39,7 @@ from mst.core.poses import (
 from mst.eval.cloud_io import read_cloud, write_cloud
 from mst.eval.traj import read_trajectory
 from mst.meshtools import generate as gen
-from mst.meshtools.io import load_model, load_triangles, save_model, save_triangles
+from mst.meshtools.formats import load_model, load_triangles, save_model, save_triangles
 from mst.meshtools.model import PolygonModel
 
 SETTINGS = dict(derandomize=True, deadline=None, database=None,

@@ -129,7 +129,7 @@ def test_mono_landmarks_written_and_lie_on_the_scene(fast, tmp_path):
     """``--landmarks``: the mono SLAM map is written as PLY in model coordinates, on the scene surfaces."""
     import open3d as o3d
 
-    from mst.meshtools.io import load_triangles
+    from mst.meshtools.formats import load_triangles
     from mst.pipeline.fusion import read_ply_points
     from mst.pipeline.tracker import run_track
 

@@ -38,7 +38,7 @@ def _track(seq, mode, out):
     tg, Pg = read_tum(seq / "gt.txt")
     t, P = read_tum(out)
     idx = np.rint(t * 30).astype(int)
-    from mst.meshtools.io import load_triangles
+    from mst.meshtools.formats import load_triangles
 
     V = np.asarray(load_triangles(seq / "model.obj")[0])
     c = 0.5 * (V.min(0) + V.max(0))

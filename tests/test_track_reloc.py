@@ -29,8 +29,8 @@ def _statuses(out):
 @pytest.fixture(scope="module")
 def covered_box(tmp_path_factory):
     """Textured box orbit (10 frames), 3 black frames, then the camera 5 m to the side (~80 px jump)."""
+    from mst.meshtools.formats import save_model
     from mst.meshtools.generate import box_model
-    from mst.meshtools.io import save_model
 
     d = tmp_path_factory.mktemp("reloc_box")
     (d / "rgb").mkdir()

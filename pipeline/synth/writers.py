@@ -95,7 +95,7 @@ def write_frame(tmp: Path, frame, T_cam_model: np.ndarray, writer, with_depth: b
 def write_metadata(tmp: Path, plan, cfg, scenario: str, V: np.ndarray, F: np.ndarray, rows: list,
                    model_source: str) -> None:
     """gt.txt, camera.json, clicks.txt, model.obj, scene.ply, frames.csv and scene.json of a sequence."""
-    from mst.meshtools.io import save_triangles
+    from mst.meshtools.formats import save_triangles
 
     fps = float(cfg.fps)
     frames = len(plan.T_model_cam)
