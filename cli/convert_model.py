@@ -7,6 +7,7 @@ import sys
 import click
 
 from mst.cli.common import (
+    CONFIG_CLASSES,
     NON_NEGATIVE,
     build_config,
     config_options,
@@ -22,6 +23,7 @@ from mst.cli.common import (
 STEPS = ("read", "weld", "orient", "regions", "outlines", "write")
 #: config field -> the option that sets it (errors name the flag the user typed)
 FLAGS = {"angle_tol_deg": "--angle-tol", "dist_tol_m": "--dist-tol", "weld_tol_m": "--weld-tol"}
+CONFIG_CLASSES["mst convert-model"] = "mst.meshtools.convert:ConvertConfig"
 
 
 @click.command("convert-model")

@@ -505,3 +505,8 @@ def test_config_bounds_checked_once_in_the_config():
     with pytest.raises(ConfigError, match="dist_tol_m"):
         ConvertConfig(dist_tol_m=-1.0)
     assert ConvertConfig.from_dict({"collinear_tol_m": "null"}).collinear_tol_m is None
+
+
+def test_cli_show_config_lists_every_setting(mst):
+    out = mst("convert-model", "--show-config").stdout
+    assert all(k in out for k in ("angle_tol_deg", "dist_tol_m", "weld_tol_m", "collinear_tol_m"))
