@@ -198,7 +198,6 @@ def ascii_rows(p: Path, start: int, n: int, cols, what: str, unit: str):
     return reader
 
 
-
 class VertexStream:
     """The ``vertex`` element of a PLY, read in chunks (bounded memory) as float64 columns.
 

@@ -63,7 +63,6 @@ def weld(X: np.ndarray, F: np.ndarray, tol: float) -> tuple[np.ndarray, int]:
     return m[F], merged
 
 
-
 class Edges:
     """Half-edge grouping. Half-edge ``h = 3*f + k`` goes ``F[f, k] -> F[f, (k+1)%3]``.
 
@@ -88,10 +87,8 @@ class Edges:
         self.u, self.v = u, v
 
 
-
 def edges(F: np.ndarray, nv: int) -> Edges:
     return Edges(F, nv)
-
 
 
 def orient(X, F, E: Edges, area2, cr):
@@ -156,7 +153,6 @@ def orient(X, F, E: Edges, area2, cr):
     return F, int(flip.sum()), comp, n_comp, closed
 
 
-
 def grow_regions(X, F, N, area2, E: Edges, angle_tol: float, dist_tol: float) -> tuple[np.ndarray, int]:
     """Label each triangle with a region id (:mod:`mst.meshtools.convert` doc, step 4). Returns ``(labels, n_regrown)``."""
     from scipy.sparse import coo_matrix
@@ -209,7 +205,6 @@ def grow_regions(X, F, N, area2, E: Edges, angle_tol: float, dist_tol: float) ->
     rank = np.empty(len(order), np.int64)
     rank[order] = np.arange(len(order))
     return rank[lab], n_bad
-
 
 
 def queue_grow(X, F, N, area2, sub, f1, f2, angle_tol, dist_tol) -> np.ndarray:
@@ -355,7 +350,6 @@ def renumber(lab: np.ndarray) -> np.ndarray:
     return rank[inv.ravel()]
 
 
-
 def regrow(X, F, N, area2, E: Edges, region, bad_tri, angle_tol: float, dist_tol: float) -> np.ndarray:
     """Regrow the triangles ``bad_tri`` (whole regions) with :func:`queue_grow` at ``dist_tol``;
     the other regions keep their triangles. Returns canonical labels."""
@@ -369,7 +363,6 @@ def regrow(X, F, N, area2, E: Edges, region, bad_tri, angle_tol: float, dist_tol
     out = region.copy()
     out[sub] = region.max() + 1 + newlab * (region.max() + 1) + region[sub]
     return renumber(out)
-
 
 
 def nonplanar_regions(X, faces, holes, face_region, dist_tol: float, diag: float) -> np.ndarray:
