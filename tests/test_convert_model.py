@@ -62,7 +62,7 @@ def point_segment_distance(P, A, B):
 def check_conversion(V, F, model: PolygonModel, stats,  angle_tol_deg: float, rel_area_tol: float = 1e-9,
                      max_polygons: int | None = None, closed: bool | None = None) -> None:
     """The issue's acceptance checks for one converted TIN."""
-    dist_tol = stats.dist_tol_m
+    dist_tol = stats.dist_tol_used_m
     diag = float(np.linalg.norm(np.ptp(V[np.unique(F)], axis=0)))
     # 1. area preserved
     Vo, Fo = model.triangulate()
