@@ -68,7 +68,7 @@ def make_inputs(work: Path) -> tuple[Path, Path, np.ndarray]:
 
 def make_sequence(work: Path, base: Path, poses: np.ndarray, n: int) -> tuple[Path, Path]:
     """``n`` frames as symbolic links to the base frames + the matching trajectory (t = index)."""
-    from mst.core.poses import write_tum
+    from mst.core.trajectory import write_tum
 
     d = work / f"seq{n}"
     d.mkdir(parents=True, exist_ok=True)

@@ -51,7 +51,8 @@ def trajectory_errors(seq: Path, traj: Path) -> dict:
     Returns ``status`` (N,) str, ``rel`` (N,) position error / camera-model distance (NaN where lost),
     ``deg`` (N,) rotation error in degrees, ``ms`` (N,) per-frame time of the tracking loop.
     """
-    from mst.core.poses import pose_error, read_tum
+    from mst.core.poses import pose_error
+    from mst.core.trajectory import read_tum
 
     _, T_gt = read_tum(seq / "gt.txt")
     with open(Path(traj).with_suffix(".csv")) as f:
@@ -182,7 +183,8 @@ def run(workdir: Path) -> list[dict]:
 
 def trajectory_errors_long(seq: Path, traj: Path, n: int) -> dict:
     """:func:`trajectory_errors` for a ping-pong frame list of ``seq`` (frame k shows frame order[k])."""
-    from mst.core.poses import pose_error, read_tum
+    from mst.core.poses import pose_error
+    from mst.core.trajectory import read_tum
 
     _, T_gt = read_tum(seq / "gt.txt")
     m = len(T_gt)

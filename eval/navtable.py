@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from mst import InputError
-from mst.core.poses import read_tum
+from mst.core.trajectory import read_tum
 from mst.pipeline.navlog import R_MOUNT_CAM, NavLog, interpolate_poses, read_navlog
 
 

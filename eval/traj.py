@@ -1,17 +1,20 @@
 """Trajectory comparison of ``mst eval traj``: association, alignment, ATE, RPE, the UAV table.
 
+The metrics of :func:`compare_trajectories` (arrays in, a typed :class:`TrajResult` out) and the
+file form :func:`evaluate_trajectories`; trajectory files are read by :mod:`mst.core.trajectory`.
+
 Conventions: poses are ``T_model_cam`` 4x4 float64 (camera pose in the model/world frame, what TUM
 files hold); positions in metres, angles in degrees. The computations follow evo (Grupp 2017)
 exactly, so the numbers equal ``evo_ape`` / ``evo_rpe`` on the same files:
 
-* association: evo's ``associate_trajectories`` (nearest timestamp within ``t_max_diff`` seconds,
+* association: evo's ``associate_trajectories`` (nearest timestamp within ``t_max_diff_s`` seconds,
   each pose of the trajectory with fewer poses matched into the longer one);
 * alignment of the estimate onto the reference: ``none``; ``se3`` / ``sim3`` (Umeyama on the
   associated positions, without / with scale); ``first`` (the estimate's first associated pose
   mapped onto the reference's: ``T = T_ref[0] @ inv(T_est[0])``);
 * ATE: ``|t_est - t_ref|`` per associated pose; rotation error: angle of ``R_est^T R_ref``;
 * RPE (consecutive pairs chosen on the aligned estimate like evo): ``E = inv(inv(Q_i) Q_j) inv(P_i) P_j``,
-  translation norm and rotation angle, for ``delta`` frames and for ``delta_m`` metres of path;
+  translation norm and rotation angle, for ``delta_frames`` frames and for ``delta_m`` metres of path;
 * statistics: rmse, mean, median, std (population), min, max.
 
 UAV table (mean and std of dX dY dZ and d-yaw): differences estimate - reference of the aligned
@@ -21,161 +24,52 @@ of the camera's optical axis (its +z axis) projected on the model XY plane, ``at
 in degrees (0 = +X, 90 = +Y). When the optical axis is within 10 degrees of vertical (nadir camera)
 the image-up direction (-y axis of the camera) is projected instead.
 
-Gaps: reference poses that have no estimate within ``t_max_diff`` (tracking lost), counted and listed
+Gaps: reference poses that have no estimate within ``t_max_diff_s`` (tracking lost), counted and listed
 as ranges of consecutive reference indices with their times.
 """
 
 from __future__ import annotations
 
+import math
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from mst import InputError, read_text
-from mst.core.poses import R_from_quat, check_pose_rows, inv_T, make_T, read_tum, rotation_angle_deg
+from mst import InputError
+from mst.core.config import Config, param
+from mst.core.poses import inv_T, make_T, rotation_angle_deg
+from mst.core.trajectory import TRAJECTORY_FORMATS, parse_csv_columns, read_trajectory
+from mst.errors import ConfigError
 
 NADIR_LIMIT_DEG = 10.0
+_INF = math.inf
 
 
 @dataclass
-class TrajConfig:
-    """Settings of :func:`evaluate_trajectories`."""
+class TrajConfig(Config):
+    """Settings of the trajectory comparison (``mst eval traj``)."""
 
-    align: str = "se3"              # none | se3 | sim3 | first
-    t_max_diff: float = 0.01        # seconds, association tolerance (evo's default)
-    t_offset: float = 0.0           # seconds added to the estimate's timestamps
-    delta: int = 1                  # RPE step in frames
-    delta_m: float = 1.0            # RPE step in metres of path
-    yaw_offset_deg: float = 0.0     # constant mount offset removed from d-yaw
-    fmt: str = "auto"               # auto | tum | kitti | csv
-    csv_columns: str | None = None  # "t=time,x=px,y=py,z=pz,qx=..,qy=..,qz=..,qw=.."
-    fps: float | None = None        # timestamps of KITTI files: index / fps (index when None)
+    align: str = param("se3", choices=("none", "se3", "sim3", "first"),
+                       help="alignment of the estimate onto the reference: Umeyama without/with scale, first pose, none")
+    t_max_diff_s: float = param(0.01, min=0, max=_INF, max_open=True,
+                                help="association tolerance (evo's default): poses match within this, s")
+    t_offset_s: float = param(0.0, min=-_INF, min_open=True, max=_INF, max_open=True,
+                              help="added to the estimate's timestamps, s")
+    delta_frames: int = param(1, min=1, help="RPE step in frames")
+    delta_m: float = param(1.0, min=0, min_open=True, max=_INF, max_open=True, help="RPE step in metres of path")
+    yaw_offset_deg: float = param(0.0, min=-_INF, min_open=True, max=_INF, max_open=True,
+                                  help="constant camera-mount yaw offset removed from d-yaw, deg")
+    format: str = param("auto", choices=TRAJECTORY_FORMATS,
+                        help="trajectory file format (auto: .csv -> csv, 12 numbers per line -> kitti, else tum)")
+    csv_columns: str | None = param(None, help="CSV columns as key=column pairs, e.g. t=time,x=e,y=n,z=h "
+                                               "(keys t x y z qx qy qz qw; unnamed keys: the column of that name)")
+    fps: float | None = param(None, min=0, min_open=True, max=_INF, max_open=True,
+                              help="KITTI files: timestamps are line index / fps (null: the index)")
 
-
-# ------------------------------------------------------------------------------------ reading
-def read_trajectory(path: str | os.PathLike, fmt: str = "auto", csv_columns: str | None = None,
-                    fps: float | None = None, notes: list[str] | None = None) -> tuple[np.ndarray, np.ndarray, bool]:
-    """Read a trajectory: ``(t (N,) seconds, T_model_cam (N, 4, 4), has_rotation)``.
-
-    Formats: ``tum`` (``t tx ty tz qx qy qz qw``), ``kitti`` (12 numbers per line, the 3x4 pose
-    matrix row-major; time = line index, or index / ``fps``), ``csv`` (a header row; columns named by
-    ``csv_columns`` as ``key=column`` pairs for keys t x y z and optionally qx qy qz qw; without
-    quaternion columns the rotation is unknown and ``has_rotation`` is False). ``auto``: ``.csv`` is
-    CSV, otherwise TUM for 8 numbers per line and KITTI for 12.
-
-    UTF-8 text (a byte-order mark is accepted). Refused with :class:`mst.InputError` naming the
-    file (and line): NaN/inf, positions beyond 1e9 m, quaternions that are not unit, timestamps
-    out of order, and two poses with the same timestamp that differ (identical duplicates are
-    dropped, with a line appended to ``notes``).
-    """
-    p = Path(path)
-    if not p.exists():
-        raise InputError(p, "trajectory file does not exist")
-    text = read_text(p, "trajectory file")
-    if fmt == "auto":
-        if p.suffix.lower() == ".csv":
-            fmt = "csv"
-        else:
-            first = next((ln for ln in text.splitlines() if ln.strip() and not ln.lstrip().startswith("#")), "")
-            fmt = "kitti" if len(first.replace(",", " ").split()) == 12 else "tum"
-    if fmt == "tum":
-        t, T = read_tum(p)
-        has_rot = True
-    elif fmt == "kitti":
-        rows, lines = [], []
-        for ln, line in enumerate(text.splitlines(), 1):
-            s = line.split("#", 1)[0].strip()
-            if not s:
-                continue
-            parts = s.split()
-            if len(parts) != 12:
-                raise InputError(p, f"line {ln}: KITTI poses need 12 numbers per line, got {len(parts)}")
-            try:
-                rows.append([float(x) for x in parts])
-            except ValueError:
-                raise InputError(p, f"line {ln}: not a number") from None
-            lines.append(ln)
-        if not rows:
-            raise InputError(p, "trajectory has no poses")
-        a = np.asarray(rows)
-        check_pose_rows(p, a, np.asarray(lines), quat_cols=None, pos_cols=slice(3, 12, 4))
-        T = np.tile(np.eye(4), (len(a), 1, 1))
-        T[:, :3, :] = a.reshape(-1, 3, 4)
-        # KITTI prints >= 6 significant digits: a rotation block off by more than 1e-2 (or a
-        # reflection) is not a rotation; it must not be re-orthonormalised into an arbitrary one
-        R = T[:, :3, :3]
-        with np.errstate(over="ignore", invalid="ignore"):  # entries of 1e308 overflow: not a rotation
-            off = np.abs(np.swapaxes(R, 1, 2) @ R - np.eye(3)).max(axis=(1, 2))
-            bad = ~(off <= 1e-2) | ~(np.linalg.det(R) > 0)
-        if bad.any():
-            raise InputError(p, f"line {lines[int(np.argmax(bad))]}: the 3x3 rotation block is not a rotation")
-        U, _, Vt = np.linalg.svd(T[:, :3, :3])
-        T[:, :3, :3] = U @ Vt
-        t = np.arange(len(a), dtype=np.float64) / (fps or 1.0)
-        has_rot = True
-    elif fmt == "csv":
-        t, T, has_rot = _read_csv(p, text, csv_columns)
-    else:
-        raise InputError(p, f"unknown trajectory format {fmt!r}")
-    if not np.isfinite(T).all() or not np.isfinite(t).all():
-        raise InputError(p, "trajectory holds NaN or infinite values")
-    dt = np.diff(t)
-    if len(t) > 1 and (dt < 0).any():
-        k = int(np.argmax(dt < 0))
-        raise InputError(p, f"timestamps are not sorted in increasing order (pose {k + 2}: {t[k + 1]:.6f} s after "
-                            f"{t[k]:.6f} s)")
-    dup = np.flatnonzero(dt == 0)
-    if len(dup):
-        # same time twice: identical poses are a harmless repeat, different ones are a conflict that
-        # must not be averaged or picked silently (evo associates one of them at random)
-        differ = np.abs(T[dup + 1] - T[dup]).max(axis=(1, 2)) > 1e-9
-        if differ.any():
-            k = int(dup[np.argmax(differ)])
-            raise InputError(p, f"two different poses at the same timestamp {t[k]:.6f} s (poses {k + 1} and {k + 2})")
-        keep = np.ones(len(t), bool)
-        keep[dup + 1] = False
-        t, T = t[keep], T[keep]
-        if notes is not None:
-            notes.append(f"{p}: {len(dup)} identical duplicate pose(s) dropped")
-    return t, T, has_rot
-
-
-def _read_csv(p: Path, text: str, spec: str | None) -> tuple[np.ndarray, np.ndarray, bool]:
-    import csv
-    import io
-
-    try:
-        rows = [r for r in csv.reader(io.StringIO(text, newline="")) if r and not r[0].lstrip().startswith("#")]
-    except csv.Error as e:
-        raise InputError(p, f"not a CSV file ({e})") from None
-    if len(rows) < 2:
-        raise InputError(p, "CSV trajectory needs a header row and at least one pose")
-    header = [h.strip() for h in rows[0]]
-    mapping = {k: k for k in ("t", "x", "y", "z", "qx", "qy", "qz", "qw")}
-    if spec:
-        for item in spec.split(","):
-            if "=" not in item:
-                raise InputError(None, f"--csv-columns: {item!r} is not key=column")
-            k, v = (s.strip() for s in item.split("=", 1))
-            if k not in mapping:
-                raise InputError(None, f"--csv-columns: unknown key {k!r} (use t x y z qx qy qz qw)")
-            mapping[k] = v
-    missing = [mapping[k] for k in ("t", "x", "y", "z") if mapping[k] not in header]
-    if missing:
-        raise InputError(p, f"CSV lacks column(s) {', '.join(missing)} (header: {', '.join(header)}); "
-                         "name them with --csv-columns t=..,x=..,y=..,z=..")
-    has_rot = all(mapping[k] in header for k in ("qx", "qy", "qz", "qw"))
-    keys = ["t", "x", "y", "z"] + (["qx", "qy", "qz", "qw"] if has_rot else [])
-    cols = [header.index(mapping[k]) for k in keys]
-    try:
-        a = np.array([[float(r[c]) for c in cols] for r in rows[1:]], np.float64)
-    except (ValueError, IndexError):
-        raise InputError(p, "CSV row with a missing or non-numeric value") from None
-    check_pose_rows(p, a[:, 1:], np.arange(2, len(a) + 2), quat_cols=slice(3, 7) if has_rot else None)
-    R = R_from_quat(a[:, 4:8]) if has_rot else np.tile(np.eye(3), (len(a), 1, 1))
-    return a[:, 0], make_T(R, a[:, 1:4]), has_rot
+    def check(self) -> None:
+        parse_csv_columns(self.csv_columns)  # a bad spec is a ConfigError of csv_columns
 
 
 # ----------------------------------------------------------------------------------- association
@@ -238,23 +132,41 @@ def align_estimate(T_est: np.ndarray, T_ref: np.ndarray, mode: str) -> tuple[np.
         return T @ T_est, T, 1.0
     if mode in ("se3", "sim3"):
         if len(T_est) < 3:
-            raise InputError(None, f"--align {mode} needs at least 3 associated poses, got {len(T_est)}")
+            raise InputError(None, f"alignment {mode} needs at least 3 associated poses, got {len(T_est)}")
         R, t, s = umeyama(T_est[:, :3, 3], T_ref[:, :3, 3], mode == "sim3")
         Ts = T_est.copy()
         Ts[:, :3, 3] *= s
         T = make_T(R, t)
         return T @ Ts, T, s
-    raise InputError(None, f"unknown alignment {mode!r} (none, se3, sim3, first)")
+    raise ConfigError("align", f"unknown alignment {mode!r} (none, se3, sim3, first)")
 
 
 # ------------------------------------------------------------------------------------- metrics
-def error_stats(e: np.ndarray) -> dict:
+@dataclass(frozen=True)
+class ErrorStats:
+    """rmse, mean, median, std (population), min, max and count of an error array (evo's definitions);
+    every statistic None when the array is empty."""
+
+    count: int
+    rmse: float | None = None
+    mean: float | None = None
+    median: float | None = None
+    std: float | None = None
+    min: float | None = None
+    max: float | None = None
+
+    def to_json(self) -> dict:
+        return {"rmse": self.rmse, "mean": self.mean, "median": self.median, "std": self.std, "min": self.min,
+                "max": self.max, "count": self.count}
+
+
+def error_stats(e: np.ndarray) -> ErrorStats:
     """rmse, mean, median, std (population), min, max of an error array (evo's definitions)."""
     e = np.asarray(e, np.float64)
     if len(e) == 0:
-        return {k: None for k in ("rmse", "mean", "median", "std", "min", "max")} | {"count": 0}
-    return {"rmse": float(np.sqrt(np.mean(e**2))), "mean": float(np.mean(e)), "median": float(np.median(e)),
-            "std": float(np.std(e)), "min": float(np.min(e)), "max": float(np.max(e)), "count": int(len(e))}
+        return ErrorStats(count=0)
+    return ErrorStats(rmse=float(np.sqrt(np.mean(e**2))), mean=float(np.mean(e)), median=float(np.median(e)),
+                      std=float(np.std(e)), min=float(np.min(e)), max=float(np.max(e)), count=int(len(e)))
 
 
 def rpe_pairs_frames(n: int, delta: int) -> np.ndarray:
@@ -319,73 +231,150 @@ def gap_ranges(missing: np.ndarray, t_ref: np.ndarray) -> list[dict]:
              "t_end": float(t_ref[b])} for a, b in zip(starts, ends)]
 
 
-def evaluate_trajectories(est_path: str | os.PathLike, ref_path: str | os.PathLike,
-                          config: TrajConfig | None = None) -> dict:
-    """Compare an estimated trajectory with a reference; returns the summary dict.
+@dataclass(frozen=True)
+class RelativeError:
+    """RPE over pairs ``step`` apart (frames or metres of path): translation (m), rotation (deg)."""
 
-    Keys: counts, ``ate`` (metres), ``rotation_error_deg``, ``rpe_frames`` / ``rpe_metres``
-    (``translation`` metres, ``rotation_deg``), ``uav_table`` (mean/std of dX dY dZ metres and d-yaw
-    degrees), ``gaps``, ``alignment`` (4x4 and scale), and ``series`` (per-pose arrays for plots;
-    callers drop it for JSON).
+    step_key: str          # "delta" (frames) or "delta_m" (metres)
+    step: float
+    translation: ErrorStats
+    rotation_deg: ErrorStats | None
+
+    def to_json(self) -> dict:
+        return {self.step_key: self.step, "translation": self.translation.to_json(),
+                "rotation_deg": self.rotation_deg.to_json() if self.rotation_deg is not None else None}
+
+
+@dataclass(frozen=True)
+class TrajSeries:
+    """Per-pose arrays for plots (not part of the JSON)."""
+
+    t: np.ndarray
+    xyz_ref: np.ndarray
+    xyz_est: np.ndarray
+    dxyz: np.ndarray
+    dyaw: np.ndarray | None
+    t_ref_all: np.ndarray
+    xyz_ref_all: np.ndarray
+
+
+@dataclass(frozen=True)
+class TrajResult:
+    """Result of :func:`evaluate_trajectories`; :meth:`to_json` is the ``mst eval traj --json`` summary.
+
+    ``ate`` metres, ``rotation_error_deg``, ``rpe_frames`` / ``rpe_metres``, ``uav_table`` (mean/std of
+    dX dY dZ metres and d-yaw degrees, JSON-ready), ``gaps`` (reference poses without an estimate:
+    counts and ranges), ``alignment`` (``T_ref_est`` 4x4 and ``scale``), ``notes`` (e.g. dropped
+    duplicate poses), ``series`` for plots.
     """
+
+    estimate: str
+    reference: str
+    notes: list[str]
+    poses_estimate: int
+    poses_reference: int
+    associated: int
+    t_max_diff_s: float
+    align: str
+    T_ref_est: np.ndarray
+    scale: float
+    ate: ErrorStats
+    rotation_error_deg: ErrorStats | None
+    rpe_frames: RelativeError
+    rpe_metres: RelativeError
+    uav_table: dict
+    gaps: dict
+    config: TrajConfig
+    series: TrajSeries = field(repr=False)
+
+    def to_json(self) -> dict:
+        return {
+            "estimate": self.estimate, "reference": self.reference, "notes": list(self.notes),
+            "poses_estimate": self.poses_estimate, "poses_reference": self.poses_reference,
+            "associated": self.associated, "t_max_diff_s": self.t_max_diff_s, "align": self.align,
+            "alignment": {"T_ref_est": self.T_ref_est.tolist(), "scale": self.scale},
+            "ate": self.ate.to_json(),
+            "rotation_error_deg": self.rotation_error_deg.to_json() if self.rotation_error_deg is not None else None,
+            "rpe_frames": self.rpe_frames.to_json(), "rpe_metres": self.rpe_metres.to_json(),
+            "uav_table": self.uav_table, "gaps": self.gaps, "config": self.config.to_dict(),
+        }
+
+
+def evaluate_trajectories(est_path: str | os.PathLike, ref_path: str | os.PathLike,
+                          config: TrajConfig | None = None) -> TrajResult:
+    """Compare an estimated trajectory file with a reference file (see the module docstring)."""
     cfg = config or TrajConfig()
-    notes: list[str] = []
-    t_est, T_est, rot_e = read_trajectory(est_path, cfg.fmt, cfg.csv_columns, cfg.fps, notes)
-    t_ref, T_ref, rot_r = read_trajectory(ref_path, cfg.fmt, cfg.csv_columns, cfg.fps, notes)
-    ie, ir = associate(t_est, t_ref, cfg.t_max_diff, cfg.t_offset)
+    est = read_trajectory(est_path, cfg.format, cfg.csv_columns, cfg.fps)
+    ref = read_trajectory(ref_path, cfg.format, cfg.csv_columns, cfg.fps)
+    notes = [f"{Path(p)}: {tr.duplicates_dropped} identical duplicate pose(s) dropped"
+             for p, tr in ((est_path, est), (ref_path, ref)) if tr.duplicates_dropped]
+    return compare_trajectories(est.t, est.T_model_cam, ref.t, ref.T_model_cam, cfg,
+                                has_rotation=est.has_rotation and ref.has_rotation, names=(est_path, ref_path),
+                                rotation_known=(est.has_rotation, ref.has_rotation), notes=notes)
+
+
+def compare_trajectories(t_est: np.ndarray, T_est: np.ndarray, t_ref: np.ndarray, T_ref: np.ndarray,
+                         cfg: TrajConfig | None = None, *, has_rotation: bool = True,
+                         names: tuple = ("estimate", "reference"), rotation_known: tuple[bool, bool] | None = None,
+                         notes: list[str] | None = None) -> TrajResult:
+    """The core: compare the poses ``T_est`` (times ``t_est``) with ``T_ref`` (``T_model_cam``, sorted
+    times, seconds). ``names`` label the two in the result and in errors."""
+    cfg = cfg or TrajConfig()
+    est_path, ref_path = names
+    rot_e, rot_r = rotation_known if rotation_known is not None else (has_rotation, has_rotation)
+    ie, ir = associate(t_est, t_ref, cfg.t_max_diff_s, cfg.t_offset_s)
     if len(ie) == 0:
-        raise InputError(est_path, f"no timestamps match the reference within {cfg.t_max_diff} s "
+        raise InputError(est_path, f"no timestamps match the reference within {cfg.t_max_diff_s} s "
                          f"(estimate {t_est[0]:.3f}..{t_est[-1]:.3f} s, reference {t_ref[0]:.3f}..{t_ref[-1]:.3f} s)")
-    has_rot = rot_e and rot_r
+    has_rot = has_rotation
     Te, Tr = T_est[ie], T_ref[ir]
     if cfg.align == "first" and not has_rot:
-        raise InputError(ref_path if rot_e else est_path, "--align first needs orientations (no quaternion columns)")
+        raise InputError(ref_path if rot_e else est_path, "alignment first needs orientations (no quaternion columns)")
     if cfg.align in ("se3", "sim3") and len(ie) >= 3:
-        # Umeyama needs positions spread in 2 dimensions: name the trajectory that is degenerate
-        for path, T in ((est_path, Te), (ref_path, Tr)):
-            sv = np.linalg.svd(T[:, :3, 3] - T[:, :3, 3].mean(0), compute_uv=False)
-            if sv[1] <= 1e-9 * max(1.0, float(np.abs(T[:, :3, 3]).max())) * np.sqrt(len(T)):
-                raise InputError(path, f"the {len(T)} associated positions are identical or on one line: "
-                                       f"--align {cfg.align} is not determined (use --align first or none)")
+        _check_spread(cfg.align, ((est_path, Te), (ref_path, Tr)))
     Ta, T_align, scale = align_estimate(Te, Tr, cfg.align)
     dxyz = Ta[:, :3, 3] - Tr[:, :3, 3]
     ate = np.linalg.norm(dxyz, axis=1)
-    out: dict = {
-        "estimate": str(est_path), "reference": str(ref_path), "notes": notes,
-        "poses_estimate": int(len(t_est)), "poses_reference": int(len(t_ref)), "associated": int(len(ie)),
-        "t_max_diff_s": cfg.t_max_diff, "align": cfg.align,
-        "alignment": {"T_ref_est": T_align, "scale": scale},
-        "ate": error_stats(ate),
-    }
-    if has_rot:
-        out["rotation_error_deg"] = error_stats(rotation_angle_deg(np.swapaxes(Ta[:, :3, :3], -1, -2) @ Tr[:, :3, :3]))
-    else:
-        out["rotation_error_deg"] = None
-    pf = rpe_pairs_frames(len(Ta), max(1, int(cfg.delta)))
+    rot_err = (error_stats(rotation_angle_deg(np.swapaxes(Ta[:, :3, :3], -1, -2) @ Tr[:, :3, :3]))
+               if has_rot else None)
+    pf = rpe_pairs_frames(len(Ta), max(1, int(cfg.delta_frames)))
     pm = rpe_pairs_metres(Ta[:, :3, 3], cfg.delta_m)
     et, er = rpe(Tr, Ta, pf)
     mt, mr = rpe(Tr, Ta, pm)
-    out["rpe_frames"] = {"delta": int(cfg.delta), "translation": error_stats(et),
-                         "rotation_deg": error_stats(er) if has_rot else None}
-    out["rpe_metres"] = {"delta_m": cfg.delta_m, "translation": error_stats(mt),
-                         "rotation_deg": error_stats(mr) if has_rot else None}
+    rpe_f = RelativeError("delta", int(cfg.delta_frames), error_stats(et), error_stats(er) if has_rot else None)
+    rpe_m = RelativeError("delta_m", cfg.delta_m, error_stats(mt), error_stats(mr) if has_rot else None)
     dyaw = wrap_deg(camera_yaw_deg(Ta) - camera_yaw_deg(Tr) - cfg.yaw_offset_deg) if has_rot else None
     table = {}
     for k, name in enumerate(("dX", "dY", "dZ")):
         table[name] = {"mean": float(dxyz[:, k].mean()), "std": float(dxyz[:, k].std()), "unit": "m"}
     table["dyaw"] = ({"mean": float(dyaw.mean()), "std": float(dyaw.std()), "unit": "deg",
                       "yaw_offset_deg": cfg.yaw_offset_deg} if dyaw is not None else None)
-    out["uav_table"] = table
-    # gaps: reference poses without an estimate within the tolerance (whatever the association side)
-    te = t_est + cfg.t_offset
+    series = TrajSeries(t=t_ref[ir], xyz_ref=Tr[:, :3, 3], xyz_est=Ta[:, :3, 3], dxyz=dxyz, dyaw=dyaw,
+                        t_ref_all=t_ref, xyz_ref_all=T_ref[:, :3, 3])
+    return TrajResult(estimate=str(est_path), reference=str(ref_path), notes=list(notes or []),
+                      poses_estimate=int(len(t_est)), poses_reference=int(len(t_ref)), associated=int(len(ie)),
+                      t_max_diff_s=cfg.t_max_diff_s, align=cfg.align, T_ref_est=T_align, scale=scale,
+                      ate=error_stats(ate), rotation_error_deg=rot_err, rpe_frames=rpe_f, rpe_metres=rpe_m,
+                      uav_table=table, gaps=_gaps(t_est, t_ref, cfg), config=cfg, series=series)
+
+
+def _check_spread(align: str, trajectories) -> None:
+    """Umeyama needs positions spread in 2 dimensions: name the trajectory that is degenerate."""
+    for path, T in trajectories:
+        sv = np.linalg.svd(T[:, :3, 3] - T[:, :3, 3].mean(0), compute_uv=False)
+        if sv[1] <= 1e-9 * max(1.0, float(np.abs(T[:, :3, 3]).max())) * np.sqrt(len(T)):
+            raise InputError(path, f"the {len(T)} associated positions are identical or on one line: "
+                                   f"alignment {align} is not determined (use alignment first or none)")
+
+
+def _gaps(t_est: np.ndarray, t_ref: np.ndarray, cfg: TrajConfig) -> dict:
+    """Reference poses without an estimate within the tolerance (whatever the association side)."""
+    te = t_est + cfg.t_offset_s
     k = np.clip(np.searchsorted(te, t_ref), 1, max(len(te) - 1, 1))
     near = np.minimum(np.abs(te[k] - t_ref), np.abs(te[k - 1] - t_ref)) if len(te) > 1 else np.abs(te[0] - t_ref)
-    missing = near > cfg.t_max_diff
+    missing = near > cfg.t_max_diff_s
     gaps = gap_ranges(missing, t_ref)
-    out["gaps"] = {"missing_reference_poses": int(missing.sum()), "count": len(gaps), "ranges": gaps}
-    out["series"] = {"t": t_ref[ir], "xyz_ref": Tr[:, :3, 3], "xyz_est": Ta[:, :3, 3], "dxyz": dxyz,
-                     "dyaw": dyaw, "t_ref_all": t_ref, "xyz_ref_all": T_ref[:, :3, 3]}
-    return out
+    return {"missing_reference_poses": int(missing.sum()), "count": len(gaps), "ranges": gaps}
 
 
 def report_rows(s: dict) -> list[list[str]]:

@@ -37,7 +37,8 @@ import numpy as np
 
 from mst import InputError, atomic_output, require_file
 from mst.core.camera import Camera, read_camera
-from mst.core.poses import inv_T, read_rigid_transform, read_tum
+from mst.core.poses import inv_T, read_rigid_transform
+from mst.core.trajectory import read_tum
 from mst.pipeline.depth_io import list_depth_frames, list_image_frames, read_depth
 
 

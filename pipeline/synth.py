@@ -56,7 +56,8 @@ import numpy as np
 
 from mst import InputError, MstError, __version__
 from mst.core.camera import Camera, write_camera
-from mst.core.poses import format_tum, inv_T, look_at, make_T  # noqa: F401  (look_at re-exported)
+from mst.core.poses import inv_T, look_at, make_T  # noqa: F401  (look_at re-exported)
+from mst.core.trajectory import format_tum
 from mst.pipeline.render import row_ids
 
 SCENARIOS = ("orbit", "corridor", "flyover", "fast", "turntable", "occluder", "blackout")  # the last 3: synth_dynamic

@@ -11,7 +11,7 @@ import json
 
 from nav_helpers import VISION_SIGMA_M, flight, noisy_vision
 
-from mst.core.poses import write_tum
+from mst.core.trajectory import write_tum
 from mst.eval.navtable import nav_table_from_files
 from mst.pipeline.navfusion import FusionConfig, fuse_navigation
 from mst.pipeline.navlog import NavSimConfig, simulate_nav, write_sim_outputs
