@@ -15,7 +15,7 @@ import csv
 import numpy as np
 import pytest
 
-from mst.eval.bench_slam import SAMPLE_MODEL
+from mst.eval.bench.slam import SAMPLE_MODEL
 
 
 def _synth(tmp_path_factory, scenario, frames, width=320, height=240):

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 SHARED = ROOT.parent / "shared" / "data"
 
 
@@ -65,7 +65,7 @@ def _visp_anchor_rows(tb: Path, workdir: Path) -> list[dict]:
 
     from mst.core.poses import inv_T, pose_error
     from mst.core.trajectory import read_tum
-    from mst.eval.bench import mst_cmd
+    from mst.eval.bench.harness import mst_cmd
 
     exe = Path(os.environ.get("VISP_ANCHOR", "/tmp/visp_build/visp_mbt_anchor"))
     if not exe.is_file():
@@ -120,7 +120,7 @@ def run(workdir: Path) -> list[dict]:
     import cv2
 
     from mst.core.camera import Camera, read_camera
-    from mst.eval.bench import mst_cmd, timed_command
+    from mst.eval.bench.harness import mst_cmd, timed_command
     from mst.pipeline.init_pose import init_from_clicks, read_clicks
     from mst.pipeline.settings import TrackerConfig, read_tracker_xml
     from mst.pipeline.tracker import load_polygon_model

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mst.eval.bench import mst_cmd, timed_command
+from mst.eval.bench.harness import mst_cmd, timed_command
 
 W, H, N_BASE = 640, 480, 24
 
