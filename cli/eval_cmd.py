@@ -120,8 +120,8 @@ def traj(estimate, reference, align, t_max_diff, t_offset, delta, delta_m, yaw_o
             info("gaps: " + ", ".join(f"frames {g['first']}-{g['last']} ({g['t_start']:.3f}-{g['t_end']:.3f} s)"
                                       for g in s["gaps"]["ranges"][:20])
                  + (" ..." if s["gaps"]["count"] > 20 else ""))
-    if nav_path is not None:  # the UAV table against a navigation log (mst.eval.navtable)
-        from mst.eval.navtable import nav_table_from_files
+    if nav_path is not None:  # the UAV table against a navigation log (mst.eval.traj.navtable)
+        from mst.eval.traj.navtable import nav_table_from_files
 
         nt = nav_table_from_files(estimate, reference, nav_path, nav_calib, nav_vision, cfg.t_max_diff_s)
         s["nav_table"] = nt.to_json()

@@ -306,7 +306,7 @@ def test_cloud_round_trip_float32(cloud):
 
 
 # ====================================================================== poses and trajectories (readers owned by
-# pipeline/poses.py and eval/traj.py: tested here, not changed)
+# core/trajectory.py and core/poses.py: tested here, not changed)
 
 
 @st.composite
