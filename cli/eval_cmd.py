@@ -8,6 +8,7 @@ import click
 
 from mst import atomic_output, check_outputs
 from mst.cli.common import (
+    CONFIG_CLASSES,
     build_config,
     config_options,
     emit_json,
@@ -18,6 +19,8 @@ from mst.cli.common import (
     setup_logging,
     verbosity_options,
 )
+
+CONFIG_CLASSES["mst eval traj"] = "mst.eval.traj.config:TrajConfig"  # for --show-config
 
 #: TrajConfig field -> the option that sets it (errors on these fields name the option)
 TRAJ_FLAGS = {"align": "--align", "t_max_diff_s": "--t-max-diff", "t_offset_s": "--t-offset",
@@ -88,8 +91,8 @@ def traj(estimate, reference, align, t_max_diff, t_offset, delta, delta_m, yaw_o
       mst eval traj traj.txt gt.txt --config eval.yaml --set delta_m=5
 
     Settings (--config FILE, --set KEY=VALUE; the options above override them): align,
-    t_max_diff_s, t_offset_s, delta_frames, delta_m, yaw_offset_deg, format, csv_columns, fps; the
-    "config" block of --json is the effective set.
+    t_max_diff_s, t_offset_s, delta_frames, delta_m, yaw_offset_deg, format, csv_columns, fps
+    (--show-config lists them); the "config" block of --json is the effective set.
     """
     from mst.eval.traj import TrajConfig, evaluate_trajectories, report_rows, uav_rows
 
