@@ -94,16 +94,29 @@ def test_csv_columns_spec_and_positions_only(tmp_path):
         TR.read_trajectory(c)
 
 
-def test_identical_duplicates_dropped_with_a_note_different_ones_refused(tmp_path, caplog):
+def test_identical_duplicates_dropped_with_a_note_different_ones_refused(tmp_path):
     T = random_T(3)
     f = tmp_path / "t.txt"
     TR.write_tum(f, np.array([0.0, 1.0, 2.0]), T)
     lines = f.read_text().splitlines()
     f.write_text("\n".join([lines[0], lines[0], lines[1], lines[2]]) + "\n")
-    with caplog.at_level(logging.INFO, logger="mst"):
+    notes: list[str] = []
+
+    class Keep(logging.Handler):
+        def emit(self, record):
+            notes.append(record.getMessage())
+
+    log = logging.getLogger("mst.core.trajectory")
+    h, level = Keep(logging.INFO), log.level
+    log.addHandler(h)
+    log.setLevel(logging.INFO)
+    try:
         tr = TR.read_trajectory(f)
+    finally:
+        log.removeHandler(h)
+        log.setLevel(level)
     assert tr.duplicates_dropped == 1 and len(tr.t) == 3
-    assert "1 identical duplicate pose(s) dropped" in caplog.text
+    assert notes == [f"{f}: 1 identical duplicate pose(s) dropped"]
     f.write_text("\n".join([lines[0], lines[1].replace(lines[1].split()[0], lines[0].split()[0], 1), lines[2]]) + "\n")
     with pytest.raises(InputError, match="two different poses at the same timestamp"):
         TR.read_trajectory(f)
