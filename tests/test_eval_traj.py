@@ -187,3 +187,15 @@ def test_config_file_sets_a_setting_options_override_unknown_key_fails(tmp_path,
     bad.write_text(json.dumps({"delta_mm": 2}))
     r = mst("eval", "traj", est, ref, "--config", bad, check=False)
     assert r.returncode == 1 and "delta_mm" in r.stderr and "unknown key" in r.stderr
+
+
+def test_duplicate_poses_note_on_stderr_and_in_json(tmp_path, mst):
+    est, ref, keep = _make_pair(tmp_path)
+    lines = est.read_text().splitlines()
+    est.write_text("\n".join([lines[0]] + lines) + "\n")  # the first pose twice
+    r = mst("eval", "traj", est, ref, "--json")
+    note = f"{est}: 1 identical duplicate pose(s) dropped"
+    assert json.loads(r.stdout)["notes"] == [note]
+    assert f"mst eval traj: note: {note}" in r.stderr
+    r = mst("eval", "traj", est, ref, "--json", "-q")
+    assert r.stderr == ""
