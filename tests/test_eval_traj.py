@@ -199,3 +199,14 @@ def test_duplicate_poses_note_on_stderr_and_in_json(tmp_path, mst):
     assert f"mst eval traj: note: {note}" in r.stderr
     r = mst("eval", "traj", est, ref, "--json", "-q")
     assert r.stderr == ""
+
+
+def test_array_core_equals_the_file_form(tmp_path):
+    est, ref, keep = _make_pair(tmp_path)
+    e, r = read_trajectory(est), read_trajectory(ref)
+    cfg = tj.TrajConfig(align="sim3", delta_m=0.5)
+    a = tj.compare_trajectories(e.t, e.T_model_cam, r.t, r.T_model_cam, cfg).to_json()
+    b = tj.evaluate_trajectories(est, ref, cfg).to_json()
+    assert a["estimate"] == "estimate" and b["estimate"] == str(est)
+    for k in ("ate", "rotation_error_deg", "rpe_frames", "rpe_metres", "uav_table", "gaps", "alignment", "config"):
+        assert a[k] == b[k], k

@@ -105,25 +105,25 @@ def evaluate_trajectories(est_path: str | os.PathLike, ref_path: str | os.PathLi
     ref = read_trajectory(ref_path, cfg.format, cfg.csv_columns, cfg.fps)
     notes = [f"{Path(p)}: {tr.duplicates_dropped} identical duplicate pose(s) dropped"
              for p, tr in ((est_path, est), (ref_path, ref)) if tr.duplicates_dropped]
-    return compare_trajectories(est.t, est.T_model_cam, ref.t, ref.T_model_cam, cfg,
-                                has_rotation=est.has_rotation and ref.has_rotation, names=(est_path, ref_path),
+    return compare_trajectories(est.t, est.T_model_cam, ref.t, ref.T_model_cam, cfg, names=(est_path, ref_path),
                                 rotation_known=(est.has_rotation, ref.has_rotation), notes=notes)
 
 
 def compare_trajectories(t_est: np.ndarray, T_est: np.ndarray, t_ref: np.ndarray, T_ref: np.ndarray,
-                         cfg: TrajConfig | None = None, *, has_rotation: bool = True,
-                         names: tuple = ("estimate", "reference"), rotation_known: tuple[bool, bool] | None = None,
-                         notes: list[str] | None = None) -> TrajResult:
+                         cfg: TrajConfig | None = None, *, names: tuple = ("estimate", "reference"),
+                         rotation_known: tuple[bool, bool] = (True, True), notes: list[str] | None = None
+                         ) -> TrajResult:
     """The core: compare the poses ``T_est`` (times ``t_est``) with ``T_ref`` (``T_model_cam``, sorted
-    times, seconds). ``names`` label the two in the result and in errors."""
+    times, seconds). ``names`` label the two in the result and in errors; ``rotation_known``: whether
+    each holds orientations (a positions-only CSV does not: no rotation errors, no d-yaw)."""
     cfg = cfg or TrajConfig()
     est_path, ref_path = names
-    rot_e, rot_r = rotation_known if rotation_known is not None else (has_rotation, has_rotation)
+    rot_e, rot_r = rotation_known
     ie, ir = associate(t_est, t_ref, cfg.t_max_diff_s, cfg.t_offset_s)
     if len(ie) == 0:
         raise InputError(est_path, f"no timestamps match the reference within {cfg.t_max_diff_s} s "
                          f"(estimate {t_est[0]:.3f}..{t_est[-1]:.3f} s, reference {t_ref[0]:.3f}..{t_ref[-1]:.3f} s)")
-    has_rot = has_rotation
+    has_rot = rot_e and rot_r
     Te, Tr = T_est[ie], T_ref[ir]
     if cfg.align == "first" and not has_rot:
         raise InputError(ref_path if rot_e else est_path, "alignment first needs orientations (no quaternion columns)")
