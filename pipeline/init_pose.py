@@ -373,7 +373,7 @@ def run_init(model_path, camera_path, out, *, clicks_path=None, points_path=None
 
     from mst import atomic_output, atomic_outputs
     from mst.core.camera import read_camera
-    from mst.core.poses import write_pose_file
+    from mst.core.trajectory import write_pose_file
     from mst.pipeline.tracker import check_pose_in_view, load_polygon_model
 
     if overlay_path is not None and image_path is None:

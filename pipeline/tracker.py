@@ -746,7 +746,8 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
     import cv2
 
     from mst.core.camera import read_camera
-    from mst.core.poses import inv_T, read_pose_file, read_rigid_transform
+    from mst.core.poses import inv_T, read_rigid_transform
+    from mst.core.trajectory import read_pose_file
     from mst.pipeline.frames import check_camera_size, open_frames
     from mst.pipeline.settings import validate_config
 
@@ -978,7 +979,7 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
         "aid": aid_mode, "edges": edges_used, "traj": str(out_traj), "csv": str(csv_path), "cov_csv": str(cov_path), "notes": notes,
         "camera": cam.to_dict(), "config": config_to_dict(cfg),
     }
-    from mst.core.poses import format_tum
+    from mst.core.trajectory import format_tum
 
     if tracker.sample_provider is not None:
         summary["render_edges"] = tracker.sample_provider.stats()

@@ -65,6 +65,13 @@ def test_unknown_key_and_bad_values_name_the_key(case, tmp_path, mst):
         c2m.C2MConfig(max_dist_m=-1.0)
 
 
+def test_show_config_lists_the_settings(mst):
+    r = mst("c2m", "--show-config")
+    assert r.returncode == 0 and "thresholds_m" in r.stdout and "max_dist_m" in r.stdout
+    r = mst("eval", "traj", "--show-config")
+    assert r.returncode == 0 and "t_max_diff_s" in r.stdout and "csv_columns" in r.stdout
+
+
 def test_array_core_equals_the_file_runner(case):
     cloud, mesh, P, V, F = case
     cfg = c2m.C2MConfig(signed=True, chunk_points=1000)

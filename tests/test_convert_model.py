@@ -453,7 +453,7 @@ def test_mobius_strip_does_not_crash():
 @pytest.mark.slow
 def test_city_block_1m():
     """The benchmark's ~1,000,000-triangle city block (terrain of planar patches + 64 buildings):
-    every property checked (the timing is in eval/bench_convert.py)."""
+    every property checked (the timing is in eval/bench/convert.py)."""
     V, F = gen.city_block(n_triangles=1_000_000, buildings=64, seed=0)
     model, stats = convert(V, F)
     # 16 each of box (6), L (8), courtyard (10, 2 holes), gabled (7) + at most 7 x 7 terrain patches

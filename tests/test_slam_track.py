@@ -1,7 +1,7 @@
 """``mst track --slam rgbd|mono`` end to end on ``mst synth`` sequences (320x240 to stay fast).
 
 The same checks at 640x480 with the issue's bounds (error < 0.2 % within 5 frames of the model's
-return, fast x8/x10 mean <= 1 %) are in ``eval/bench_slam.py``: at 320x240 the edge tracker's own
+return, fast x8/x10 mean <= 1 %) are in ``eval/bench/slam.py``: at 320x240 the edge tracker's own
 noise is ~0.3-0.5 % of the distance, so the bounds here are looser.
 """
 
@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mst.eval.bench_slam import SAMPLE_MODEL, out_of_view, recovery_frames, trajectory_errors
+from mst.eval.bench.slam import SAMPLE_MODEL, out_of_view, recovery_frames, trajectory_errors
 
 
 def _synth(tmp_path_factory, name, scenario, **kw):

@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from mst.core.camera import read_camera
-from mst.core.poses import inv_T, read_pose_file, read_tum
+from mst.core.poses import inv_T
+from mst.core.trajectory import read_pose_file, read_tum
 from mst.meshtools.formats import save_triangles
 from mst.meshtools.generate import box, gabled_house
 from mst.pipeline.synth import SynthConfig, synthesize, synthesize_from_scene

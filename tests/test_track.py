@@ -11,7 +11,8 @@ import pytest
 from synth_helpers import look_at, orbit_poses, render_views
 
 from mst.core.camera import Camera, write_camera
-from mst.core.poses import inv_T, pose_error, read_tum, write_pose_file
+from mst.core.poses import inv_T, pose_error
+from mst.core.trajectory import read_tum, write_pose_file
 from mst.pipeline.init_pose import project
 
 

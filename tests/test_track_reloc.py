@@ -18,7 +18,8 @@ import pytest
 from synth_helpers import look_at, render_textured
 
 from mst.core.camera import Camera, write_camera
-from mst.core.poses import inv_T, pose_error, read_tum, write_pose_file
+from mst.core.poses import inv_T, pose_error
+from mst.core.trajectory import read_tum, write_pose_file
 from mst.pipeline.relocalise import RelocConfig
 
 

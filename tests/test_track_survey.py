@@ -25,7 +25,7 @@ def _cli(*args) -> None:
 
 
 def _ate(traj, gt):
-    from mst.core.poses import read_tum
+    from mst.core.trajectory import read_tum
 
     tg, Tg = read_tum(gt)
     te, Te = read_tum(traj)

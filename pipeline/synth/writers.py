@@ -16,7 +16,7 @@ import numpy as np
 from mst import InputError, __version__
 from mst.core.camera import write_camera
 from mst.core.ply import write_ply
-from mst.core.poses import format_tum
+from mst.core.trajectory import format_tum
 
 #: the scene.json layout this mst writes and reads (a file of another version is refused, never guessed)
 SCENE_VERSION = 1

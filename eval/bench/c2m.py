@@ -106,7 +106,7 @@ def _ensure(workdir: Path) -> dict[str, tuple[Path, Path]]:
 
 def run(workdir: Path) -> list[dict]:
     """Time every case; returns the bench rows (see module docstring)."""
-    from mst.eval.bench import mst_cmd, timed_command
+    from mst.eval.bench.harness import mst_cmd, timed_command
 
     rows = []
     cases = _ensure(Path(workdir))
