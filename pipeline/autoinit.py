@@ -27,34 +27,37 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from mst import InputError
+from mst.core.config import Config, param
 from mst.core.poses import inv_T, so3_exp, so3_log
 
 
 @dataclass
-class AutoInitConfig:
-    """Search box, scoring and refusal thresholds of :func:`auto_init`."""
+class AutoInitConfig(Config):
+    """Search box, scoring and refusal thresholds of :func:`auto_init` (scores: mean edge distance
+    / ``dt_max_px``, 0 = every sample on an image edge, 1 = none within ``dt_max_px``)."""
 
-    pos_sigma_m: tuple[float, float, float] = (3.0, 3.0, 5.0)
-    att_sigma_deg: float = 3.0
-    n_sigma: float = 3.0
-    n_coarse: int = 500
-    n_keep: int = 10
-    refine_iters: int = 7
-    refine_samples: int = 16
-    dt_max_px: float = 20.0
-    sample_step_px: float = 5.0
-    canny_low: float = 40.0
-    canny_high: float = 120.0
-    min_samples: int = 30
-    max_score: float = 0.35
-    min_margin: float = 0.15       # second best must score >= best * (1 + min_margin) + 0.02
-    min_inlier_ratio: float = 0.7  # of the tracker's refinement (robust VVS inliers / samples)
+    pos_sigma_m: tuple[float, float, float] = param((3.0, 3.0, 5.0), min=0, help="position uncertainty of the guess, m")
+    att_sigma_deg: float = param(3.0, min=0, help="attitude uncertainty of the guess, deg")
+    n_sigma: float = param(3.0, min=0, min_open=True, help="search box half-size, sigmas")
+    n_coarse: int = param(500, min=1, help="coarse candidates scored")
+    n_keep: int = param(10, min=1, help="best candidates refined")
+    refine_iters: int = param(7, min=0, help="refinement iterations per candidate")
+    refine_samples: int = param(16, min=1, help="samples per refinement iteration")
+    dt_max_px: float = param(20.0, min=0, min_open=True, help="edge distance transform cap, px")
+    sample_step_px: float = param(5.0, min=0, min_open=True, help="model edge sampling step, px")
+    canny_low: float = param(40.0, min=0, help="Canny low threshold, grey levels")
+    canny_high: float = param(120.0, min=0, help="Canny high threshold, grey levels")
+    min_samples: int = param(30, min=1, help="visible edge samples a candidate needs")
+    max_score: float = param(0.35, min=0, min_open=True, help="refuse a best coarse score above this")
+    min_margin: float = param(0.15, min=0, help="second best must score >= best * (1 + min_margin) + 0.02")
+    min_inlier_ratio: float = param(0.7, min=0, max=1,
+                                    help="of the tracker's refinement (robust VVS inliers / samples)")
     # a converged pose puts its edge samples within ~2 px of image edges (Canny localisation ~1 px,
     # the tracker's residual ~0.2 px, a few samples on low-contrast edges): 0.12 * 20 px = 2.4 px.
     # Conservative: a model whose edges largely lack image contrast (two walls shaded alike) is
     # refused even at its true pose -- then click (`mst init --clicks`)
-    max_refined_score: float = 0.12
-    seed: int = 0
+    max_refined_score: float = param(0.12, min=0, min_open=True, help="refuse a refined pose scoring above this")
+    seed: int = param(0, help="seed of the candidate sampling")
 
 
 @dataclass
@@ -243,21 +246,23 @@ def guess_from_nav(nav_path, t: float | None, mount_ypr_deg, lever_arm_m) -> tup
     return T, float(nav.t[i])
 
 
-def run_autoinit(model_path, camera_path, out, nav_path, image_path, *, nav_time=None, mount=(0.0, 0.0, 0.0),
-                 mount_offset=(0.0, 0.0, 0.0), overlay_path=None, cfg: AutoInitConfig | None = None) -> dict:
+def run_autoinit(model_path, camera_path, out, nav_path, image_path, *, nav_time=None, overlay_path=None,
+                 cfg=None) -> dict:
     """The ``mst init --from-nav`` stage: guess from the log, search, refine, write ``out`` (TUM line +
     cMo comment) only when the pose is accepted; raises :class:`mst.InputError` naming the image with
-    the reason otherwise."""
+    the reason otherwise. ``cfg``: :class:`mst.pipeline.init_pose.InitConfig` (the camera mount and
+    the search settings ``cfg.auto``)."""
     import cv2
 
     from mst import atomic_outputs
     from mst.core.camera import read_camera
     from mst.core.poses import write_pose_file
-    from mst.pipeline.init_pose import _read_image, draw_model
+    from mst.pipeline.init_pose import InitConfig, _read_image, draw_model
     from mst.pipeline.tracker import load_polygon_model
 
+    cfg = cfg or InitConfig()
     if image_path is None:
-        raise InputError(None, "--from-nav needs --image (the frame to search the model in)")
+        raise InputError(None, "searching the pose needs the image (the frame to search the model in)")
     model = load_polygon_model(model_path)
     cam = read_camera(camera_path)
     img = _read_image(image_path)
@@ -265,13 +270,14 @@ def run_autoinit(model_path, camera_path, out, nav_path, image_path, *, nav_time
     if cam.width and cam.height and (cam.width, cam.height) != (w, h):
         raise InputError(camera_path, f"camera is for {cam.width}x{cam.height} images but {image_path} is {w}x{h}")
     cam = cam.with_size(w, h)
-    T_guess, t_row = guess_from_nav(nav_path, nav_time, mount, mount_offset)
+    T_guess, t_row = guess_from_nav(nav_path, nav_time, cfg.mount_ypr_deg, cfg.mount_offset_m)
     gray = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY) if img.ndim == 3 else img
-    res = auto_init(gray, model, cam, T_guess, cfg)
+    res = auto_init(gray, model, cam, T_guess, cfg.auto)
     if not res.ok:
         raise InputError(image_path, f"automatic initialisation refused: {res.reason}")
     with atomic_outputs(out, overlay_path) as (tmp, tmp_ov):
         write_pose_file(tmp, res.T_cam_model, t=t_row)
         if tmp_ov is not None and not cv2.imwrite(str(tmp_ov), draw_model(img, model, res.T_cam_model, cam.K)):
             raise InputError(overlay_path, "could not write the overlay (use .png)")
-    return {"source": "from-nav", "nav_time": t_row, "T_cam_model_guess": T_guess.tolist(), **res.to_json()}
+    return {"source": "from-nav", "nav_time": t_row, "T_cam_model_guess": T_guess.tolist(), **res.to_json(),
+            "config": cfg.to_dict()}

@@ -21,6 +21,8 @@ from pathlib import Path
 import numpy as np
 
 from mst import InputError
+from mst.core.config import Config, param, section
+from mst.pipeline.autoinit import AutoInitConfig
 
 #: largest accepted model coordinate (metres) and pixel coordinate of a click: beyond these the
 #: values are corrupt (PnP would overflow or return a camera 1e12 m away)
@@ -29,6 +31,19 @@ MAX_PIXEL = 1e6
 #: clicks closer than this (px) are one position; the image points must also spread at least this
 #: far off their best-fit line (RMS), or the pose is not determined (a few px of click error)
 MIN_SPREAD_PX = 1.0
+
+
+@dataclass
+class InitConfig(Config):
+    """Settings of ``mst init``: the residual bound of a clicked pose, the camera mount of a pose
+    guess (a GPS/AHRS position and attitude) and the automatic search around a nav-log guess."""
+
+    max_residual_px: float = param(4.0, min=0, min_open=True,
+                                   help="RMS reprojection error above which init fails with a diagnosis, px")
+    mount_ypr_deg: tuple[float, float, float] = param((0.0, 0.0, 0.0), help="camera-mount rotation relative to the "
+                                                                         "vehicle body (yaw, pitch, roll), deg")
+    mount_offset_m: tuple[float, float, float] = param((0.0, 0.0, 0.0), help="camera lever arm in the body frame, m")
+    auto: AutoInitConfig = section(AutoInitConfig)
 
 
 def _read_numbers(path: Path, what: str) -> list[list[float]]:
@@ -97,16 +112,16 @@ def read_clicks(path: str | os.PathLike, points_path: str | os.PathLike | None =
     widths = {len(r) for r in rows}
     if points_path is not None:
         if widths != {2}:
-            raise InputError(p, "with --points, every click line needs 2 numbers 'u v'")
+            raise InputError(p, "with a points file, every click line needs 2 numbers 'u v'")
         X = read_init_points(points_path)
         uv = np.array(rows, float)
         if len(X) != len(uv):
             raise InputError(p, f"{len(uv)} clicks but {len(X)} points in {points_path}: they must pair up in order")
     else:
         if widths == {2}:
-            raise InputError(p, "clicks are 'u v' only: give the model points with --points FILE.init")
+            raise InputError(p, "clicks are 'u v' only: their model points come from a ViSP .init points file")
         if widths != {5}:
-            raise InputError(p, "every click line needs 5 numbers 'X Y Z u v' (or 'u v' with --points)")
+            raise InputError(p, "every click line needs 5 numbers 'X Y Z u v' (or 'u v' with a points file)")
         a = np.array(rows, float)
         X, uv = a[:, :3], a[:, 3:]
     x_file = p if points_path is None else Path(points_path)
@@ -362,13 +377,15 @@ def _read_image(path) -> np.ndarray:
 
 
 def run_init(model_path, camera_path, out, *, clicks_path=None, points_path=None, from_pose=None,
-             mount=(0.0, 0.0, 0.0), mount_offset=(0.0, 0.0, 0.0), image_path=None, overlay_path=None,
-             show_points: bool = False, max_residual: float = 4.0) -> dict:
+             image_path=None, overlay_path=None, show_points: bool = False, cfg: InitConfig | None = None) -> dict:
     """The ``mst init`` stage: write the pose file ``out`` (or, with ``show_points``, a PNG).
 
-    Returns a summary dict (pose as ``T_cam_model``, per-click residuals in px, RMS).
-    Raises :class:`mst.InputError` for bad input or a failed, diagnosed initialisation.
+    One source of the pose: ``clicks_path`` (with ``points_path`` for 'u v' clicks) or
+    ``from_pose`` (x y z yaw pitch roll; the mount from ``cfg``). Returns a summary dict (pose as
+    ``T_cam_model``, per-click residuals in px, RMS, the effective ``config``). Raises
+    :class:`mst.InputError` for bad input or a failed, diagnosed initialisation.
     """
+    cfg = cfg or InitConfig()
     import cv2
 
     from mst import atomic_output, atomic_outputs
@@ -377,7 +394,7 @@ def run_init(model_path, camera_path, out, *, clicks_path=None, points_path=None
     from mst.pipeline.tracker import check_pose_in_view, load_polygon_model
 
     if overlay_path is not None and image_path is None:
-        raise InputError(overlay_path, "--overlay needs --image (the frame to draw on)")
+        raise InputError(overlay_path, "an overlay needs the image to draw on")
     model = load_polygon_model(model_path)
     cam = read_camera(camera_path)
     img = None
@@ -390,14 +407,14 @@ def run_init(model_path, camera_path, out, *, clicks_path=None, points_path=None
     if not cam.width:
         cam = cam.with_size(int(round(2 * cam.cx + 1)), int(round(2 * cam.cy + 1)))
     K = cam.K
-    summary: dict = {"camera": cam.to_dict(), "residual_px": None}
+    summary: dict = {"camera": cam.to_dict(), "residual_px": None, "config": cfg.to_dict()}
 
     if show_points:
         pts = read_init_points(points_path) if points_path else None
         if pts is None and clicks_path:
             pts = read_clicks(clicks_path)[0]
         if pts is None:
-            raise InputError(None, "--show-points needs --points FILE.init (or clicks with 'X Y Z u v')")
+            raise InputError(None, "showing the points needs a points file (or clicks with 'X Y Z u v')")
         T = None
         if clicks_path and img is not None:
             X, uv = read_clicks(clicks_path, points_path)
@@ -416,13 +433,14 @@ def run_init(model_path, camera_path, out, *, clicks_path=None, points_path=None
 
     if from_pose is not None:
         if clicks_path:
-            raise InputError(clicks_path, "give either --clicks or --from-pose, not both")
-        T = pose_from_gps(np.array(from_pose[:3]), *from_pose[3:], mount_ypr_deg=tuple(mount), mount_offset_m=tuple(mount_offset))
+            raise InputError(clicks_path, "give either clicks or a pose guess, not both")
+        T = pose_from_gps(np.array(from_pose[:3]), *from_pose[3:], mount_ypr_deg=tuple(cfg.mount_ypr_deg),
+                          mount_offset_m=tuple(cfg.mount_offset_m))
         check_pose_in_view(model, T, cam, "--from-pose")  # the option is wrong, not the output file
         summary["source"] = "from-pose"
     else:
         if not clicks_path:
-            raise InputError(None, "give --clicks (with --points for 'u v' clicks) or --from-pose")
+            raise InputError(None, "no pose source: give clicks (with a points file for 'u v' clicks) or a pose guess")
         X, uv = read_clicks(clicks_path, points_path)
         if img is not None:
             outside = (uv[:, 0] < 0) | (uv[:, 1] < 0) | (uv[:, 0] > cam.width) | (uv[:, 1] > cam.height)
@@ -430,7 +448,7 @@ def run_init(model_path, camera_path, out, *, clicks_path=None, points_path=None
                 raise InputError(clicks_path, f"click(s) {', '.join(str(i + 1) for i in np.flatnonzero(outside))} lie outside the "
                                               f"{cam.width}x{cam.height} image")
         try:
-            res = init_from_clicks(X, uv, K, cam.dist, max_residual)
+            res = init_from_clicks(X, uv, K, cam.dist, cfg.max_residual_px)
         except ValueError as e:
             raise InputError(clicks_path, str(e)) from None
         summary.update({"source": "clicks", "uv": uv, "X_model": X, "residual_px": res.residual_px, "rms_px": res.rms_px})
@@ -442,8 +460,6 @@ def run_init(model_path, camera_path, out, *, clicks_path=None, points_path=None
     with atomic_outputs(out, overlay_path) as (tmp, tmp_ov):
         write_pose_file(tmp, T)
         if tmp_ov is not None:
-            if img is None:
-                raise InputError(overlay_path, "--overlay needs --image")
             pic = draw_model(img, model, T, K, points=summary.get("X_model"), clicks=summary.get("uv"))
             if not cv2.imwrite(str(tmp_ov), pic):
                 raise InputError(overlay_path, "could not write the overlay (use .png)")

@@ -47,6 +47,7 @@ from pathlib import Path
 import numpy as np
 
 from mst import InputError
+from mst.core.config import Config, param
 from mst.core.poses import so3_exp, so3_log
 from mst.pipeline.navfusion_kernels import kf_rts as _kf_rts
 from mst.pipeline.navfusion_kernels import mekf_attitude as _mekf
@@ -54,25 +55,26 @@ from mst.pipeline.navlog import NavLog, mount_ypr_deg_from_R
 
 
 @dataclass
-class FusionConfig:
-    """Noise model and options of :func:`fuse_navigation` (units in the names)."""
+class FusionConfig(Config):
+    """Noise model and options of :func:`fuse_navigation` (units in the names). A fixed mount
+    rotation or model-to-world transform (files, not settings) are arguments of the function."""
 
-    mode: str = "smoother"                  # smoother (offline, RTS) | filter (causal)
-    gps_sigma_h_m: float = 3.0
-    gps_sigma_v_m: float = 5.0
-    gps_bias_rw_m_per_sqrt_s: float = 0.05  # random walk of the GPS bias
-    gps_bias_sigma_m: float = 3.0           # prior of the bias left after the calibration
-    ahrs_sigma_deg: float = 3.0
-    accel_sigma_mps2: float = 1.0           # white acceleration, (m/s^2)/sqrt(Hz)
-    ang_accel_sigma_dps2: float = 2.0       # white angular acceleration, (deg/s^2)/sqrt(Hz)
-    vision_sigma_m: float = 0.05            # when no covariance is given
-    vision_sigma_deg: float = 0.3
-    huber_k: float = 3.0                    # Mahalanobis distance where Huber down-weighting starts
-    lever_arm_m: tuple[float, float, float] = (0.0, 0.0, 0.0)  # camera in the body frame
-    R_body_cam: np.ndarray | None = None    # fixed mount rotation (None: estimated)
-    T_world_model: np.ndarray | None = None  # fixed model-to-world transform (None: estimated)
-    max_world_yaw_std_deg: float = 2.0      # refuse when the fit cannot pin the model-to-world yaw
-    min_pairs: int = 10                     # GPS fixes with vision needed for the calibration
+    mode: str = param("smoother", choices=("smoother", "filter"), help="smoother: offline (RTS); filter: causal")
+    gps_sigma_h_m: float = param(3.0, min=0, min_open=True, help="GPS noise, each horizontal axis, m")
+    gps_sigma_v_m: float = param(5.0, min=0, min_open=True, help="GPS noise, vertical, m")
+    gps_bias_rw_m_per_sqrt_s: float = param(0.05, min=0, help="random walk of the GPS bias, m / sqrt(s)")
+    gps_bias_sigma_m: float = param(3.0, min=0, min_open=True, help="prior of the bias left after the calibration, m")
+    ahrs_sigma_deg: float = param(3.0, min=0, min_open=True, help="AHRS noise, deg")
+    accel_sigma_mps2: float = param(1.0, min=0, min_open=True, help="motion model: white acceleration, (m/s^2)/sqrt(Hz)")
+    ang_accel_sigma_dps2: float = param(2.0, min=0, min_open=True,
+                                        help="motion model: white angular acceleration, (deg/s^2)/sqrt(Hz)")
+    vision_sigma_m: float = param(0.05, min=0, min_open=True, help="vision noise when no covariance is given, m")
+    vision_sigma_deg: float = param(0.3, min=0, min_open=True, help="vision noise when no covariance is given, deg")
+    huber_k: float = param(3.0, min=0, min_open=True, help="Mahalanobis distance where Huber down-weighting starts")
+    lever_arm_m: tuple[float, float, float] = param((0.0, 0.0, 0.0), help="camera in the body frame, m (not estimated)")
+    max_world_yaw_std_deg: float = param(2.0, min=0, min_open=True,
+                                         help="refuse when the fit cannot pin the model-to-world yaw, deg")
+    min_pairs: int = param(10, min=1, help="GPS fixes with vision needed for the calibration")
 
 
 @dataclass
@@ -195,17 +197,18 @@ def frame_grid(t_vis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def fuse_navigation(t_vis: np.ndarray, T_vis: np.ndarray, cov_vis: np.ndarray | None, nav: NavLog,
-                    cfg: FusionConfig | None = None, nav_name: str | os.PathLike | None = None) -> FusionResult:
+                    cfg: FusionConfig | None = None, nav_name: str | os.PathLike | None = None, *,
+                    R_body_cam: np.ndarray | None = None, T_world_model: np.ndarray | None = None) -> FusionResult:
     """Fuse vision poses ``T_vis`` (K_v, 4, 4) ``T_model_cam`` at ``t_vis`` (s) having covariances
     ``cov_vis`` (K_v, 6, 6) or None (then ``cfg.vision_sigma_*``) with the log ``nav``.
 
-    Returns the fused poses at every frame of the vision time range (see :class:`FusionResult`).
+    ``R_body_cam`` (3, 3) / ``T_world_model`` (4, 4): a fixed camera-mount rotation / model-to-world
+    transform (None: estimated). Returns the fused poses at every frame of the vision time range
+    (see :class:`FusionResult`).
     Raises :class:`mst.InputError` (naming ``nav_name``) when the log does not overlap the video or
     the calibration is not observable (too few fixes, a trajectory too short to fix the yaw).
     """
     cfg = cfg or FusionConfig()
-    if cfg.mode not in ("smoother", "filter"):
-        raise InputError(None, f"unknown fusion mode {cfg.mode!r} (smoother | filter)")
     t_grid, vidx = frame_grid(np.asarray(t_vis, float))
     K = len(t_grid)
     dt_f = float(np.median(np.diff(t_grid)))
@@ -235,27 +238,27 @@ def fuse_navigation(t_vis: np.ndarray, T_vis: np.ndarray, cov_vis: np.ndarray | 
 
     # ---- 1. calibration
     use_g = pair & fix
-    if cfg.T_world_model is None and use_g.sum() < cfg.min_pairs:
+    if T_world_model is None and use_g.sum() < cfg.min_pairs:
         raise InputError(nav_name, f"only {int(use_g.sum())} GPS fixes at tracked frames (need {cfg.min_pairs}) "
                                    "to estimate the model-to-world transform")
-    if cfg.R_body_cam is None and pair.sum() < cfg.min_pairs:
+    if R_body_cam is None and pair.sum() < cfg.min_pairs:
         raise InputError(nav_name, f"only {int(pair.sum())} attitudes at tracked frames (need {cfg.min_pairs}) to estimate the mount")
-    T_wm = np.eye(4) if cfg.T_world_model is None else np.asarray(cfg.T_world_model, float)
-    R_bc = np.eye(3) if cfg.R_body_cam is None else np.asarray(cfg.R_body_cam, float)
+    T_wm = np.eye(4) if T_world_model is None else np.asarray(T_world_model, float)
+    R_bc = np.eye(3) if R_body_cam is None else np.asarray(R_body_cam, float)
     q = p_ci
     yaw_std = 0.0
     w_g = np.ones(int(use_g.sum()))
     w_a = np.ones(int(pair.sum()))
     mount_std = 0.0
     for _ in range(3):
-        if cfg.T_world_model is None:
+        if T_world_model is None:
             T_wm, w_g, yaw_std = fit_world_from_model_4dof(q[use_g], g_w[use_g], sig, cfg.huber_k)
-        if cfg.R_body_cam is None:
+        if R_body_cam is None:
             R_cb_j = np.swapaxes(R_ci[pair], -1, -2) @ T_wm[:3, :3].T[None] @ R_wb[pair]
             R_cb, w_a, mount_std = robust_rotation_mean(R_cb_j, s_ahrs, cfg.huber_k)
             R_bc = R_cb.T
         q = p_ci - np.einsum("nij,j->ni", R_ci @ R_bc.T[None], lever)
-    if cfg.T_world_model is None and np.degrees(yaw_std) > cfg.max_world_yaw_std_deg:
+    if T_world_model is None and np.degrees(yaw_std) > cfg.max_world_yaw_std_deg:
         raise InputError(nav_name, f"the tracked trajectory spans too little ground for the GPS noise to fix the "
                                    f"model-to-world yaw (std {np.degrees(yaw_std):.1f} deg); give the transform")
     R_wm, t_wm = T_wm[:3, :3], T_wm[:3, 3]
