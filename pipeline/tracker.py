@@ -718,7 +718,8 @@ def _make_aid(mode: str, cam, config: TrackerConfig, depth_dir, depth_camera, T_
     except ImportError:
         notes.append(f"SLAM aid '{mode}' unavailable (mst.pipeline.slam not installed): edges only")
         return None, "off"
-    aid = slam.make_aid(mode, cam, config_to_dict(config), depth_dir, depth_camera, T_depth_color)
+    # TrackerConfig has no slam section yet: the aid's defaults (H3's TrackConfig passes cfg.slam, cfg.depth)
+    aid = slam.make_aid(mode, cam, {}, depth_dir, depth_camera, T_depth_color)
     return aid, "mono-standby" if mode == "standby" else mode
 
 
