@@ -28,7 +28,7 @@ import numpy as np
 
 from mst import InputError
 from mst.core.config import Config, param
-from mst.core.poses import inv_T, so3_exp, so3_log
+from mst.core.poses import inv_T, so3_exp, so3_log, transform_points
 
 
 @dataclass
@@ -216,9 +216,9 @@ def auto_init(gray: np.ndarray, model, camera, T_cam_model_guess: np.ndarray, cf
     s_best = samples(T_best)
     second = None
     for f, Tc, _ in cands[1:]:
-        Xc = s_best.X_model @ Tc[:3, :3].T + Tc[:3, 3]
+        Xc = transform_points(Tc, s_best.X_model)
         ok = Xc[:, 2] > 1e-6
-        uv = (Xc[ok] @ K.T)[:, :2] / Xc[ok, 2:3]
+        uv = (Xc[ok] @ K.T)[:, :2] / Xc[ok, 2:3]  # K-matrix form, as visible_samples' uv (not Camera.project's op order)
         if not ok.any() or np.linalg.norm(uv - s_best.uv[ok], axis=1).mean() > cfg.dt_max_px:
             second = f
             break

@@ -22,6 +22,7 @@ import numpy as np
 
 from mst import InputError
 from mst.core.config import Config, param, section
+from mst.core.poses import transform_points
 from mst.pipeline.autoinit import AutoInitConfig
 
 #: largest accepted model coordinate (metres) and pixel coordinate of a click: beyond these the
@@ -141,9 +142,14 @@ def read_clicks(path: str | os.PathLike, points_path: str | os.PathLike | None =
 
 
 def project(T_cam_model: np.ndarray, K: np.ndarray, X: np.ndarray) -> np.ndarray:
-    """(N,3) model points -> (N,2) pixels (no distortion)."""
-    Xc = X @ T_cam_model[:3, :3].T + T_cam_model[:3, 3]
-    return Xc[:, :2] / Xc[:, 2:3] * [K[0, 0], K[1, 1]] + K[:2, 2]
+    """(N,3) model points -> (N,2) pixels (no distortion): :meth:`Camera.project` of the pinhole ``K``."""
+    return _pinhole(K).project(transform_points(T_cam_model, X))
+
+
+def _pinhole(K: np.ndarray):
+    from mst.core.camera import Camera
+
+    return Camera(K[0, 0], K[1, 1], K[0, 2], K[1, 2])
 
 
 def _T_from_rt(rvec, tvec) -> np.ndarray:
@@ -324,12 +330,11 @@ def draw_model(bgr: np.ndarray, model, T_cam_model: np.ndarray, K: np.ndarray, n
     out = bgr.copy()
     E = model.edges()
     V = np.asarray(model.vertices)
-    A = V[E[:, 0]] @ T_cam_model[:3, :3].T + T_cam_model[:3, 3]
-    B = V[E[:, 1]] @ T_cam_model[:3, :3].T + T_cam_model[:3, 3]
+    A = transform_points(T_cam_model, V[E[:, 0]])
+    B = transform_points(T_cam_model, V[E[:, 1]])
     A, B, keep, _, _ = _clip_near_far(A, B, near, 1e12)
     A, B = A[keep], B[keep]
-    pa = A[:, :2] / A[:, 2:3] * [K[0, 0], K[1, 1]] + K[:2, 2]
-    pb = B[:, :2] / B[:, 2:3] * [K[0, 0], K[1, 1]] + K[:2, 2]
+    pa, pb = _pinhole(K).project(A), _pinhole(K).project(B)
     lim = 1e5
     for a, b in zip(np.clip(pa, -lim, lim), np.clip(pb, -lim, lim)):
         cv2.line(out, (int(a[0]), int(a[1])), (int(b[0]), int(b[1])), color, 1, cv2.LINE_AA)

@@ -48,7 +48,7 @@ import numpy as np
 
 from mst import InputError
 from mst.core.config import Config, param
-from mst.core.poses import so3_exp, so3_log
+from mst.core.poses import so3_exp, so3_log, transform_points
 from mst.pipeline.navfusion_kernels import kf_rts as _kf_rts
 from mst.pipeline.navfusion_kernels import mekf_attitude as _mekf
 from mst.pipeline.navlog import NavLog, mount_ypr_deg_from_R
@@ -172,7 +172,7 @@ def fit_world_from_model_4dof(q_model: np.ndarray, g_world: np.ndarray, sig: np.
         T = np.eye(4)
         T[:3, :3] = R
         T[:3, 3] = gc - R @ qc
-        r = (q_model @ R.T + T[:3, 3] - g_world) / sig
+        r = (transform_points(T, q_model) - g_world) / sig
         d = np.linalg.norm(r, axis=1)
         w = np.where(d > k, k / np.maximum(d, 1e-12), 1.0)
     spread = np.sqrt(np.sum(w * np.sum((q_model[:, :2] - (w / w.sum()) @ q_model[:, :2]) ** 2, axis=1)))

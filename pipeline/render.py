@@ -39,6 +39,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from mst.core.camera import Camera
+from mst.core.poses import transform_points
 
 INVALID = np.uint32(0xFFFFFFFF)
 
@@ -184,7 +185,7 @@ class Renderer:
         """
         T = np.asarray(T_cam_model, np.float64)
         X = np.asarray(X_model, np.float64).reshape(-1, 3)
-        Xc = X @ T[:3, :3].T + T[:3, 3]
+        Xc = transform_points(T, X)
         z = Xc[:, 2]
         ok = z > 1e-9
         out = np.zeros(len(X), bool)
