@@ -196,19 +196,30 @@ def frame_grid(t_vis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return t, idx
 
 
-def fuse_navigation(t_vis: np.ndarray, T_vis: np.ndarray, cov_vis: np.ndarray | None, nav: NavLog,
-                    cfg: FusionConfig | None = None, nav_name: str | os.PathLike | None = None, *,
-                    R_body_cam: np.ndarray | None = None, T_world_model: np.ndarray | None = None) -> FusionResult:
-    """Fuse vision poses ``T_vis`` (K_v, 4, 4) ``T_model_cam`` at ``t_vis`` (s) having covariances
-    ``cov_vis`` (K_v, 6, 6) or None (then ``cfg.vision_sigma_*``) with the log ``nav``.
+@dataclass
+class _Aligned:
+    """The vision frame grid and the nav rows inside it, with the vision interpolated at nav times."""
 
-    ``R_body_cam`` (3, 3) / ``T_world_model`` (4, 4): a fixed camera-mount rotation / model-to-world
-    transform (None: estimated). Returns the fused poses at every frame of the vision time range
-    (see :class:`FusionResult`).
-    Raises :class:`mst.InputError` (naming ``nav_name``) when the log does not overlap the video or
-    the calibration is not observable (too few fixes, a trajectory too short to fix the yaw).
-    """
-    cfg = cfg or FusionConfig()
+    t_grid: np.ndarray      #: (K,) frame times, s
+    vidx: np.ndarray        #: grid index of each vision pose
+    K: int
+    dt_f: float             #: frame interval, s
+    has_vis: np.ndarray     #: (K,) bool
+    Tg: np.ndarray          #: (K, 4, 4) vision poses on the grid (identity where none)
+    tn: np.ndarray          #: nav times in the grid's range
+    fix: np.ndarray         #: their GPS fix flags
+    R_wb: np.ndarray        #: their platform attitudes
+    g_w: np.ndarray         #: their GPS positions (world)
+    pair: np.ndarray        #: both neighbouring frames of the nav row tracked
+    p_ci: np.ndarray        #: vision position interpolated at the nav times
+    R_ci: np.ndarray        #: vision rotation interpolated at the nav times
+    k_a: np.ndarray         #: nearest frame of each nav row
+    dtau_a: np.ndarray      #: its time from that frame, s
+    dts: np.ndarray         #: (K,) frame steps, s (0 first)
+
+
+def _align(t_vis: np.ndarray, T_vis: np.ndarray, nav: NavLog, nav_name) -> _Aligned:
+    """The frame grid of the vision times and the nav rows within it (refused when they do not overlap)."""
     t_grid, vidx = frame_grid(np.asarray(t_vis, float))
     K = len(t_grid)
     dt_f = float(np.median(np.diff(t_grid)))
@@ -216,8 +227,6 @@ def fuse_navigation(t_vis: np.ndarray, T_vis: np.ndarray, cov_vis: np.ndarray | 
     has_vis[vidx] = True
     Tg = np.tile(np.eye(4), (K, 1, 1))
     Tg[vidx] = T_vis
-    if cov_vis is None:
-        cov_vis = np.tile(np.diag([cfg.vision_sigma_m**2] * 3 + [np.radians(cfg.vision_sigma_deg) ** 2] * 3), (len(t_vis), 1, 1))
     lo, hi = max(t_grid[0], nav.t[0]), min(t_grid[-1], nav.t[-1])
     if hi <= lo:
         raise InputError(nav_name, f"time range {nav.t[0]:.3f}-{nav.t[-1]:.3f} s does not overlap the video "
@@ -232,11 +241,24 @@ def fuse_navigation(t_vis: np.ndarray, T_vis: np.ndarray, cov_vis: np.ndarray | 
     p_ci = (1 - a)[:, None] * Tg[j, :3, 3] + a[:, None] * Tg[j + 1, :3, 3]
     dR = so3_log(np.swapaxes(Tg[j, :3, :3], -1, -2) @ Tg[j + 1, :3, :3])
     R_ci = Tg[j, :3, :3] @ so3_exp(a[:, None] * dR)
+    k_a = np.clip(np.round((tn - t_grid[0]) / dt_f).astype(np.int64), 0, K - 1)
+    dtau_a = tn - t_grid[k_a]
+    dts = np.diff(t_grid, prepend=t_grid[0])
+    return _Aligned(t_grid, vidx, K, dt_f, has_vis, Tg, tn, fix, R_wb, g_w, pair, p_ci, R_ci, k_a, dtau_a, dts)
+
+
+def _noise(cfg: FusionConfig) -> tuple[np.ndarray, np.ndarray, float]:
+    """(lever arm (3,), GPS sigma per axis (3,), AHRS sigma rad) of ``cfg``."""
     lever = np.asarray(cfg.lever_arm_m, float)
     sig = np.array([cfg.gps_sigma_h_m, cfg.gps_sigma_h_m, cfg.gps_sigma_v_m])
     s_ahrs = np.radians(cfg.ahrs_sigma_deg)
+    return lever, sig, s_ahrs
 
-    # ---- 1. calibration
+
+def _calibrate(al: _Aligned, cfg: FusionConfig, R_body_cam, T_world_model, nav_name):
+    """Model-to-world transform and camera mount (fixed ones kept), robust, with their spreads."""
+    pair, fix, p_ci, g_w, R_ci, R_wb = al.pair, al.fix, al.p_ci, al.g_w, al.R_ci, al.R_wb
+    lever, sig, s_ahrs = _noise(cfg)
     use_g = pair & fix
     if T_world_model is None and use_g.sum() < cfg.min_pairs:
         raise InputError(nav_name, f"only {int(use_g.sum())} GPS fixes at tracked frames (need {cfg.min_pairs}) "
@@ -261,13 +283,16 @@ def fuse_navigation(t_vis: np.ndarray, T_vis: np.ndarray, cov_vis: np.ndarray | 
     if T_world_model is None and np.degrees(yaw_std) > cfg.max_world_yaw_std_deg:
         raise InputError(nav_name, f"the tracked trajectory spans too little ground for the GPS noise to fix the "
                                    f"model-to-world yaw (std {np.degrees(yaw_std):.1f} deg); give the transform")
-    R_wm, t_wm = T_wm[:3, :3], T_wm[:3, 3]
+    return T_wm, R_bc, yaw_std, mount_std, w_g, w_a
 
-    # ---- 2a. attitude smoother
+
+def _fuse_attitude(al: _Aligned, T_vis, cov_vis, R_wm, R_bc, cfg: FusionConfig):
+    """Per-frame camera rotations from vision + AHRS: batch smoother (+ KF/RTS covariances), or the
+    causal multiplicative EKF. Returns ``(R (K, 3, 3), covariances, measurement weights)``."""
+    t_grid, vidx, K, dt_f, has_vis, Tg = al.t_grid, al.vidx, al.K, al.dt_f, al.has_vis, al.Tg
+    tn, R_wb, k_a, dtau_a, dts = al.tn, al.R_wb, al.k_a, al.dtau_a, al.dts
+    s_ahrs = np.radians(cfg.ahrs_sigma_deg)
     R_mc_ahrs = R_wm.T[None] @ R_wb @ R_bc[None]
-    k_a = np.clip(np.round((tn - t_grid[0]) / dt_f).astype(np.int64), 0, K - 1)
-    dtau_a = tn - t_grid[k_a]
-    dts = np.diff(t_grid, prepend=t_grid[0])
     F6, Q6 = _cv_model(dts, np.radians(cfg.ang_accel_sigma_dps2) ** 2)
     steps_r = np.concatenate([vidx, k_a])
     R_meas = np.concatenate([T_vis[:, :3, :3], R_mc_ahrs])
@@ -307,9 +332,15 @@ def fuse_navigation(t_vis: np.ndarray, T_vis: np.ndarray, cov_vis: np.ndarray | 
                                   cfg.huber_k)
         wr = np.empty_like(w_o)
         wr[order] = w_o
-    R_fused = R_ref
+    return R_ref, Pr, wr
 
-    # ---- 2b. position smoother
+
+def _fuse_position(al: _Aligned, T_vis, cov_vis, R_fused, R_wm, t_wm, R_bc, cfg: FusionConfig):
+    """Per-frame camera positions and the GPS bias from vision + GPS (smoother or causal filter).
+    Returns ``(states (K, 9), covariances, measurement weights, used GPS rows)``."""
+    fix, g_w, k_a, dtau_a, dts, vidx = al.fix, al.g_w, al.k_a, al.dtau_a, al.dts, al.vidx
+    lever, sig, _ = _noise(cfg)
+    smooth = cfg.mode == "smoother"
     gi = np.flatnonzero(fix)
     g_m = (g_w[gi] - t_wm) @ R_wm  # = R_wm^T (g - t)
     g_cam = g_m + np.einsum("nij,j->ni", R_fused[k_a[gi]] @ R_bc.T[None], lever)  # antenna -> camera
@@ -326,7 +357,31 @@ def fuse_navigation(t_vis: np.ndarray, T_vis: np.ndarray, cov_vis: np.ndarray | 
     x0[:3] = T_vis[0, :3, 3] if vidx[0] == 0 else (g_cam[0] if len(gi) else T_vis[0, :3, 3])
     P0 = np.diag([100.0**2] * 3 + [30.0**2] * 3 + [cfg.gps_bias_sigma_m**2] * 3)
     xp_, Pp_, wp = _run_kf(F9, Q9, x0, P0, steps_p, z_p, H_p, C_p, cfg.huber_k, smooth, smooth)
+    return xp_, Pp_, wp, gi
 
+
+def fuse_navigation(t_vis: np.ndarray, T_vis: np.ndarray, cov_vis: np.ndarray | None, nav: NavLog,
+                    cfg: FusionConfig | None = None, nav_name: str | os.PathLike | None = None, *,
+                    R_body_cam: np.ndarray | None = None, T_world_model: np.ndarray | None = None) -> FusionResult:
+    """Fuse vision poses ``T_vis`` (K_v, 4, 4) ``T_model_cam`` at ``t_vis`` (s) having covariances
+    ``cov_vis`` (K_v, 6, 6) or None (then ``cfg.vision_sigma_*``) with the log ``nav``.
+
+    ``R_body_cam`` (3, 3) / ``T_world_model`` (4, 4): a fixed camera-mount rotation / model-to-world
+    transform (None: estimated). Returns the fused poses at every frame of the vision time range
+    (see :class:`FusionResult`).
+    Raises :class:`mst.InputError` (naming ``nav_name``) when the log does not overlap the video or
+    the calibration is not observable (too few fixes, a trajectory too short to fix the yaw).
+    """
+    cfg = cfg or FusionConfig()
+    if cov_vis is None:
+        cov_vis = np.tile(np.diag([cfg.vision_sigma_m**2] * 3 + [np.radians(cfg.vision_sigma_deg) ** 2] * 3), (len(t_vis), 1, 1))
+    al = _align(t_vis, T_vis, nav, nav_name)
+    T_wm, R_bc, yaw_std, mount_std, w_g, w_a = _calibrate(al, cfg, R_body_cam, T_world_model, nav_name)
+    R_wm, t_wm = T_wm[:3, :3], T_wm[:3, 3]
+    R_fused, Pr, wr = _fuse_attitude(al, T_vis, cov_vis, R_wm, R_bc, cfg)
+    xp_, Pp_, wp, gi = _fuse_position(al, T_vis, cov_vis, R_fused, R_wm, t_wm, R_bc, cfg)
+    lever = np.asarray(cfg.lever_arm_m, float)
+    K, vidx, tn, t_grid, has_vis = al.K, al.vidx, al.tn, al.t_grid, al.has_vis
     T_out = np.tile(np.eye(4), (K, 1, 1))
     T_out[:, :3, :3] = R_fused
     T_out[:, :3, 3] = xp_[:, :3]
