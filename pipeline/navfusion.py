@@ -38,11 +38,8 @@ Estimator, in two stages:
 
 from __future__ import annotations
 
-import csv
-import io
 import os
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
@@ -479,49 +476,3 @@ def _interp_R(t_grid: np.ndarray, R: np.ndarray, tau: np.ndarray) -> np.ndarray:
     j = np.clip(np.searchsorted(t_grid, tau) - 1, 0, K - 2)
     a = np.clip((tau - t_grid[j]) / (t_grid[j + 1] - t_grid[j]), 0.0, 1.0)
     return R[j] @ so3_exp(a[:, None] * so3_log(np.swapaxes(R[j], -1, -2) @ R[j + 1]))
-
-
-# ------------------------------------------------------------------------------ covariance side files
-COV_COLS = [f"c{i}{j}" for i in range(6) for j in range(6)]
-
-
-def cov_path_for(traj_path: str | os.PathLike) -> Path:
-    """``traj.txt`` -> ``traj.cov.csv``."""
-    p = Path(traj_path)
-    return p.with_name(p.stem + ".cov.csv")
-
-
-def format_cov_csv(t: np.ndarray, cov: np.ndarray, source: np.ndarray | None = None) -> str:
-    """CSV text: ``t[,source],c00..c55`` (row-major 6x6, convention in the module docstring)."""
-    out = io.StringIO()
-    out.write("# pose covariance: (x y z [m, model frame], rx ry rz [rad, model-frame perturbation R = exp(r) R_est])\n")
-    out.write(",".join(["t"] + (["source"] if source is not None else []) + COV_COLS) + "\n")
-    flat = cov.reshape(len(t), 36)
-    for i, ti in enumerate(t):
-        out.write(f"{ti:.6f}," + (f"{source[i]}," if source is not None else "") + ",".join(f"{v:.6e}" for v in flat[i]) + "\n")
-    return out.getvalue()
-
-
-def read_cov_csv(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
-    """Read a covariance side file: (t (N,), cov (N, 6, 6)); checks symmetry and positive diagonals."""
-    p = Path(path)
-    if not p.is_file():
-        raise InputError(p, "covariance file does not exist")
-    rows = [r for r in csv.reader(io.StringIO(p.read_text())) if r and not r[0].lstrip().startswith("#")]
-    if len(rows) < 2:
-        raise InputError(p, "covariance file needs a header row and rows")
-    hdr = [h.strip() for h in rows[0]]
-    miss = [c for c in ["t"] + COV_COLS if c not in hdr]
-    if miss:
-        raise InputError(p, f"missing column(s) {', '.join(miss[:4])}{' ...' if len(miss) > 4 else ''}")
-    idx = [hdr.index(c) for c in ["t"] + COV_COLS]
-    try:
-        a = np.array([[float(r[i]) for i in idx] for r in rows[1:]])
-    except (ValueError, IndexError):
-        raise InputError(p, "not a number or a short row") from None
-    if not np.isfinite(a).all():
-        raise InputError(p, "covariance holds NaN or infinite values")
-    C = a[:, 1:].reshape(-1, 6, 6)
-    if np.abs(C - np.swapaxes(C, 1, 2)).max() > 1e-9 * max(1.0, np.abs(C).max()) or (np.einsum("nii->ni", C) <= 0).any():
-        raise InputError(p, "covariances must be symmetric with positive diagonals")
-    return a[:, 0], C

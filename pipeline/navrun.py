@@ -1,10 +1,11 @@
 """Runners of ``mst nav simulate`` and ``mst nav fuse``: read the files, call the cores
 (:func:`~mst.pipeline.navlog.simulate_nav`, :func:`~mst.pipeline.navfusion.fuse_navigation`),
-write the outputs atomically, return the summary."""
+write the outputs atomically, return the summary; the pose-covariance side files (``.cov.csv``)."""
 
 from __future__ import annotations
 
 import csv
+import io
 import json
 import os
 from pathlib import Path
@@ -12,8 +13,52 @@ from pathlib import Path
 import numpy as np
 
 from mst import InputError, atomic_outputs
-from mst.pipeline.navfusion import FusionConfig, cov_path_for, format_cov_csv, fuse_navigation, read_cov_csv
+from mst.pipeline.navfusion import FusionConfig, fuse_navigation
 from mst.pipeline.navlog import NavSimConfig
+
+COV_COLS = [f"c{i}{j}" for i in range(6) for j in range(6)]
+
+
+def cov_path_for(traj_path: str | os.PathLike) -> Path:
+    """``traj.txt`` -> ``traj.cov.csv``."""
+    p = Path(traj_path)
+    return p.with_name(p.stem + ".cov.csv")
+
+
+def format_cov_csv(t: np.ndarray, cov: np.ndarray, source: np.ndarray | None = None) -> str:
+    """CSV text: ``t[,source],c00..c55`` (row-major 6x6, convention in the module docstring)."""
+    out = io.StringIO()
+    out.write("# pose covariance: (x y z [m, model frame], rx ry rz [rad, model-frame perturbation R = exp(r) R_est])\n")
+    out.write(",".join(["t"] + (["source"] if source is not None else []) + COV_COLS) + "\n")
+    flat = cov.reshape(len(t), 36)
+    for i, ti in enumerate(t):
+        out.write(f"{ti:.6f}," + (f"{source[i]}," if source is not None else "") + ",".join(f"{v:.6e}" for v in flat[i]) + "\n")
+    return out.getvalue()
+
+
+def read_cov_csv(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
+    """Read a covariance side file: (t (N,), cov (N, 6, 6)); checks symmetry and positive diagonals."""
+    p = Path(path)
+    if not p.is_file():
+        raise InputError(p, "covariance file does not exist")
+    rows = [r for r in csv.reader(io.StringIO(p.read_text())) if r and not r[0].lstrip().startswith("#")]
+    if len(rows) < 2:
+        raise InputError(p, "covariance file needs a header row and rows")
+    hdr = [h.strip() for h in rows[0]]
+    miss = [c for c in ["t"] + COV_COLS if c not in hdr]
+    if miss:
+        raise InputError(p, f"missing column(s) {', '.join(miss[:4])}{' ...' if len(miss) > 4 else ''}")
+    idx = [hdr.index(c) for c in ["t"] + COV_COLS]
+    try:
+        a = np.array([[float(r[i]) for i in idx] for r in rows[1:]])
+    except (ValueError, IndexError):
+        raise InputError(p, "not a number or a short row") from None
+    if not np.isfinite(a).all():
+        raise InputError(p, "covariance holds NaN or infinite values")
+    C = a[:, 1:].reshape(-1, 6, 6)
+    if np.abs(C - np.swapaxes(C, 1, 2)).max() > 1e-9 * max(1.0, np.abs(C).max()) or (np.einsum("nii->ni", C) <= 0).any():
+        raise InputError(p, "covariances must be symmetric with positive diagonals")
+    return a[:, 0], C
 
 
 def simulate_nav_files(gt_path, out_path, cfg: NavSimConfig) -> dict:
