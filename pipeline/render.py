@@ -30,6 +30,10 @@ once and cached on disk), so the only multi-threaded part is Embree (``nthreads`
 Speed (``mst.eval.bench_synth``, 640x480 orbit of the sample house, colour + depth, one thread of
 this project's shared 2-core machine): about 41 ms of CPU per frame with 16 edge rays, 35 ms with 8
 (ray casting ~18 ms of it, shading ~15 ms); the numpy version before the kernels took 73 ms.
+
+Size (~520 lines): one class hierarchy (:class:`Renderer` and the :class:`ShadedRenderer` built on
+its ray set-up) with the materials and lights it shades with; its per-pixel kernels are already
+apart (``render_kernels``). Imports numpy, Open3D (lazily), :mod:`mst.core` and ``textures``.
 """
 
 from __future__ import annotations
