@@ -295,13 +295,13 @@ def run_autoinit(model_path, camera_path, out, nav_path, image_path, *, nav_time
     from mst import atomic_outputs
     from mst.core.camera import read_camera
     from mst.core.poses import write_pose_file
+    from mst.meshtools.formats import load_tracking_model
     from mst.pipeline.init_pose import InitConfig, _read_image, draw_model
-    from mst.pipeline.tracker import load_polygon_model
 
     cfg = cfg or InitConfig()
     if image_path is None:
         raise InputError(None, "searching the pose needs the image (the frame to search the model in)")
-    model = load_polygon_model(model_path)
+    model = load_tracking_model(model_path)
     cam = read_camera(camera_path)
     img = _read_image(image_path)
     h, w = img.shape[:2]

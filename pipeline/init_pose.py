@@ -381,6 +381,36 @@ def _read_image(path) -> np.ndarray:
     raise InputError(path, "no frame could be read")
 
 
+def _write_points_picture(out, model, cam, img, clicks_path, points_path, summary: dict) -> dict:
+    """``--show-points``: the model with its numbered points, drawn with the clicked pose on the image
+    (when clicks and the image are given) or from a default view on white, written to ``out``."""
+    import cv2
+
+    from mst import atomic_output
+
+    K = cam.K
+    pts = read_init_points(points_path) if points_path else None
+    if pts is None and clicks_path:
+        pts = read_clicks(clicks_path)[0]
+    if pts is None:
+        raise InputError(None, "showing the points needs a points file (or clicks with 'X Y Z u v')")
+    T = None
+    if clicks_path and img is not None:
+        X, uv = read_clicks(clicks_path, points_path)
+        T = solve_pnp(X, uv, K, cam.dist)
+    if T is None:
+        T = _default_view(model, K, cam.width, cam.height)
+        canvas = np.full((cam.height, cam.width, 3), 255, np.uint8)
+    else:
+        canvas = img
+    pic = draw_model(canvas, model, T, K, color=(200, 80, 0), points=pts, numbers=True)
+    with atomic_output(out) as tmp:
+        if not cv2.imwrite(str(tmp), pic):
+            raise InputError(out, "could not write the picture (use .png)")
+    summary.update({"picture": str(out), "points": pts})
+    return summary
+
+
 def run_init(model_path, camera_path, out, *, clicks_path=None, points_path=None, from_pose=None,
              image_path=None, overlay_path=None, show_points: bool = False, cfg: InitConfig | None = None) -> dict:
     """The ``mst init`` stage: write the pose file ``out`` (or, with ``show_points``, a PNG).
@@ -393,14 +423,15 @@ def run_init(model_path, camera_path, out, *, clicks_path=None, points_path=None
     cfg = cfg or InitConfig()
     import cv2
 
-    from mst import atomic_output, atomic_outputs
+    from mst import atomic_outputs
     from mst.core.camera import read_camera
     from mst.core.poses import write_pose_file
-    from mst.pipeline.tracker import check_pose_in_view, load_polygon_model
+    from mst.meshtools.formats import load_tracking_model
+    from mst.pipeline.tracker import check_pose_in_view
 
     if overlay_path is not None and image_path is None:
         raise InputError(overlay_path, "an overlay needs the image to draw on")
-    model = load_polygon_model(model_path)
+    model = load_tracking_model(model_path)
     cam = read_camera(camera_path)
     img = None
     if image_path is not None:
@@ -415,26 +446,7 @@ def run_init(model_path, camera_path, out, *, clicks_path=None, points_path=None
     summary: dict = {"camera": cam.to_dict(), "residual_px": None, "config": cfg.to_dict()}
 
     if show_points:
-        pts = read_init_points(points_path) if points_path else None
-        if pts is None and clicks_path:
-            pts = read_clicks(clicks_path)[0]
-        if pts is None:
-            raise InputError(None, "showing the points needs a points file (or clicks with 'X Y Z u v')")
-        T = None
-        if clicks_path and img is not None:
-            X, uv = read_clicks(clicks_path, points_path)
-            T = solve_pnp(X, uv, K, cam.dist)
-        if T is None:
-            T = _default_view(model, K, cam.width, cam.height)
-            canvas = np.full((cam.height, cam.width, 3), 255, np.uint8)
-        else:
-            canvas = img
-        pic = draw_model(canvas, model, T, K, color=(200, 80, 0), points=pts, numbers=True)
-        with atomic_output(out) as tmp:
-            if not cv2.imwrite(str(tmp), pic):
-                raise InputError(out, "could not write the picture (use .png)")
-        summary.update({"picture": str(out), "points": pts})
-        return summary
+        return _write_points_picture(out, model, cam, img, clicks_path, points_path, summary)
 
     if from_pose is not None:
         if clicks_path:
