@@ -5,7 +5,7 @@ Frames: ``T_cam_model`` (model -> camera, camera x right, y down, z forward), me
 1. Edges of the image (Canny on the 8-bit gray frame) and their distance transform ``D`` (px),
    truncated at ``dt_max_px``.
 2. Score of a pose: the mean of ``min(D, dt_max) / dt_max`` at the model's visible edge samples
-   (:func:`mst.pipeline.visibility.visible_samples`, hidden lines removed), 1 when fewer than
+   (:func:`mst.pipeline.tracking.visibility.visible_samples`, hidden lines removed), 1 when fewer than
    ``min_samples`` are visible. 0 = every projected edge on an image edge.
 3. Coarse: ``n_coarse`` quasi-random (Halton) perturbations of the guess in the box position
    +- n_sigma * pos_sigma (model axes) and attitude +- n_sigma * att_sigma (model-frame rotation
@@ -104,11 +104,12 @@ def auto_init(gray: np.ndarray, model, camera, T_cam_model_guess: np.ndarray, cf
     """Search the pose of ``model`` in the 8-bit ``gray`` image around ``T_cam_model_guess``."""
     import cv2
 
-    from mst.pipeline.settings import TrackerConfig
-    from mst.pipeline.visibility import ModelGeometry, visible_samples
+    from mst.pipeline.tracking.config import TrackConfig
+    from mst.pipeline.tracking.visibility import ModelGeometry, visible_samples
 
     cfg = cfg or AutoInitConfig()
-    tc = tracker_cfg or TrackerConfig()
+    tc = tracker_cfg or TrackConfig()
+    te = tc.edges
     H, W = gray.shape[:2]
     K = camera.K
     edges = cv2.Canny(cv2.GaussianBlur(gray, (3, 3), 0), cfg.canny_low, cfg.canny_high)
@@ -116,14 +117,14 @@ def auto_init(gray: np.ndarray, model, camera, T_cam_model_guess: np.ndarray, cf
     D = np.minimum(D, cfg.dt_max_px) / cfg.dt_max_px
     geom = ModelGeometry.from_model(model)
 
-    from mst.pipeline.settings import scene_near_m
+    from mst.pipeline.tracking.config import scene_near_m
 
-    near_m = scene_near_m(geom.vertices, T_cam_model_guess, tc.near_clip)  # fixed at the guess, as the tracker does
+    near_m = scene_near_m(geom.vertices, T_cam_model_guess, te.near_clip_m)  # fixed at the guess, as the tracker does
 
     def samples(T_cam_model):
-        return visible_samples(geom, T_cam_model, K, W, H, cfg.sample_step_px, near_m, tc.far_clip,
-                               tc.angle_appear, tc.angle_disappear, None, border_px=2.0, hidden_lines=tc.hidden_lines,
-                               zbuffer_scale=tc.zbuffer_scale)
+        return visible_samples(geom, T_cam_model, K, W, H, cfg.sample_step_px, near_m, te.far_clip_m,
+                               te.angle_appear_deg, te.angle_disappear_deg, None, border_px=2.0,
+                               hidden_lines=te.hidden_lines, zbuffer_scale=te.zbuffer_scale)
 
     def score_many(T_mc: np.ndarray) -> np.ndarray:
         out = np.ones(len(T_mc))
@@ -159,7 +160,7 @@ def auto_init(gray: np.ndarray, model, camera, T_cam_model_guess: np.ndarray, cf
     # refine every kept candidate with the edge tracker (moving edges + robust VVS, as on a first
     # frame) and score the refined poses: the true pose then lands on the image edges (score ~0.05),
     # a wrong basin does not; refined poses that leave the search box or are unhealthy are dropped
-    from mst.pipeline.tracker import EdgeTracker
+    from mst.pipeline.tracking import EdgeTracker
 
     tr = EdgeTracker(model, camera, tc)
     cands = []
@@ -254,7 +255,7 @@ def run_autoinit(model_path, camera_path, out, nav_path, image_path, *, nav_time
     from mst.core.camera import read_camera
     from mst.core.poses import write_pose_file
     from mst.pipeline.init_pose import _read_image, draw_model
-    from mst.pipeline.tracker import load_polygon_model
+    from mst.pipeline.tracking import load_polygon_model
 
     if image_path is None:
         raise InputError(None, "--from-nav needs --image (the frame to search the model in)")

@@ -56,8 +56,8 @@ def test_teabox_last_frame_edges_supported(teabox_run):
     import cv2
 
     from mst.pipeline.frames import open_frames
-    from mst.pipeline.tracker import load_polygon_model
-    from mst.pipeline.visibility import ModelGeometry, visible_samples
+    from mst.pipeline.tracking import load_polygon_model
+    from mst.pipeline.tracking.visibility import ModelGeometry, visible_samples
 
     t, d, out, s = teabox_run
     _, T_model_cam = read_tum(out)
@@ -231,7 +231,7 @@ def test_synth_orbit_accuracy(tmp_path, mst):
 def test_slam_aid_hook_contract(shared_data, tmp_path, monkeypatch):
     """The tracker calls the aid as in the cross-helper contract and writes its poses/statuses."""
     from mst.pipeline import slam as slam_mod
-    from mst.pipeline.tracker import run_track
+    from mst.pipeline.tracking import TrackConfig, run_track
 
     calls = []
 
@@ -261,7 +261,7 @@ def test_slam_aid_hook_contract(shared_data, tmp_path, monkeypatch):
     X, uv = read_clicks(t / "teabox.clicks", t / "teabox.init")
     write_pose_file(tmp_path / "p0.txt", init_from_clicks(X, uv, read_camera(t / "teabox.xml").K).T_cam_model)
     out = tmp_path / "traj.txt"
-    s = run_track(t / "teabox.mp4", t / "teabox.cao", t / "teabox.xml", tmp_path / "p0.txt", out, frames="0:6", slam="auto")
+    s = run_track(t / "teabox.mp4", t / "teabox.cao", t / "teabox.xml", tmp_path / "p0.txt", out, TrackConfig(aid="auto"), frames="0:6")
     # auto without --depth = the mono aid on standby (edges + KLT until the edges weaken)
     assert made == {"mode": "standby", "w": 640, "cfg": True, "depth_dir": None}
     assert s["tracked"] == 6 and s["slam"] == 1 and s["aid"] == "mono-standby" and s["config"]["use_klt"]
