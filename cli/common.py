@@ -140,8 +140,11 @@ def config_options(presets: bool = False):
     command override ``--set``, which overrides the file, which overrides the preset."""
 
     def deco(f):
+        f = click.option("--show-config", is_flag=True, is_eager=True, expose_value=False, callback=_show_config,
+                         help="List every setting of this command (dotted name, default, help), its "
+                              "presets, and exit.")(f)
         f = click.option("--set", "set_values", multiple=True, metavar="KEY=VALUE",
-                         help="Set one setting by its dotted name (e.g. slam.fb_max_px=2); repeatable; "
+                         help="Set one setting by its dotted name (e.g. slam.klt.fb_max_px=2); repeatable; "
                               "overrides --config. `mst <command> --show-config` lists them.")(f)
         f = click.option("--config", "config_file", type=click.Path(dir_okay=False), default=None,
                          help="Settings file (.yaml/.yml/.json), e.g. the 'config' block of an earlier "
@@ -154,8 +157,44 @@ def config_options(presets: bool = False):
     return deco
 
 
+#: command path -> "module:ConfigClass" of the settings it takes (read by --show-config)
+CONFIG_CLASSES: dict[str, str] = {}
+
+
+def config_class(command_path: str):
+    """The config class of ``command_path`` (``"mst track"``), or None."""
+    import importlib
+
+    spec = CONFIG_CLASSES.get(command_path)
+    if spec is None:
+        return None
+    mod, _, attr = spec.partition(":")
+    return getattr(importlib.import_module(mod), attr)
+
+
+def _show_config(ctx: click.Context, param: click.Parameter, value: bool) -> None:
+    if not value or ctx.resilient_parsing:
+        return
+    cls = config_class(ctx.command_path)
+    if cls is None:
+        click.echo(f"{ctx.command_path} has no settings beyond its options")
+        ctx.exit(0)
+    from mst.core.config import presets_of
+
+    rows = cls.describe()
+    width = max(len(r[0]) for r in rows)
+    for name, _tp, default, help_ in rows:
+        click.echo(f"{name:<{width}}  {json.dumps(default)!s:<12}  {help_}")
+    presets = presets_of(cls)
+    if presets:
+        click.echo("\npresets (--preset NAME):")
+        for n, doc in presets.items():
+            click.echo(f"  {n}: {doc}")
+    ctx.exit(0)
+
+
 def parse_set_values(values: Iterable[str]) -> dict[str, Any]:
-    """``["slam.fb_max_px=2", "edges.passes=3"]`` -> ``{"slam.fb_max_px": 2, "edges.passes": 3}``.
+    """``["slam.klt.fb_max_px=2", "edges.passes=3"]`` -> ``{"slam.klt.fb_max_px": 2, "edges.passes": 3}``.
 
     Values are read as YAML scalars/lists (``2``, ``true``, ``null``, ``[8, 6]``); a malformed item is
     a usage error naming ``--set``.

@@ -6,6 +6,7 @@ import click
 
 from mst import check_outputs
 from mst.cli.common import (
+    CONFIG_CLASSES,
     POSITIVE,
     config_options,
     emit_json,
@@ -21,6 +22,7 @@ from mst.cli.common import (
 FLAGS = {"edges.search_range_px": "--range", "edges.sample_step_px": "--step", "edges.pyramid_levels": "--pyramid",
          "edges.constant_velocity": "--constant-velocity", "use_klt": "--klt", "relocalise": "--relocalise",
          "aid": "--slam", "edge_source": "--edges", "depth.scale": "--depth-scale"}
+CONFIG_CLASSES["mst track"] = "mst.pipeline.tracking.config:TrackConfig"  # --show-config
 
 
 @click.command("track")
@@ -57,13 +59,12 @@ FLAGS = {"edges.search_range_px": "--range", "edges.sample_step_px": "--step", "
                    "of the mesh (curved objects, raw TINs); auto = polygon for .cao/.wrl and small planar meshes, "
                    "render for triangle meshes with many faces or curved parts.")
 @config_options(presets=True)
-@click.option("--show-config", is_flag=True, help="List every setting (dotted name, type, default) and the presets, then exit.")
 @json_option
 @quiet_option
 @verbosity_options
 def track(frames_src, model_path, camera_path, init_path, out, settings_path, frame_range, scale, fps, search_range,
           sample_step, pyramid_levels, constant_velocity, klt, relocalise, overlay, slam, depth_dir, depth_scale, depth_camera,
-          depth_to_color, landmarks_path, edges, config_file, set_values, preset, show_config, as_json, quiet, verbose):
+          depth_to_color, landmarks_path, edges, config_file, set_values, preset, as_json, quiet, verbose):
     """Track MODEL through FRAMES (video, image folder, glob or printf pattern) from an initial pose.
 
     Per frame: visible model edges are sampled, moving edges searched along their normals (ViSP's
@@ -93,9 +94,6 @@ def track(frames_src, model_path, camera_path, init_path, out, settings_path, fr
     from mst.pipeline.tracking.runner import run_track
 
     setup_logging(quiet, verbose, "mst track")
-    if show_config:
-        _show_config(TrackConfig)
-        return
     out_p = Path(out)
     frames_p = Path(frames_src)
     # the trajectory, its side outputs (traj.csv, traj.json) and the others must not replace an input
@@ -144,12 +142,3 @@ def _named(e, xml, base: dict):
     if e.field in FLAGS and e.source is None:
         return InputError(None, f"{FLAGS[e.field]}: {e.problem}")
     return e
-
-
-def _show_config(cls) -> None:
-    from mst.core.config import presets_of
-
-    for name, tp, default, help_ in cls.describe():
-        click.echo(f"{name} ({tp}, default {default!r}): {help_}")
-    for name, doc in presets_of(cls).items():
-        click.echo(f"preset {name}: {doc}")

@@ -25,6 +25,8 @@ class KltConfig(Config):
     pyramid_levels: int = param(3, min=0, max=8, help="pyramid levels above the base image [pyramid_lvl]")
     fb_max_px: float = param(1.0, min=0, min_open=True, help="forward-backward error bound, px")
     backward_from_start: bool = param(True, help="start the backward pass at the original points (else at the tracked ones)")
+    max_iterations: int = param(30, min=1, max=1000, help="LK iterations per pyramid level, at most (OpenCV's default 30)")
+    eps_px: float = param(0.01, min=0, help="LK stops when the window moves less than this, px (OpenCV's default 0.01)")
     max_features: int = param(300, min=1, max=100_000, help="corners detected per image [max_features]")
     quality: float = param(0.015, min=0, max=1, min_open=True, help="goodFeaturesToTrack quality level [quality]")
     min_distance_px: float = param(8.0, min=0, help="minimum distance between corners, px [min_distance]")
@@ -45,7 +47,8 @@ def track_forward_backward(prev_gray: np.ndarray, gray: np.ndarray, pts_px: np.n
     import cv2
 
     p0 = np.ascontiguousarray(np.asarray(pts_px, np.float32).reshape(-1, 1, 2))
-    lk = dict(winSize=(cfg.window_px, cfg.window_px), maxLevel=cfg.pyramid_levels)
+    lk = dict(winSize=(cfg.window_px, cfg.window_px), maxLevel=cfg.pyramid_levels,
+              criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, cfg.max_iterations, cfg.eps_px))
     if guess_px is None:
         p1, st1, _ = cv2.calcOpticalFlowPyrLK(prev_gray, gray, p0, None, **lk)
     else:
@@ -58,3 +61,16 @@ def track_forward_backward(prev_gray: np.ndarray, gray: np.ndarray, pts_px: np.n
     fb = np.linalg.norm(pb.reshape(-1, 2) - p0.reshape(-1, 2), axis=1)
     ok = (st1.ravel() == 1) & (st2.ravel() == 1) & (fb < cfg.fb_max_px)
     return p1.reshape(-1, 2), ok, fb
+
+
+def to_gray(img: np.ndarray) -> np.ndarray:
+    """A frame as the 8-bit single-channel image KLT and ORB work on (BGR/BGRA converted, other
+    dtypes clipped to 0..255); an 8-bit gray image is returned as is."""
+    import cv2
+
+    a = np.asarray(img)
+    if a.ndim == 3:
+        a = cv2.cvtColor(a, cv2.COLOR_BGR2GRAY if a.shape[2] == 3 else cv2.COLOR_BGRA2GRAY)
+    if a.dtype != np.uint8:
+        a = np.clip(a, 0, 255).astype(np.uint8)
+    return a

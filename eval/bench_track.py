@@ -120,8 +120,8 @@ def run(workdir: Path) -> list[dict]:
 
     from mst.core.camera import Camera, read_camera
     from mst.eval.bench import mst_cmd, timed_command
+    from mst.meshtools.formats import load_tracking_model
     from mst.pipeline.init_pose import init_from_clicks, read_clicks
-    from mst.pipeline.tracking import load_polygon_model
     from mst.pipeline.tracking.config import TrackConfig, read_tracker_xml
 
     workdir = Path(workdir)
@@ -133,7 +133,7 @@ def run(workdir: Path) -> list[dict]:
         cfg = read_tracker_xml(tb / "teabox.xml")
         X, uv = read_clicks(tb / "teabox.clicks", tb / "teabox.init")
         T0 = init_from_clicks(X, uv, cam.K).T_cam_model
-        model = load_polygon_model(tb / "teabox.cao")
+        model = load_tracking_model(tb / "teabox.cao")
         cap = cv2.VideoCapture(str(tb / "teabox.mp4"))
         grays = []
         while True:

@@ -254,12 +254,12 @@ def run_autoinit(model_path, camera_path, out, nav_path, image_path, *, nav_time
     from mst import atomic_outputs
     from mst.core.camera import read_camera
     from mst.core.poses import write_pose_file
+    from mst.meshtools.formats import load_tracking_model
     from mst.pipeline.init_pose import _read_image, draw_model
-    from mst.pipeline.tracking import load_polygon_model
 
     if image_path is None:
         raise InputError(None, "--from-nav needs --image (the frame to search the model in)")
-    model = load_polygon_model(model_path)
+    model = load_tracking_model(model_path)
     cam = read_camera(camera_path)
     img = _read_image(image_path)
     h, w = img.shape[:2]

@@ -374,11 +374,12 @@ def run_init(model_path, camera_path, out, *, clicks_path=None, points_path=None
     from mst import atomic_output, atomic_outputs
     from mst.core.camera import read_camera
     from mst.core.poses import write_pose_file
-    from mst.pipeline.tracking import check_pose_in_view, load_polygon_model
+    from mst.meshtools.formats import load_tracking_model
+    from mst.pipeline.tracking import check_pose_in_view
 
     if overlay_path is not None and image_path is None:
         raise InputError(overlay_path, "--overlay needs --image (the frame to draw on)")
-    model = load_polygon_model(model_path)
+    model = load_tracking_model(model_path)
     cam = read_camera(camera_path)
     img = None
     if image_path is not None:

@@ -142,36 +142,6 @@ def drive(aid, Ts, imgs, rng, visible=None, tamper=None):
 
 
 # ---------------------------------------------------------------------------- unit tests
-def test_pose_information_matches_numeric_jacobian():
-    rng = np.random.default_rng(3)
-    X_cam = rng.uniform([-1, -1, 2], [1, 1, 4], (20, 3))
-    T0 = np.eye(4)
-    J = np.zeros((40, 6))
-    proj = lambda T: ((X_cam @ T[:3, :3].T + T[:3, 3])[:, :2] / (X_cam @ T[:3, :3].T + T[:3, 3])[:, 2:]  # noqa: E731
-                      * [CAM.fx, CAM.fy]).ravel()
-    for i in range(6):
-        e = np.zeros(6)
-        e[i] = 1e-6
-        J[:, i] = (proj(se3_exp(e) @ T0) - proj(se3_exp(-e) @ T0)) / 2e-6
-    assert np.allclose(slam.pose_information(CAM.K, X_cam), J.T @ J, rtol=1e-4, atol=1e-3)
-
-
-def test_prior_covariance_is_reordered_to_rotation_first():
-    W = np.diag([1.0, 2.0, 3.0, 10.0, 20.0, 30.0])  # (v, w)
-    cov = slam.prior_covariance_wv(W, sigma_px=2.0)
-    assert np.allclose(np.diag(cov), 4.0 / np.array([10.0, 20.0, 30.0, 1.0, 2.0, 3.0]), rtol=1e-6)
-
-
-def test_triangulate_two_view_recovers_points():
-    rng = np.random.default_rng(0)
-    X = rng.uniform(-1, 1, (50, 3))
-    T1, T2 = look_at([3, 0, 1]), look_at([3, 0.5, 1.2])
-    x1 = (X @ T1[:3, :3].T + T1[:3, 3])
-    x2 = (X @ T2[:3, :3].T + T2[:3, 3])
-    Xt = slam.triangulate_two_view(T1[:3], T2[:3], x1[:, :2] / x1[:, 2:], x2[:, :2] / x2[:, 2:])
-    assert np.abs(Xt - X).max() < 1e-9
-
-
 def test_depth_lift_honours_depth_camera_and_extrinsic(scene, tmp_path):
     """A depth frame in a separate depth camera (other intrinsics, 5 cm baseline) lifts colour
     pixels to the same model points as a registered depth frame."""
@@ -346,3 +316,33 @@ def test_static_world_check_object_on_a_turntable(scene, tmp_path, mode):
     # after the stop the map agrees again and bridges the frames without edges
     assert not aid.moving_hold and (st[[45, 46]] == "slam").all()
     aid.close()
+
+
+def test_rgbd_reads_depth_with_the_depth_scale(scene, tmp_path):
+    """TUM RGB-D style depth (16-bit PNG, 5000 per metre) read with ``depth.scale = 5000`` gives the
+    same poses as the same depth in millimetres (the default scale): the integers differ by x5, the
+    metres only by the float32 rounding of the two scale factors. Read with the default scale, the
+    5000-scaled depth is 5x too far and the map is wrong (before #10 ``track`` read 16-bit depth as
+    millimetres only)."""
+    import cv2
+
+    Ts = orbit(20)
+    imgs = render_sequence(scene, Ts, tmp_path)
+    for name in ("mm", "tum"):
+        (tmp_path / name).mkdir()
+    for i in range(len(Ts)):
+        mm = np.rint(np.load(tmp_path / "depth" / f"{i:06d}.npy") * 1000.0).astype(np.uint16)
+        cv2.imwrite(str(tmp_path / "mm" / f"{i:06d}.png"), mm)
+        cv2.imwrite(str(tmp_path / "tum" / f"{i:06d}.png"), mm * np.uint16(5))
+    runs = {}
+    for name, scale in (("mm", 1000.0), ("tum", 5000.0), ("tum_as_mm", 1000.0)):
+        folder = tmp_path / name.split("_")[0]
+        aid = slam.make_aid("rgbd", CAM, {}, folder, None, None, slam.slam_depth_config().replace(scale=scale))
+        runs[name] = drive(aid, Ts, imgs, np.random.default_rng(4), visible=np.arange(len(Ts)) < 10)
+    (st_mm, e_mm), (st_tum, e_tum), (_, e_bad) = runs["mm"], runs["tum"], runs["tum_as_mm"]
+    assert (st_mm[10:] == "slam").all() and list(st_tum) == list(st_mm)
+    # the two scale factors' float32 roundings (1e-7 relative) move the poses by micrometres; a
+    # tenth of the depth step (1 mm) and 0.001 deg leave a wide margin, a wrong scale does not pass
+    assert np.abs(e_tum[:, 0] - e_mm[:, 0]).max() < 1e-4 and np.abs(e_tum[:, 1] - e_mm[:, 1]).max() < 1e-3
+    assert np.nanmax(e_mm[10:, 0]) < 0.02
+    assert not (e_bad[10:, 0] < 0.02).all()  # lost (NaN) or wrong: not the bridged poses

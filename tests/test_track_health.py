@@ -156,8 +156,9 @@ def test_synthetic_pose_on_mirror_image_rejected(box_scene, axis):
 def teabox_scene(shared_data, tmp_path_factory):
     from mst.core.camera import read_camera
     from mst.core.poses import inv_T, read_tum, write_pose_file
+    from mst.meshtools.formats import load_tracking_model
     from mst.pipeline.init_pose import init_from_clicks, read_clicks
-    from mst.pipeline.tracking import EdgeTracker, load_polygon_model, run_track
+    from mst.pipeline.tracking import EdgeTracker, run_track
     from mst.pipeline.tracking.config import read_tracker_xml
 
     t = shared_data / "visp-teabox"
@@ -175,7 +176,7 @@ def teabox_scene(shared_data, tmp_path_factory):
     for _ in range(32):
         ok, f = cap.read()
         grays.append(cv2.cvtColor(f, cv2.COLOR_BGR2GRAY))
-    model = load_polygon_model(t / "teabox.cao")
+    model = load_tracking_model(t / "teabox.cao")
     tr = EdgeTracker(model, cam, cfg)
     poses = [inv_T(p) for p in P]
     mon = _calibrate(tr, grays[:30], poses[:30])

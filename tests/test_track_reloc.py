@@ -82,8 +82,9 @@ def test_synthetic_reacquired_after_covered_camera(covered_box, tmp_path, slam):
 def test_teabox_reacquired_after_jump(shared_data, tmp_path):
     """Real video: frames 0-38, 4 black frames, then frames 0-11 again (the camera 'jumps back')."""
     from mst.core.camera import read_camera
+    from mst.meshtools.formats import load_tracking_model
     from mst.pipeline.init_pose import init_from_clicks, read_clicks
-    from mst.pipeline.tracking import load_polygon_model, run_track
+    from mst.pipeline.tracking import run_track
     from mst.pipeline.tracking.config import read_tracker_xml
 
     t = shared_data / "visp-teabox"
@@ -110,7 +111,7 @@ def test_teabox_reacquired_after_jump(shared_data, tmp_path):
     # (the pixel size; forward-backward consistency on this video is 0.2-0.3 px)
     ts, P = read_tum(out)
     by_t = {int(round(k)): inv_T(p) for k, p in zip(ts, P)}
-    K, V = cam.K, np.asarray(load_polygon_model(t / "teabox.cao").vertices, float)
+    K, V = cam.K, np.asarray(load_tracking_model(t / "teabox.cao").vertices, float)
 
     def corners(T):
         Xc = V @ T[:3, :3].T + T[:3, 3]

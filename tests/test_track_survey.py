@@ -171,10 +171,11 @@ def test_reason_behind_the_camera_at_a_later_pose(tmp_path):
     import cv2
 
     from mst.core.camera import read_camera
-    from mst.pipeline.tracking import EdgeTracker, TrackConfig, load_polygon_model
+    from mst.meshtools.formats import load_tracking_model
+    from mst.pipeline.tracking import EdgeTracker, TrackConfig
 
     fr, obj, cam, pose, _ = _box_scene(tmp_path, 50.0)
-    tr = EdgeTracker(load_polygon_model(obj), read_camera(cam), TrackConfig())
+    tr = EdgeTracker(load_tracking_model(obj), read_camera(cam), TrackConfig())
     gray = cv2.imread(str(fr / "000000.png"), cv2.IMREAD_GRAYSCALE)
     T = np.loadtxt(pose)
     tr.near(T)  # near plane fixed at the first pose

@@ -11,9 +11,9 @@ evidence, calibrated health score), :mod:`.session` (``TrackingSession.step -> F
 from mst.pipeline.tracking.config import EdgesConfig, TrackConfig, read_tracker_xml, visp_xml_settings
 from mst.pipeline.tracking.edge_tracker import EdgeTracker, FrameResult
 from mst.pipeline.tracking.health import HealthMonitor, PoseEvidence
-from mst.pipeline.tracking.runner import TrackSummary, check_pose_in_view, load_polygon_model, run_track
+from mst.pipeline.tracking.runner import TrackSummary, check_pose_in_view, run_track
 from mst.pipeline.tracking.session import FrameRecord, TrackingPolicy, TrackingSession
 
 __all__ = ["EdgeTracker", "EdgesConfig", "FrameRecord", "FrameResult", "HealthMonitor", "PoseEvidence", "TrackConfig",
-           "TrackSummary", "TrackingPolicy", "TrackingSession", "check_pose_in_view", "load_polygon_model",
+           "TrackSummary", "TrackingPolicy", "TrackingSession", "check_pose_in_view",
            "read_tracker_xml", "run_track", "visp_xml_settings"]

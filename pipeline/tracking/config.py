@@ -36,6 +36,7 @@ from mst.core.config import Config, expand_dotted, param, register_preset, secti
 from mst.core.klt import KltConfig
 from mst.errors import ConfigError, InputError
 from mst.pipeline.depth_io import DepthConfig
+from mst.pipeline.slam.config import SlamConfig, slam_depth_config
 from mst.pipeline.tracking.relocalise import RelocConfig
 
 #: default near plane: this fraction of the scene depth (median depth of the model vertices in
@@ -151,24 +152,6 @@ class TrackKltConfig(KltConfig):
 
 
 @dataclass
-class TrackDepthConfig(DepthConfig):
-    """Depth frames of the rgbd aid (``--depth``): the SLAM's defaults, a 0.05 m near bound (fuse's
-    shared default is 0.1 m)."""
-
-    min_m: float = param(0.05, min=0, help="nearer depths are invalid, m")
-
-
-def _slam_section():
-    from mst.pipeline.slam import SlamConfig
-
-    return SlamConfig
-
-
-def _slam_default():
-    return _slam_section()()
-
-
-@dataclass
 class TrackConfig(Config):
     """All of ``mst track``'s settings (``--config``, ``--set``, ``--preset``; echoed in ``--json``)."""
 
@@ -180,8 +163,9 @@ class TrackConfig(Config):
     edge_source: str = param("auto", choices=("auto", "polygon", "render"), help="edges to track")
     edges: EdgesConfig = section(EdgesConfig)
     klt: TrackKltConfig = section(TrackKltConfig)
-    slam: dict = param(default_factory=dict, help="the SLAM aid's settings (mst.pipeline.slam.SlamConfig)")
-    depth: TrackDepthConfig = section(TrackDepthConfig)
+    slam: SlamConfig = section(SlamConfig)
+    #: the rgbd aid's depth frames: the SLAM's defaults (a 0.05 m near bound; fuse's shared default is 0.1 m)
+    depth: DepthConfig = param(default_factory=slam_depth_config, help=(DepthConfig.__doc__ or "").split("\n")[0])
     reloc: RelocConfig = section(RelocConfig)
 
 
@@ -284,5 +268,5 @@ register_preset(TrackConfig, "uav-480p",
                 "survey scale (the UAV flyovers of tests/test_track_survey.py, 640x480): no far plane, a near plane "
                 "relative to the scene depth, faces at 80/85 deg; overrides a tabletop ViSP XML")
 
-__all__ = ["EdgesConfig", "TrackConfig", "TrackKltConfig", "TrackDepthConfig", "LOD_LINE_SAMPLES", "NEAR_CLIP_REL",
+__all__ = ["EdgesConfig", "TrackConfig", "TrackKltConfig", "LOD_LINE_SAMPLES", "NEAR_CLIP_REL",
            "XML_MAP", "lod_thresholds", "read_tracker_xml", "scene_near_m", "visp_xml_settings"]

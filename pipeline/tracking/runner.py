@@ -19,6 +19,7 @@ import numpy as np
 
 from mst import InputError, atomic_outputs
 from mst.errors import ConfigError
+from mst.meshtools.formats import load_tracking_model
 from mst.pipeline.tracking.config import TrackConfig
 from mst.pipeline.tracking.edge_tracker import EdgeTracker
 from mst.pipeline.tracking.health import HealthMonitor
@@ -40,33 +41,6 @@ COV_HEADER = (["frame", "status", "std_x_m", "std_y_m", "std_z_m", "std_rot_deg"
 
 
 # ---------------------------------------------------------------------------- model and pose checks
-def load_polygon_model(path: str | os.PathLike):
-    """Load a polygon model with :func:`mst.meshtools.io.load_model` and check it can be tracked.
-
-    Raises :class:`mst.InputError` naming the file for a missing file, a model without faces or
-    lines, non-finite vertices, or degenerate geometry (all vertices at one point or on one line:
-    no edge of it constrains a pose)."""
-    from mst.meshtools.io import load_model
-
-    p = Path(path)
-    if not p.is_file():
-        raise InputError(p, "model file does not exist")
-    model = load_model(p)
-    if not len(model.faces) and not len(getattr(model, "lines", [])):
-        raise InputError(p, "model has no faces")
-    model.check_finite(str(p))
-    V = np.asarray(model.vertices, float).reshape(-1, 3)
-    used = np.unique(np.concatenate([np.asarray(f, np.int64).ravel() for f in model.faces]
-                                    + [np.asarray(getattr(model, "lines", []), np.int64).ravel()]))
-    X = V[used[(used >= 0) & (used < len(V))]]
-    ext = float(np.ptp(X, axis=0).max()) if len(X) else 0.0
-    # rank of the centred vertices: 0 = one point, 1 = one line (relative to the model's size)
-    sv = np.linalg.svd(X - X.mean(0), compute_uv=False) if len(X) >= 2 else np.zeros(1)
-    if ext <= 0.0 or sv.size < 2 or sv[1] <= 1e-9 * max(sv[0], 1e-300):
-        raise InputError(p, "model is degenerate: its vertices lie at one point or on one line")
-    return model
-
-
 def check_pose_in_view(model, T_cam_model: np.ndarray, cam, path, near: float = 1e-6) -> None:
     """Raise :class:`mst.InputError` when the pose puts the model behind the camera or out of view."""
     V = np.asarray(model.vertices)
@@ -247,7 +221,7 @@ def make_aid(cfg: TrackConfig, cam, depth_dir: Path | None, depth_camera, T_dept
         mode = "rgbd" if depth_dir is not None else "standby"
     from mst.pipeline import slam
 
-    aid = slam.make_aid(mode, cam, dict(cfg.slam), depth_dir, depth_camera, T_depth_color)
+    aid = slam.make_aid(mode, cam, cfg.slam, depth_dir, depth_camera, T_depth_color, depth=cfg.depth)
     return aid, "mono-standby" if mode == "standby" else mode
 
 
@@ -305,7 +279,7 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
     from mst.pipeline.tracking.render_edges import attach_render_edges
 
     cfg = effective_config(config or TrackConfig(), depth_dir)
-    model = load_polygon_model(model_path)
+    model = load_tracking_model(model_path)
     cam0 = read_camera(camera_path)
     src = open_frames(frames_spec, frames, scale, fps)
     cam = check_camera_size(src, cam0, camera_path)
