@@ -10,6 +10,7 @@ from __future__ import annotations
 import csv
 import json
 
+import numpy as np
 import pytest
 
 from mst.errors import ConfigError
@@ -112,3 +113,39 @@ def test_option_bounds_name_the_option(teabox):
     t, d = teabox
     r, out = _track(t, d, "badopt", "--range", "0", check=False)
     assert r.returncode == 1 and "'--range'" in r.stderr and not out.exists()
+
+
+def test_depth_scale_reaches_the_rgbd_aid(tmp_path):
+    """16-bit depth written at 2000 units per metre, tracked with --depth-scale 2000, gives the same
+    trajectory as the millimetre depth with the default (1000): track reads depth through its
+    depth section (before, track read 16-bit depth as millimetres only)."""
+    from pathlib import Path
+
+    import cv2
+    from conftest import run_mst
+
+    from mst.pipeline.synth import SynthConfig, synthesize
+
+    model = Path(__file__).resolve().parents[1] / "samples" / "building_tin.obj"
+    if not model.exists():
+        pytest.skip("samples/building_tin.obj missing")
+    seq = tmp_path / "seq"
+    synthesize("orbit", model, seq, SynthConfig(width=320, height=240, frames=8))
+    mm, half_mm = tmp_path / "depth_mm", tmp_path / "depth_2000"
+    mm.mkdir()
+    half_mm.mkdir()
+    for p in sorted((seq / "depth").glob("*.png")):
+        d = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
+        assert d.dtype == np.uint16
+        d[d > 32767] = 0  # beyond 32.8 m (the 2000/m copy's 16-bit range): no depth in both copies
+        cv2.imwrite(str(mm / p.name), d)
+        cv2.imwrite(str(half_mm / p.name), d * 2)
+    outs = []
+    for name, depth, extra in (("mm", mm, ()), ("s2000", half_mm, ("--depth-scale", "2000")), ("wrong", half_mm, ())):
+        out = tmp_path / f"{name}.txt"
+        r = run_mst("track", seq / "rgb", "--fps", "30", "--model", seq / "model.obj", "--camera", seq / "camera.json",
+                    "--init", seq / "cMo" / "000000.txt", "--depth", depth, "-o", out, "--json", "-q", *extra)
+        assert json.loads(r.stdout)["aid"] == "rgbd"
+        outs.append(out)
+    assert outs[0].read_text() == outs[1].read_text()
+    assert outs[2].read_text() != outs[0].read_text()  # the same depth read as millimetres: twice as far

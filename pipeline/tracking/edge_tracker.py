@@ -367,7 +367,23 @@ class EdgeTracker:
         if res is None:
             return FrameResult(None, False, 0 if S_p is None else len(S_p), 0, float("nan"), 90.0, None, None,
                                reason=self._fail)
-        # health: projection error (gradient vs model normal) at the final pose, inlier ratio
+        healthy, reason, uv, support, proj_err = self._absolute_health(img, S, T, res, recover)
+        n_s, n_in = len(S), int(res.inlier.sum())
+        if klt is not None and res.klt_inlier is not None:
+            self._klt_next = (klt[0][res.klt_inlier], klt[1][res.klt_inlier])
+        out = FrameResult(T, healthy, n_s, n_in, res.rms_px, proj_err, res.W, res.cov, uv, res.inlier,
+                          S.edge_uv[np.unique(S.edge)], np.zeros((0, 2)) if klt is None else klt[1], reason, support)
+        if self.health_score:
+            out.evidence = self.evidence(img, T, S)  # the last pass's samples, re-projected at T
+        if klt is not None and res.klt_inlier is not None:
+            out.klt_agree, out.n_klt = float(np.mean(res.klt_inlier)), int(len(res.klt_inlier))
+        return out
+
+    def _absolute_health(self, img, S, T, res, recover: bool):
+        """The absolute health tests of a solved pose: projection error (gradient vs model normal)
+        at the final pose, gradient support, inlier ratio, sample count, model in front. Returns
+        ``(healthy, reason, uv (N, 2) the samples at T, support, projection error deg)``."""
+        c = self.cfg
         Xc = S.X_model @ T[:3, :3].T + T[:3, 3]
         ok_z = Xc[:, 2] > self.near(T) * 0.5
         z = np.where(ok_z, Xc[:, 2], 1.0)
@@ -398,15 +414,7 @@ class EdgeTracker:
                                      else self.explain(S) if n_s < c.min_samples else f"inliers {ratio:.0%}"
                                      if ratio < min_ratio else f"gradient support {support:.0%}"
                                      if support < c.min_support else f"projection error {proj_err:.1f} deg")
-        if klt is not None and res.klt_inlier is not None:
-            self._klt_next = (klt[0][res.klt_inlier], klt[1][res.klt_inlier])
-        out = FrameResult(T, healthy, n_s, n_in, res.rms_px, proj_err, res.W, res.cov, uv, res.inlier,
-                          S.edge_uv[np.unique(S.edge)], np.zeros((0, 2)) if klt is None else klt[1], reason, support)
-        if self.health_score:
-            out.evidence = self.evidence(img, T, S)  # the last pass's samples, re-projected at T
-        if klt is not None and res.klt_inlier is not None:
-            out.klt_agree, out.n_klt = float(np.mean(res.klt_inlier)), int(len(res.klt_inlier))
-        return out
+        return healthy, reason, uv, support, proj_err
 
     def accept(self, gray: np.ndarray, T_cam_model: np.ndarray) -> None:
         """Make ``(gray, T_cam_model)`` the reference for the next frame (a good pose)."""

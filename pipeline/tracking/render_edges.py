@@ -39,6 +39,7 @@ from pathlib import Path
 import numpy as np
 
 from mst import InputError
+from mst.errors import ConfigError
 
 log = logging.getLogger(__name__)
 
@@ -102,11 +103,11 @@ def curved_fraction(V: np.ndarray, F: np.ndarray, flat_deg: float = 1.0, crease_
 
 
 def choose_edges(model, model_path, mode: str) -> str:
-    """``'polygon'`` or ``'render'`` for ``--edges mode`` (auto|polygon|render); see the module doc."""
+    """``'polygon'`` or ``'render'`` for the edge source ``mode`` (auto|polygon|render); see the module doc."""
     if mode in ("polygon", "render"):
         return mode
     if mode != "auto":
-        raise InputError(None, f"unknown --edges mode {mode!r} (auto, polygon, render)")
+        raise ConfigError("edge_source", f"must be one of auto, polygon, render, got {mode!r}")
     if Path(model_path).suffix.lower() in POLYGON_SUFFIXES:
         return "polygon"
     faces = model.faces

@@ -270,59 +270,30 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
     (called after the input checks). Raises :class:`mst.InputError` / :class:`mst.errors.ConfigError`
     for bad input before anything is written.
     """
-    import cv2
-
     from mst.core.camera import read_camera
     from mst.core.poses import read_pose_file, read_rigid_transform
     from mst.pipeline.frames import check_camera_size, open_frames
-    from mst.pipeline.tracking.overlay import OverlayWriter, draw_overlay
-    from mst.pipeline.tracking.render_edges import attach_render_edges
+    from mst.pipeline.tracking.overlay import OverlayWriter
 
     cfg = effective_config(config or TrackConfig(), depth_dir)
     model = load_tracking_model(model_path)
     cam0 = read_camera(camera_path)
     src = open_frames(frames_spec, frames, scale, fps)
     cam = check_camera_size(src, cam0, camera_path)
-    undistort_maps = None
-    if cam.has_distortion:
-        # frames are undistorted once (remap tables), then tracked with the pinhole model K
-        d = np.zeros(5)
-        d[: min(5, len(cam.dist))] = cam.dist[:5]
-        undistort_maps = cv2.initUndistortRectifyMap(cam.K, d, None, cam.K, (cam.width, cam.height), cv2.CV_16SC2)
-        log.info("frames undistorted with the camera's distortion coefficients before tracking")
+    undistort_maps = _undistort_maps(cam)
     T0 = read_pose_file(init_pose_path)  # poses are metric: a --scale changes the intrinsics only
     check_pose_in_view(model, T0, cam, init_pose_path)
     depth_camera = read_camera(depth_camera_path) if depth_camera_path else None
     T_depth_color = read_rigid_transform(depth_to_color_path, "depth-to-colour file") if depth_to_color_path else None
     _check_aid_inputs(cfg, depth_dir, landmarks_path)
     aid, aid_mode = make_aid(cfg, cam, Path(depth_dir) if depth_dir else None, depth_camera, T_depth_color)
-
-    tracker = EdgeTracker(model, cam, cfg)
-    edges_used = attach_render_edges(tracker, model, model_path, cfg.edge_source, T0)
+    session, edges_used = build_session(cfg, model, model_path, cam, T0, aid)
     out_traj = Path(out_traj)
     paths = (out_traj, out_traj.with_suffix(".csv"), out_traj.with_suffix(".cov.csv"),
              out_traj.with_suffix(".json") if write_json else None, landmarks_path)
     ov = OverlayWriter(Path(overlay), src.fps or 30.0) if overlay else None
-    reloc = None
-    if cfg.relocalise:
-        from mst.pipeline.tracking.relocalise import Relocaliser
-
-        reloc = Relocaliser(tracker, cfg.reloc)
-    monitor = HealthMonitor(len(tracker.geom.edges), len(tracker.surf_X)) if cfg.health_score else None
-    policy = TrackingPolicy(T0, cfg.edges.search_range_px, cfg.edges.constant_velocity, monitor)
-    session = TrackingSession(tracker, policy, aid, reloc)
-    records: list[FrameRecord] = []
-    bar = progress(len(src)) if progress is not None else contextlib.nullcontext(lambda n=1: None)
     try:
-        with bar as advance:
-            for idx, t_s, bgr in src:
-                if undistort_maps is not None:
-                    bgr = cv2.remap(bgr, *undistort_maps, cv2.INTER_LINEAR)
-                rec = session.step(idx, t_s, cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY))
-                records.append(rec)
-                if ov is not None:
-                    ov.write(draw_overlay(bgr, rec.result, rec.status), idx)
-                advance()
+        records = _track_frames(session, src, undistort_maps, ov, progress)
     except BaseException:
         if ov is not None:
             ov.close(commit=False)
@@ -334,7 +305,58 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
     if not any(r.T_cam_model is not None for r in records):
         if ov is not None:
             ov.close(commit=False)
-        raise _no_frame_tracked(records, policy, init_pose_path)
+        raise _no_frame_tracked(records, session.policy, init_pose_path)
     summary = _summary(records, session, aid_mode, edges_used, paths, cam, cfg, landmarks)
     _write_outputs(paths, records, summary, landmarks, ov)
     return summary
+
+
+def build_session(cfg: TrackConfig, model, model_path, cam, T0: np.ndarray, aid=None) -> tuple[TrackingSession, str]:
+    """A :class:`TrackingSession` for ``model`` seen by ``cam`` from ``T0`` (the first frame's
+    T_cam_model): the edge tracker (render-based edges per ``cfg.edge_source``), the relocaliser and
+    the health monitor when on, the policy. Returns it and the edge source used."""
+    from mst.pipeline.tracking.render_edges import attach_render_edges
+
+    tracker = EdgeTracker(model, cam, cfg)
+    edges_used = attach_render_edges(tracker, model, model_path, cfg.edge_source, T0)
+    reloc = None
+    if cfg.relocalise:
+        from mst.pipeline.tracking.relocalise import Relocaliser
+
+        reloc = Relocaliser(tracker, cfg.reloc)
+    monitor = HealthMonitor(len(tracker.geom.edges), len(tracker.surf_X)) if cfg.health_score else None
+    policy = TrackingPolicy(T0, cfg.edges.search_range_px, cfg.edges.constant_velocity, monitor)
+    return TrackingSession(tracker, policy, aid, reloc), edges_used
+
+
+def _undistort_maps(cam):
+    """Remap tables that undistort the frames once (then tracked with the pinhole model K); None
+    for a camera without distortion."""
+    if not cam.has_distortion:
+        return None
+    import cv2
+
+    d = np.zeros(5)
+    d[: min(5, len(cam.dist))] = cam.dist[:5]
+    log.info("frames undistorted with the camera's distortion coefficients before tracking")
+    return cv2.initUndistortRectifyMap(cam.K, d, None, cam.K, (cam.width, cam.height), cv2.CV_16SC2)
+
+
+def _track_frames(session: TrackingSession, src, undistort_maps, ov, progress) -> list[FrameRecord]:
+    """Every frame of ``src`` through the session (gray, undistorted), with the progress bar and the overlay."""
+    import cv2
+
+    from mst.pipeline.tracking.overlay import draw_overlay
+
+    records: list[FrameRecord] = []
+    bar = progress(len(src)) if progress is not None else contextlib.nullcontext(lambda n=1: None)
+    with bar as advance:
+        for idx, t_s, bgr in src:
+            if undistort_maps is not None:
+                bgr = cv2.remap(bgr, *undistort_maps, cv2.INTER_LINEAR)
+            rec = session.step(idx, t_s, cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY))
+            records.append(rec)
+            if ov is not None:
+                ov.write(draw_overlay(bgr, rec.result, rec.status), idx)
+            advance()
+    return records
