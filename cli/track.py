@@ -118,7 +118,7 @@ def track(frames_src, model_path, camera_path, init_path, out, settings_path, fr
                             depth_to_color_path=depth_to_color, landmarks_path=landmarks_path, write_json=as_json,
                             progress=lambda total: progress_bar(total, "tracking", quiet))
     except ConfigError as e:
-        raise _named(e, xml, base or {}) from None
+        raise _named(e, xml, base or {}, options) from None
     res = summary.mean_residual_px
     sc = summary.status_counts
     wakes = summary.optional.get("aid_wakes")
@@ -130,15 +130,15 @@ def track(frames_src, model_path, camera_path, init_path, out, settings_path, fr
         emit_json(summary.to_json())
 
 
-def _named(e, xml, base: dict):
+def _named(e, xml, base: dict, options: dict):
     """A library ConfigError raised while tracking, named as the user set it: the option, the ViSP
-    tag of the settings file, or the dotted field."""
+    tag of the settings file, or the dotted field (a config file, --set, a default)."""
     from mst import InputError
     from mst.pipeline.tracking.config import TAG_OF
 
-    if e.field in base and e.source is None:
+    if e.field in base and e.source is None and options.get(e.field) is None:
         tag = "<" + TAG_OF[e.field].strip("<>").split("/")[-1] + ">"
         return InputError(xml, e.problem.replace("this setting", tag))
-    if e.field in FLAGS and e.source is None:
+    if e.field in FLAGS and e.source is None and options.get(e.field) is not None:
         return InputError(None, f"{FLAGS[e.field]}: {e.problem}")
     return e
