@@ -158,11 +158,17 @@ class FrontEnd:
             rest = np.setdiff1d(np.arange(len(c)), sel)
             sel = np.r_[sel, rest[: n_new - len(sel)]]
         sel = np.sort(sel)[:n_new]
-        new = c[sel].astype(np.float32)
-        m = len(new)
-        self.pts = np.r_[self.pts, new].astype(np.float32)
-        self.tid = np.r_[self.tid, np.arange(self._next_tid, self._next_tid + m)]
+        self._add_tracks(c[sel].astype(np.float32), 0.0, T)
+
+    def _add_tracks(self, uv: np.ndarray, tri_deg: float, T: np.ndarray) -> np.ndarray:
+        """Start tracks at pixels ``uv`` (M, 2) seen under pose ``T`` (their first view), with the
+        triangulation parallax ``tri_deg`` (0: none yet); returns their new ids."""
+        m = len(uv)
+        tids = np.arange(self._next_tid, self._next_tid + m)
         self._next_tid += m
-        self.first_xn = np.r_[self.first_xn, self._normalised(new)]
-        self.tri_deg = np.r_[self.tri_deg, np.zeros(m)]
+        self.pts = np.r_[self.pts, uv.astype(np.float32)].astype(np.float32)
+        self.tid = np.r_[self.tid, tids]
+        self.first_xn = np.r_[self.first_xn, self._normalised(uv)]
+        self.tri_deg = np.r_[self.tri_deg, np.full(m, tri_deg)]
         self.first_P = np.r_[self.first_P, np.broadcast_to(T[:3], (m, 3, 4))]
+        return tids
