@@ -6,15 +6,24 @@ import click
 
 from mst import check_outputs
 from mst.cli.common import (
-    NON_NEGATIVE,
-    POSITIVE,
+    FINITE,
     FiniteFloat,
+    build_config,
+    config_options,
     emit_json,
     info,
     json_option,
     progress_bar,
     quiet_option,
+    setup_logging,
+    verbosity_options,
 )
+
+#: config field -> the option that sets it (a bad value is reported under the option's name)
+FLAGS = {"depth.scale": "--depth-scale", "depth.min_m": "--min-depth", "depth.max_m": "--max-depth",
+         "depth.edge_rel": "--edge-k", "max_angle_deg": "--max-angle", "smooth_px": "--smooth",
+         "smooth_rel": "--smooth-rel", "voxel_m": "--voxel", "tsdf_voxel_m": "--voxel", "stride": "--stride",
+         "fps": "--fps"}
 
 
 @click.command("fuse")
@@ -29,35 +38,38 @@ from mst.cli.common import (
 @click.option("--depth-to-color", "depth_to_color", type=click.Path(dir_okay=False), default=None,
               help="4x4 T_depth_color (ViSP's depth_M_color.txt: X_depth = T @ X_color); the trajectory is then "
                    "the COLOUR camera's.")
-@click.option("--depth-scale", type=POSITIVE, default=1000.0, show_default=True,
-              help="Integer depth units per metre (1000 = mm, 5000 = TUM RGB-D); a value < 1 is metres per unit.")
-@click.option("--min-depth", type=NON_NEGATIVE, default=0.1, show_default=True, help="Metres; nearer samples are dropped.")
-@click.option("--max-depth", type=FiniteFloat(min=0, min_open=True, allow_inf=True), default=50.0, show_default=True, help="Metres; farther samples are dropped (inf: no limit).")
-@click.option("--edge-k", type=NON_NEGATIVE, default=0.03, show_default=True,
-              help="Drop pixels whose 4-neighbour depth jumps by more than K * depth (0: off).")
-@click.option("--max-angle", type=FiniteFloat(min=0, min_open=True, max=90), default=80.0, show_default=True,
-              help="Degrees; drop samples seen more obliquely than this to their surface (90: off).")
-@click.option("--smooth", type=click.IntRange(min=0, max=99), default=0, show_default=True,
-              help="Bilateral filter diameter in pixels for noisy depth (edge-preserving, on log-depth; 0: off).")
-@click.option("--smooth-rel", type=POSITIVE, default=0.02, show_default=True,
-              help="Bilateral range sigma as a fraction of depth.")
-@click.option("--voxel", type=NON_NEGATIVE, default=None,
-              help="Voxel size in metres: one averaged point per voxel, 0 keeps every sample [default: 0.005]; "
-                   "with --tsdf the TSDF voxel [default: 0.01].")
-@click.option("--stride", type=click.IntRange(min=1), default=1, show_default=True, help="Fuse every N-th depth frame.")
-@click.option("--fps", type=POSITIVE, default=None,
+@click.option("--depth-scale", type=FINITE, default=None,
+              help="Integer depth units per metre (1000 = mm, 5000 = TUM RGB-D); a value < 1 is metres per unit "
+                   "[default: 1000; config depth.scale].")
+@click.option("--min-depth", type=FINITE, default=None, help="Metres; nearer samples are dropped [default: 0.1; depth.min_m].")
+@click.option("--max-depth", type=FiniteFloat(allow_inf=True), default=None,
+              help="Metres; farther samples are dropped (inf: no limit) [default: 50; depth.max_m].")
+@click.option("--edge-k", type=FINITE, default=None,
+              help="Drop pixels whose 4-neighbour depth jumps by more than K * depth (0: off) [default: 0.03; depth.edge_rel].")
+@click.option("--max-angle", type=FINITE, default=None,
+              help="Degrees; drop samples seen more obliquely than this to their surface (90: off) [default: 80].")
+@click.option("--smooth", type=int, default=None,
+              help="Bilateral filter diameter in pixels for noisy depth (edge-preserving, on log-depth; 0: off) [default: 0].")
+@click.option("--smooth-rel", type=FINITE, default=None, help="Bilateral range sigma as a fraction of depth [default: 0.02].")
+@click.option("--voxel", type=FINITE, default=None,
+              help="Voxel size in metres: one averaged point per voxel, 0 keeps every sample [default: 0.005, voxel_m]; "
+                   "with --tsdf the TSDF voxel [default: 0.01, tsdf_voxel_m].")
+@click.option("--stride", type=int, default=None, help="Fuse every N-th depth frame [default: 1].")
+@click.option("--fps", type=FINITE, default=None,
               help="Trajectory times are seconds: frame index = round(t * FPS). Default: times are frame indices.")
-@click.option("--tsdf", is_flag=True, help="Fuse a TSDF (Open3D VoxelBlockGrid) and output its surface points.")
+@click.option("--tsdf", is_flag=True, default=None, help="Fuse a TSDF (Open3D VoxelBlockGrid) and output its surface points.")
 @click.option("--color", "color", default=None, help="Folder of colour images (same frame order) to colour the points.")
 @click.option("--color-camera", type=click.Path(dir_okay=False), default=None,
               help="Colour camera file (needed with --depth-to-color; default: the depth camera).")
 @click.option("--landmarks", type=click.Path(dir_okay=False), default=None,
               help="PLY of model-frame points to add (e.g. the mono SLAM map of `mst track --slam mono --landmarks`).")
+@config_options()
 @json_option
 @quiet_option
+@verbosity_options
 def fuse(traj, depth, camera, output, depth_to_color, depth_scale, min_depth, max_depth, edge_k, max_angle, smooth,
-         smooth_rel, voxel,
-         stride, fps, tsdf, color, color_camera, landmarks, as_json, quiet):
+         smooth_rel, voxel, stride, fps, tsdf, color, color_camera, landmarks, config_file, set_values, as_json, quiet,
+         verbose):
     """Fuse depth frames into one point cloud in model coordinates.
 
     Each depth frame k is back-projected with the pose of frame k (time t = k, or t * FPS = k
@@ -79,27 +91,29 @@ def fuse(traj, depth, camera, output, depth_to_color, depth_scale, min_depth, ma
     \b
     Output: binary PLY, x y z double (metres), red green blue uchar with --color (black where
     no colour image saw the point), count uint (samples merged per point; not with --tsdf).
-    Summary on stderr, --json on stdout.
+    Summary on stderr, --json on stdout (with the effective "config": give it back with --config
+    to repeat the run; --set depth.scale=5000 sets one setting by name).
     """
     from mst.pipeline.fusion import FuseConfig
     from mst.pipeline.fusion import fuse as run_fuse
 
+    setup_logging(quiet, verbose, "mst fuse")
     if depth is not None and (traj is None or camera is None):
         raise click.UsageError("--depth needs --traj and --camera")
     if depth is None and landmarks is None:
         raise click.UsageError("give --depth (with --traj and --camera) or --landmarks")
-    if min_depth >= max_depth:
-        raise click.BadParameter(f"{max_depth:g} m is not beyond --min-depth {min_depth:g} m", param_hint="--max-depth")
     from mst.pipeline.depth_io import DEPTH_SUFFIXES, IMAGE_SUFFIXES
 
-    check_outputs([output], [traj, camera, depth_to_color, color_camera, landmarks,
+    check_outputs([output], [traj, camera, depth_to_color, color_camera, landmarks, config_file,
                              (depth, DEPTH_SUFFIXES) if depth is not None else None,
                              (color, IMAGE_SUFFIXES) if color is not None else None])
-    if voxel is None:
-        voxel = 0.01 if tsdf else 0.005
-    cfg = FuseConfig(depth_scale=depth_scale, min_depth=min_depth, max_depth=max_depth, edge_k=edge_k,
-                     max_angle_deg=max_angle, smooth_px=smooth, smooth_rel=smooth_rel, voxel=voxel, stride=stride,
-                     fps=fps, tsdf=tsdf)
+    # --voxel is the grid of the chosen mode (a TSDF's --voxel 0 keeps the TSDF default, as it always did)
+    grid = {"tsdf_voxel_m": voxel or None} if tsdf else {"voxel_m": voxel}
+    cfg = build_config(FuseConfig, config_file=config_file, set_values=set_values, section_name="fuse",
+                       options={"depth.scale": depth_scale, "depth.min_m": min_depth, "depth.max_m": max_depth,
+                                "depth.edge_rel": edge_k, "max_angle_deg": max_angle, "smooth_px": smooth,
+                                "smooth_rel": smooth_rel, "stride": stride, "fps": fps, "tsdf": tsdf, **grid},
+                       flags=FLAGS)
     summary = run_fuse(output, cfg, traj_path=traj, depth_dir=depth, camera_path=camera,
                        depth_to_color_path=depth_to_color, color_dir=color, color_camera_path=color_camera,
                        landmarks_path=landmarks, progress=lambda n: progress_bar(n, "fuse", quiet))
@@ -109,14 +123,9 @@ def fuse(traj, depth, camera, output, depth_to_color, depth_scale, min_depth, ma
              f"{s['skipped_stride']} skipped by stride, {s['empty_frames']} empty); "
              f"{s['points_fused']:,} of {s['samples']:,} samples kept (range -{s['dropped_range']:,}, "
              f"edges -{s['dropped_edge']:,}, grazing -{s['dropped_grazing']:,})", quiet)
-        if s["poses_without_frame"]:
-            info(f"warning: {s['poses_without_frame']} pose(s) point past the last of {s['frames']} depth frames "
-                 "(wrong --fps, or a trajectory of another sequence?)", quiet)
     if s["landmarks"]:
         info(f"added {s['landmarks']:,} landmarks", quiet)
     info(f"wrote {s['points_out']:,} points ({s['mode']}) to {output} in {s['elapsed_s']:.2f} s "
          f"({s['frames_per_s']:.1f} frames/s)", quiet)
-    if s.get("warning"):
-        info(f"warning: {s['warning']}", quiet)
     if as_json:
         emit_json(summary)

@@ -2,8 +2,8 @@
 
 Formats (picked by suffix):
 
-* ``.ply``: binary (little/big endian, read chunk by chunk with a numpy structured dtype straight
-  from the file) or ascii; the ``vertex`` element with ``x y z`` properties of any numeric type.
+* ``.ply``: through :mod:`mst.core.ply`: binary (little/big endian, read chunk by chunk) or ascii;
+  the ``vertex`` element with ``x y z`` properties of any numeric type.
 * ``.pcd``: PCL point clouds, ``DATA ascii`` or ``binary`` (``binary_compressed`` is refused).
 * ``.xyz``, ``.txt``, ``.csv``, ``.asc``, ``.pts``: text, the first three numeric columns are x y z;
   separators space, tab, comma or semicolon; ``#``/``//`` comment lines and a non-numeric header line
@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from mst import InputError, require_file
+from mst.core.ply import PlyVertexWriter, ascii_rows, open_vertices
 
 TEXT_SUFFIXES = {".xyz", ".txt", ".csv", ".asc", ".pts"}
 CLOUD_SUFFIXES = {".ply", ".pcd", ".las", ".laz"} | TEXT_SUFFIXES
@@ -77,76 +78,11 @@ def read_cloud(path: str | os.PathLike) -> np.ndarray:
 
 
 # ----------------------------------------------------------------------------------------- PLY
-def _ascii_reader(p: Path, start: int, n: int, cols, what: str, unit: str):
-    """Chunked reader of ``n`` whitespace-separated rows from byte ``start``: columns ``cols`` as float64.
-
-    Corrupt rows and a file that ends early raise :class:`mst.InputError` naming ``what``/``unit``.
-    """
-
-    def reader(size: int) -> Iterator[np.ndarray]:
-        with open(p, "rb") as f:
-            f.seek(start)
-            left = n
-            while left > 0:
-                k = min(size, left)
-                try:
-                    a = np.loadtxt(f, dtype=np.float64, usecols=cols, max_rows=k, ndmin=2)
-                except ValueError as e:
-                    raise InputError(p, f"corrupt {what} ({e})") from None
-                if len(a) < k:
-                    raise InputError(p, f"file ends after {n - left + len(a)} of {n} {unit}")
-                left -= k
-                yield a
-
-    return reader
-
-
 def _open_ply(p: Path) -> CloudSource:
-    from mst.meshtools.io import PLY_TYPES, ply_header
-
-    # the strict header parser the mesh reader uses (counts, types, lists, vertex x/y/z, body size)
-    fmt, raw, data_start = ply_header(p)
-    elements = [(name, count, [(pr[-1], "list") if pr[0] == "list" else (pr[1], PLY_TYPES[pr[0]]) for pr in props])
-                for name, count, props in raw]
-    vi = [e[0] for e in elements].index("vertex")  # ply_header refused a PLY without vertex x, y, z
-    _, n, props = elements[vi]
-    pnames = [q[0] for q in props]
-    xyz_dtype = np.dtype(max((dict(props)[k] for k in "xyz"), key=lambda s: np.dtype(s).itemsize))
-    if fmt == "ascii":
-        if any(e[1] > 0 for e in elements[:vi]):
-            raise InputError(p, "ascii PLY with elements before 'vertex' is not supported")
-        cols = [pnames.index(k) for k in "xyz"]
-        if any(t == "list" for _, t in props):
-            raise InputError(p, "ascii PLY vertex with list properties is not supported")
-
-        return CloudSource(p, n, xyz_dtype, _ascii_reader(p, data_start, n, cols, "ascii vertex data", "vertices"))
-    if any(t == "list" for e in elements[: vi + 1] for _, t in e[2]):
-        raise InputError(p, "binary PLY with list properties before/in 'vertex' is not supported")
-    end = "<" if fmt == "binary_little_endian" else ">"
-    offset = data_start
-    for e in elements[:vi]:
-        offset += e[1] * sum(np.dtype(t).itemsize for _, t in e[2])
-    try:
-        dt = np.dtype([(nm, end + t) for nm, t in props])
-    except ValueError as e:  # duplicate property names
-        raise InputError(p, f"PLY header: bad vertex properties ({e})") from None
-    need = offset + n * dt.itemsize
-    if p.stat().st_size < need:
-        raise InputError(p, f"file is truncated: {p.stat().st_size} bytes, header needs {need}")
-
-    def reader(size: int) -> Iterator[np.ndarray]:
-        # plain reads (not a memory map): file pages would otherwise stay in the resident set
-        with open(p, "rb") as f:
-            f.seek(offset)
-            for s in range(0, n, size):
-                blk = np.fromfile(f, dtype=dt, count=min(size, n - s))
-                out = np.empty((len(blk), 3), np.float64)
-                with np.errstate(invalid="ignore"):  # signalling NaNs pass through as NaN
-                    for j, k in enumerate("xyz"):
-                        out[:, j] = blk[k]
-                yield out
-
-    return CloudSource(p, n, xyz_dtype, reader)
+    # the one PLY module: strict header (counts, types, lists, vertex x/y/z, body size), chunked reads
+    vs = open_vertices(p)
+    xyz_dtype = np.dtype(max((vs.types[k] for k in "xyz"), key=lambda s: np.dtype(s).itemsize))
+    return CloudSource(p, vs.count, xyz_dtype, lambda size: vs.chunks(size, ("x", "y", "z")))
 
 
 # ----------------------------------------------------------------------------------------- PCD
@@ -198,7 +134,7 @@ def _open_pcd(p: Path) -> CloudSource:
             cols[nm] = col
             col += c
 
-        return CloudSource(p, n, xyz_dtype, _ascii_reader(p, pos, n, [cols[c] for c in "xyz"], "ascii PCD data", "points"))
+        return CloudSource(p, n, xyz_dtype, ascii_rows(p, pos, n, [cols[c] for c in "xyz"], "ascii PCD data", "points"))
     if data != "binary":
         raise InputError(p, f"PCD DATA {data!r} not supported (use ascii or binary)")
     dt = np.dtype([(nm, "<" + kind[t] + str(s), (c,)) if c > 1 else (nm, "<" + kind[t] + str(s))
@@ -286,8 +222,8 @@ def _open_text(p: Path) -> CloudSource:
 
 
 # --------------------------------------------------------------------------------------- write
-class PlyChunkWriter:
-    """Write a binary little-endian PLY vertex cloud chunk by chunk.
+class PlyChunkWriter(PlyVertexWriter):
+    """Write a binary little-endian PLY vertex cloud chunk by chunk (:class:`mst.core.ply.PlyVertexWriter`).
 
     ``fields`` are extra float32 scalar fields named ``scalar_<name>`` in the file, the convention
     CloudCompare reads as scalar fields (e.g. ``C2M_absolute_distances``). Coordinates are written as
@@ -296,49 +232,13 @@ class PlyChunkWriter:
     """
 
     def __init__(self, path: str | os.PathLike, count: int, fields: list[str], xyz_dtype=np.float64):
-        self.path, self.count, self.fields = Path(path), int(count), list(fields)
-        xt = np.dtype(xyz_dtype)
-        tname = {4: "float", 8: "double"}[xt.itemsize]
-        self.dtype = np.dtype([(k, "<f" + str(xt.itemsize)) for k in "xyz"] + [(f, "<f4") for f in self.fields])
-        header = ["ply", "format binary_little_endian 1.0", "comment written by mst",
-                  f"element vertex {self.count}"]
-        header += [f"property {tname} {k}" for k in "xyz"]
-        header += [f"property float scalar_{f}" for f in self.fields]
-        header += ["end_header"]
-        self._f = open(self.path, "wb")
-        self._f.write(("\n".join(header) + "\n").encode("ascii"))
-        self.written = 0
+        self.fields = list(fields)
+        xt = {4: "f4", 8: "f8"}[np.dtype(xyz_dtype).itemsize]
+        super().__init__(path, count, [(k, xt) for k in "xyz"] + [(f"scalar_{f}", "f4") for f in self.fields],
+                         comments=["written by mst"])
 
     def write(self, xyz: np.ndarray, **scalars: np.ndarray) -> None:
-        if self.dtype[0] == np.dtype("<f4"):  # all float32: a plain (n, 3 + k) array has the same layout
-            arr = np.empty((len(xyz), 3 + len(self.fields)), "<f4")
-            arr[:, :3] = xyz
-            for j, f in enumerate(self.fields):
-                arr[:, 3 + j] = scalars[f]
-            arr.tofile(self._f)
-            self.written += len(xyz)
-            return
-        rec = np.empty(len(xyz), self.dtype)
-        for j, k in enumerate("xyz"):
-            rec[k] = xyz[:, j]
-        for f in self.fields:
-            rec[f] = scalars[f]
-        rec.tofile(self._f)
-        self.written += len(xyz)
-
-    def close(self) -> None:
-        self._f.close()
-        if self.written != self.count:
-            raise RuntimeError(f"PLY writer: {self.written} vertices written, header says {self.count}")
-
-    def __enter__(self) -> PlyChunkWriter:
-        return self
-
-    def __exit__(self, *exc) -> None:
-        if exc[0] is None:
-            self.close()
-        else:
-            self._f.close()
+        super().write([xyz[:, 0], xyz[:, 1], xyz[:, 2], *[scalars[f] for f in self.fields]])
 
 
 def write_cloud(path: str | os.PathLike, xyz: np.ndarray, scalars: dict[str, np.ndarray] | None = None,

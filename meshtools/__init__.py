@@ -1,5 +1,6 @@
-"""mst.meshtools: 3D model I/O (OBJ, PLY, VRML, ViSP .cao, CityJSON, ...), TIN to polygon
-conversion, and generated test models.
+"""mst.meshtools: polygon models (model.py), their file formats (formats/), polygon geometry
+(polygons.py), TIN -> polygon conversion (convert.py) and procedural test meshes (generate.py).
 
-May import mst.core (and mst.errors); never mst.pipeline, mst.eval or mst.cli.
+May import numpy, scipy, mapbox_earcut, trimesh (lazily), :mod:`mst` and :mod:`mst.core`; never
+:mod:`mst.pipeline`, :mod:`mst.eval` or :mod:`mst.cli`.
 """

@@ -426,7 +426,7 @@ def main(argv: list[str] | None = None) -> int:
     procedural TIN (.obj/.ply/.stl/.off) or its ground-truth polygon model (.wrl/.cao with --polygons)."""
     import argparse
 
-    from mst.meshtools.io import save_model, save_triangles
+    from mst.meshtools.formats import save_model, save_triangles
 
     ap = argparse.ArgumentParser(prog="python -m mst.meshtools.generate", description=main.__doc__)
     ap.add_argument("shape", choices=SHAPES)

@@ -138,8 +138,25 @@ class PolygonModel:
 
         Returns ``(V, F)``: V (N, 3) float64 = ``self.vertices`` (model frame, metres), F (M, 3) int64
         triangles wound like their polygon (right-hand normal out). With ``return_index=True`` also
-        the (M,) source face index of each triangle. See :func:`mst.meshtools.io.triangulate_model`.
+        the (M,) source face index of each triangle. See :func:`mst.meshtools.polygons.triangulate_model`.
         """
-        from mst.meshtools.io import triangulate_model
+        from mst.meshtools.polygons import triangulate_model
 
         return triangulate_model(self, return_index=return_index)
+
+
+def merge_models(models: list[PolygonModel]) -> PolygonModel:
+    """Concatenate models (vertex indices offset; no welding)."""
+    V, faces, holes, names, lines, cyl, circ = [], [], [], [], [], [], []
+    off = 0
+    for m in models:
+        V.append(m.vertices)
+        faces += [f + off for f in m.faces]
+        holes += [[h + off for h in hs] for hs in m.holes]
+        names += list(m.names)
+        lines.append(m.lines + off)
+        cyl += [{**c, "p1": c["p1"] + off, "p2": c["p2"] + off} for c in m.cylinders]
+        circ += [{**c, "center": c["center"] + off, "p1": c["p1"] + off, "p2": c["p2"] + off} for c in m.circles]
+        off += len(m.vertices)
+    return PolygonModel(np.concatenate(V) if V else np.zeros((0, 3)), faces, holes=holes, names=names,
+                        lines=np.concatenate(lines) if lines else np.zeros((0, 2), np.int64), cylinders=cyl, circles=circ)

@@ -906,7 +906,7 @@ def test_other_oserrors_are_not_hidden(tmp_path):
 def test_fuse_bad_landmarks_fail_before_any_frame(case_dir, monkeypatch):
     f, o = case_dir
     m_garbage(f["cloud"])
-    import mst.pipeline.fusion as fu
+    import mst.pipeline.fusion.runner as fu
 
     def no_frames(*a, **k):
         raise AssertionError("a depth frame was read before the landmarks file was checked")

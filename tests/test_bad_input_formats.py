@@ -19,7 +19,7 @@ import pytest
 
 from mst import InputError
 from mst.meshtools import generate as gen
-from mst.meshtools.io import load_model, load_triangles, save_triangles
+from mst.meshtools.formats import load_model, load_triangles, save_triangles
 
 TRI_OBJ = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 2 3 4\nf 1 4 3\n"
 

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from mst import InputError
-from mst.meshtools.io import load_model, load_triangles, save_model
+from mst.meshtools.formats import load_model, load_triangles, save_model
 
 PART = """V1
 # a 10 mm square plate in its own frame
@@ -156,7 +156,7 @@ def test_written_loops_start_at_the_widest_convex_corner():
     """ViSP takes a face's normal from its points 0, 1, 2: every written loop starts so that
     point 1 is the convex corner spanning the largest triangle with its neighbours (within the
     1e-6 tie tolerance), whatever the loop's original start."""
-    from mst.meshtools.io import start_loops_at_convex_corners
+    from mst.meshtools.polygons import start_loops_at_convex_corners
 
     rng = np.random.default_rng(5)
     for _ in range(20):

@@ -11,7 +11,7 @@ import pytest
 from mst import InputError
 from mst.meshtools import generate as gen
 from mst.meshtools.convert import ConvertConfig, tin_to_polygons
-from mst.meshtools.io import load_model, read_cao, read_obj, read_vrml, save_model, save_triangles
+from mst.meshtools.formats import load_model, read_cao, read_obj, read_vrml, save_model, save_triangles
 from mst.meshtools.model import PolygonModel
 
 
@@ -59,10 +59,10 @@ def point_segment_distance(P, A, B):
     return out
 
 
-def check_conversion(V, F, model: PolygonModel, stats: dict, angle_tol_deg: float, rel_area_tol: float = 1e-9,
+def check_conversion(V, F, model: PolygonModel, stats,  angle_tol_deg: float, rel_area_tol: float = 1e-9,
                      max_polygons: int | None = None, closed: bool | None = None) -> None:
     """The issue's acceptance checks for one converted TIN."""
-    dist_tol = stats["dist_tol"]
+    dist_tol = stats.dist_tol_m
     diag = float(np.linalg.norm(np.ptp(V[np.unique(F)], axis=0)))
     # 1. area preserved
     Vo, Fo = model.triangulate()
@@ -123,7 +123,7 @@ def test_winding_fixed_outward(mode):
         F[::3] = F[::3][:, [0, 2, 1]]
     model, stats = convert(V, F)
     Vg, Fg = gen.courtyard(split=3)
-    assert stats["flipped_triangles"] == (len(F) if mode == "inverted" else len(F[::3]))
+    assert stats.flipped_triangles == (len(F) if mode == "inverted" else len(F[::3]))
     check_conversion(Vg, Fg, model, stats, 1.0, closed=True)
 
 
@@ -132,7 +132,7 @@ def test_open_tin_keeps_majority_orientation():
     F2 = F.copy()
     F2[:10] = F2[:10, [0, 2, 1]]  # a few triangles wound the wrong way
     model, stats = convert(V, F2)
-    assert model.n_faces == 1 and stats["flipped_triangles"] == 10
+    assert model.n_faces == 1 and stats.flipped_triangles == 10
     assert model.face_normals()[0] == pytest.approx([0, 0, 1])
     model_dn, _ = convert(V, F[:, [0, 2, 1]])
     assert model_dn.face_normals()[0] == pytest.approx([0, 0, -1])
@@ -143,7 +143,7 @@ def test_cylinder_does_not_merge_at_small_tolerance():
     model, stats = convert(V, F, angle_tol_deg=1.0)
     assert model.n_faces == 66
     check_conversion(V, F, model, stats, 1.0, closed=True)
-    merged, _ = convert(V, F, angle_tol_deg=12.0, dist_tol=10.0)
+    merged, _ = convert(V, F, angle_tol_deg=12.0, dist_tol_m=10.0)
     assert merged.n_faces < 66 // 2 + 2  # large tolerance: neighbouring walls merge
 
 
@@ -151,11 +151,11 @@ def test_fine_cylinder_no_chaining():
     """Walls 0.35 deg apart: every neighbour pair is below the 1 deg tolerance (a neighbour-only test
     chains the whole side into one "plane"), but each polygon must span <= 1 deg of normals."""
     V, F = gen.cylinder(split=1, sections=1024, radius=30.0, height=5.0)
-    model, stats = convert(V, F, angle_tol_deg=1.0, dist_tol=1.0)
+    model, stats = convert(V, F, angle_tol_deg=1.0, dist_tol_m=1.0)
     n = model.face_normals()
     side = np.abs(n[:, 2]) < 0.5
     assert side.sum() >= 360  # each side polygon covers at most 1 deg of the circle
-    assert stats["regrown_triangles"] > 0
+    assert stats.regrown_triangles > 0
     # merged walls are not exactly coplanar: area and volume hold to the tolerance only
     check_conversion(V, F, model, stats, 1.0, rel_area_tol=1e-4, closed=True)
 
@@ -191,9 +191,9 @@ def test_weld_and_degenerate_and_nonmanifold():
     F2 = np.arange(3 * len(F)).reshape(-1, 3)
     # a zero-area triangle and a fin (non-manifold edge)
     F2 = np.vstack([F2, [F2[0, 0], F2[0, 0], F2[0, 1]]])
-    model, stats = convert(V2, F2, weld_tol=1e-6)
-    assert stats["welded_vertices"] == 3 * len(F) - len(V)
-    assert stats["degenerate_dropped"] == 1
+    model, stats = convert(V2, F2, weld_tol_m=1e-6)
+    assert stats.welded_vertices == 3 * len(F) - len(V)
+    assert stats.degenerate_dropped == 1
     assert model.n_faces == 6
     fin = np.array([[0, 0, 4], [10, 0, 4], [5, -3, 7]], float)  # on the top edge y=0, z=4
     V3 = np.vstack([V, fin])
@@ -204,7 +204,7 @@ def test_weld_and_degenerate_and_nonmanifold():
     a, b = [int(np.flatnonzero((V3 == q).all(1))[0]) for q in ([0, 0, 4], [10, 0, 4])]
     F3[-1] = [a, b, len(V3) - 1]
     model3, stats3 = convert(V3, F3)
-    assert stats3["nonmanifold_edges"] == 1
+    assert stats3.nonmanifold_edges == 1
     assert model3.n_faces == 7
 
 
@@ -225,8 +225,8 @@ def test_curved_terrain_iterative():
     idx = np.arange((n + 1) ** 2).reshape(n + 1, n + 1)
     a, b, c, d = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
     F = np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
-    model, stats = convert(V, F, angle_tol_deg=2.0, dist_tol=0.05)
-    assert stats["regrown_triangles"] > 10_000
+    model, stats = convert(V, F, angle_tol_deg=2.0, dist_tol_m=0.05)
+    assert stats.regrown_triangles > 10_000
     assert 50 < model.n_faces < len(F)
     # merged triangles are coplanar only within the tolerances, so the 3D area holds to ~1e-3;
     # the footprint (xy-projected area) must be exact: no overlaps, no gaps
@@ -265,7 +265,7 @@ def test_cityjson_buildings(shared_data, fname):
         e = np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1)
         _, cnt = np.unique(e, axis=0, return_counts=True)
         closed = bool((cnt == 2).all())
-        model, stats = convert(V, F, angle_tol_deg=1.0, dist_tol=0.02)
+        model, stats = convert(V, F, angle_tol_deg=1.0, dist_tol_m=0.02)
         check_conversion(V, F, model, stats, 1.0, rel_area_tol=1e-9 + scale, max_polygons=n_surfaces, closed=closed)
         n_checked += 1
     assert n_checked >= 1
@@ -369,7 +369,7 @@ def test_holes_touching_outer_boundary_and_each_other(tmp_path):
         removed |= (ci == i) & (cj == j)
     F = F[~removed]
     model, stats = convert(V, F)
-    assert model.n_faces >= 1 and stats["pinch_vertices"] >= 2
+    assert model.n_faces >= 1 and stats.pinch_vertices >= 2
     check_conversion(V, F, model, stats, 1.0)
     for lp in model.loops():
         assert len(np.unique(lp)) == len(lp)  # simple loops
@@ -446,8 +446,8 @@ def test_mobius_strip_does_not_crash():
         a, b = i, k + i
         c, d = (j, k + j) if j else (k + j, j)  # the half twist swaps the two rails
         F += [[a, c, b], [b, c, d]]
-    model, stats = convert(V, np.array(F), angle_tol_deg=1.0, dist_tol=0.01)
-    assert model.n_faces > 10 and stats["components"] == 1
+    model, stats = convert(V, np.array(F), angle_tol_deg=1.0, dist_tol_m=0.01)
+    assert model.n_faces > 10 and stats.components == 1
 
 
 @pytest.mark.slow
@@ -457,6 +457,51 @@ def test_city_block_1m():
     V, F = gen.city_block(n_triangles=1_000_000, buildings=64, seed=0)
     model, stats = convert(V, F)
     # 16 each of box (6), L (8), courtyard (10, 2 holes), gabled (7) + at most 7 x 7 terrain patches
-    assert stats["components"] == 65 and stats["closed_components"] == 64
+    assert stats.components == 65 and stats.closed_components == 64
     assert 496 < model.n_faces <= 496 + 49 and model.n_holes == 32
     check_conversion(V, F, model, stats, 1.0, rel_area_tol=1e-9)
+
+
+def test_cli_config_file_sets_a_tolerance_and_json_echoes_it(tmp_path, mst):
+    """One convert setting through --config YAML changes the result; the --json 'config' block
+    repeats the run exactly; an explicit option overrides the file."""
+    V, F = gen.courtyard(split=2)
+    rng = np.random.default_rng(3)
+    soup = V[F].reshape(-1, 3) + rng.uniform(-1e-5, 1e-5, (3 * len(F), 3))  # unwelded, 10 um apart
+    src = tmp_path / "soup.obj"
+    save_triangles(src, soup, np.arange(len(soup)).reshape(-1, 3))
+    base = json.loads(mst("convert-model", src, "-o", tmp_path / "a.obj", "--json", "-q").stdout)
+    (tmp_path / "c.yaml").write_text("convert-model:\n  weld_tol_m: 0.001\n")
+    loose = json.loads(mst("convert-model", src, "-o", tmp_path / "b.obj", "--json", "-q",
+                           "--config", tmp_path / "c.yaml").stdout)
+    assert loose["config"]["weld_tol_m"] == 0.001 and base["config"]["weld_tol_m"] == 1e-6
+    assert base["welded_vertices"] == 0 and loose["welded_vertices"] > len(F)  # the soup is welded
+    assert loose["polygons_out"] < base["polygons_out"]
+    (tmp_path / "again.json").write_text(json.dumps(loose["config"]))
+    again = json.loads(mst("convert-model", src, "-o", tmp_path / "c.obj", "--json", "-q",
+                           "--config", tmp_path / "again.json").stdout)
+    assert (tmp_path / "c.obj").read_bytes() == (tmp_path / "b.obj").read_bytes()
+    assert again["config"] == loose["config"]
+    over = json.loads(mst("convert-model", src, "-o", tmp_path / "d.obj", "--json", "-q",
+                          "--config", tmp_path / "c.yaml", "--weld-tol", "1e-6").stdout)
+    assert over["polygons_out"] == base["polygons_out"]
+
+
+def test_cli_config_unknown_key_and_bad_value_are_named(tmp_path, mst):
+    src = tmp_path / "in.obj"
+    src.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    (tmp_path / "bad.yaml").write_text("angle_tol: 2\n")
+    r = mst("convert-model", src, "-o", tmp_path / "o.wrl", "--config", tmp_path / "bad.yaml", check=False)
+    assert r.returncode == 1 and "angle_tol" in r.stderr and "unknown key" in r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1 and not (tmp_path / "o.wrl").exists()
+    r = mst("convert-model", src, "-o", tmp_path / "o.wrl", "--set", "weld_tol_m=-1", check=False)
+    assert r.returncode == 1 and "weld_tol_m" in r.stderr and "--" not in r.stderr.split("error:")[1]
+    assert not (tmp_path / "o.wrl").exists()
+
+
+def test_config_bounds_checked_once_in_the_config():
+    from mst.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="dist_tol_m"):
+        ConvertConfig(dist_tol_m=-1.0)
+    assert ConvertConfig.from_dict({"collinear_tol_m": "null"}).collinear_tol_m is None

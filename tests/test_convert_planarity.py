@@ -11,7 +11,7 @@ import pytest
 
 from mst.meshtools import generate as gen
 from mst.meshtools.convert import ConvertConfig, tin_to_polygons
-from mst.meshtools.io import load_model, save_triangles
+from mst.meshtools.formats import load_model, save_triangles
 
 
 def max_plane_distance(model) -> np.ndarray:
@@ -38,7 +38,7 @@ def test_cityjson_sets_planar_within_dist_tol(shared_data, fname, dist_tol, angl
     """Whole real city sets: triangulate, convert back, measure every output polygon."""
     m = load_model(shared_data / "cityjson" / fname)
     V, F = m.triangulate()
-    model, stats = tin_to_polygons(V, F, ConvertConfig(angle_tol_deg=angle_tol, dist_tol=dist_tol))
+    model, stats = tin_to_polygons(V, F, ConvertConfig(angle_tol_deg=angle_tol, dist_tol_m=dist_tol))
     diag = float(np.linalg.norm(np.ptp(V, axis=0)))
     _assert_promise(model, dist_tol, diag)
     # the surfaces are planar polygons: the fix must not shatter them (no more polygons than
@@ -70,7 +70,7 @@ def test_random_curved_tins(seed):
                           dense=int(rng.integers(10, 60)))
     V[:, 2] += rng.uniform(-1e-3, 1e-3, len(V))
     dist_tol = 0.01
-    model, _ = tin_to_polygons(V, F, ConvertConfig(angle_tol_deg=6.0, dist_tol=dist_tol))
+    model, _ = tin_to_polygons(V, F, ConvertConfig(angle_tol_deg=6.0, dist_tol_m=dist_tol))
     _assert_promise(model, dist_tol, float(np.linalg.norm(np.ptp(V, axis=0))))
 
 
@@ -79,10 +79,10 @@ def test_last_resort_split_keeps_the_promise_and_the_area(monkeypatch):
     and the polygons still cover the input exactly (area budget: float64 rounding)."""
     import mst.meshtools.convert as cv
 
-    monkeypatch.setattr(cv, "_PLANARITY_ROUNDS", 0)
+    monkeypatch.setattr(cv, "PLANARITY_ROUNDS", 0)
     V, F = gen.uneven_arc()
-    model, stats = tin_to_polygons(V, F, ConvertConfig(angle_tol_deg=5.0, dist_tol=0.01))
-    assert stats["replanarised_triangles"] > 0
+    model, stats = tin_to_polygons(V, F, ConvertConfig(angle_tol_deg=5.0, dist_tol_m=0.01))
+    assert stats.replanarised_triangles > 0
     _assert_promise(model, 0.01, float(np.linalg.norm(np.ptp(V, axis=0))))
 
     def area(V, F):

@@ -89,7 +89,8 @@ def seq(tmp_path_factory):
 
 
 def _cfg(**kw) -> FuseConfig:
-    return FuseConfig(**{"voxel": 0.0, **kw})
+    """A config keeping every sample; ``kw``: settings by name (``depth__max_m`` for ``depth.max_m``)."""
+    return FuseConfig().merged({"voxel_m": 0.0, **{k.replace("__", "."): v for k, v in kw.items()}})
 
 
 def test_points_lie_on_the_mesh(seq, tmp_path):
@@ -117,7 +118,7 @@ def test_png_millimetres_match_npy(seq, tmp_path):
 def test_voxel_grid_averages_per_voxel(seq, tmp_path):
     r = seq["root"]
     fuse(tmp_path / "all.ply", _cfg(), r / "traj.txt", r / "depth", r / "camera.json")
-    s = fuse(tmp_path / "vox.ply", _cfg(voxel=0.02), r / "traj.txt", r / "depth", r / "camera.json")
+    s = fuse(tmp_path / "vox.ply", _cfg(voxel_m=0.02), r / "traj.txt", r / "depth", r / "camera.json")
     X, _ = read_ply_points(tmp_path / "all.ply")
     V, _ = read_ply_points(tmp_path / "vox.ply")
     # same voxels as an independent np.unique over all samples (origin = first camera centre)
@@ -157,7 +158,7 @@ def test_lost_frames_skipped_and_fps_association(seq, tmp_path):
     fuse(tmp_path / "i.ply", _cfg(), r / "traj.txt", r / "depth", r / "camera.json")
     assert s2["fused_frames"] == 6
     assert (tmp_path / "g.ply").read_bytes() == (tmp_path / "i.ply").read_bytes()
-    with pytest.raises(InputError, match="not a frame index.*--fps"):
+    with pytest.raises(InputError, match="not a frame index.*fps"):
         fuse(tmp_path / "x.ply", _cfg(), r / "gt30.txt", r / "depth", r / "camera.json")
     s3 = fuse(tmp_path / "st.ply", _cfg(stride=2), r / "traj.txt", r / "depth", r / "camera.json")
     assert s3["fused_frames"] == 3 and s3["skipped_stride"] == 3
@@ -216,8 +217,8 @@ def test_edge_and_grazing_filters():
     # plane n . X = -c through (0, 0, 1): depth along each ray = (n . X0) / (n . ray)
     depth = ((n @ np.array([0, 0, 1.0])) / (rays @ n)).astype(np.float32)
     depth[(depth < 0.1) | (depth > 10)] = 0
-    _, keep80, c80, _ = backproject(depth, rays, FuseConfig(edge_k=0, max_angle_deg=80))
-    _, keep89, c89, _ = backproject(depth, rays, FuseConfig(edge_k=0, max_angle_deg=89.9))
+    _, keep80, c80, _ = backproject(depth, rays, _cfg(depth__edge_rel=0, max_angle_deg=80))
+    _, keep89, c89, _ = backproject(depth, rays, _cfg(depth__edge_rel=0, max_angle_deg=89.9))
     centre = keep89[20:30, 20:30]
     assert centre.all() and not keep80[20:30, 20:30].any()
     assert c80["dropped_grazing"] > c89["dropped_grazing"]
@@ -244,7 +245,7 @@ def test_smooth_depth_denoises_keeps_steps_and_holes():
 
 def test_tsdf_surface_close_to_mesh(seq, tmp_path):
     r = seq["root"]
-    s = fuse(tmp_path / "t.ply", FuseConfig(tsdf=True, voxel=0.02), r / "traj.txt", r / "depth", r / "camera.json")
+    s = fuse(tmp_path / "t.ply", FuseConfig(tsdf=True, tsdf_voxel_m=0.02), r / "traj.txt", r / "depth", r / "camera.json")
     X, _ = read_ply_points(tmp_path / "t.ply")
     assert s["mode"] == "tsdf" and len(X) > 1000
     dist = _distance(seq["mesh"], X)
@@ -270,12 +271,12 @@ def test_color_points(seq, tmp_path):
     assert rgb is not None and s["colored_samples"] == len(X)
     assert (rgb == [200, 0, 0]).all()
     # voxel averaging mixes red (even frames) and blue (odd frames) where both saw a voxel
-    fuse(tmp_path / "v.ply", _cfg(voxel=0.05), r / "traj.txt", r / "depth", r / "camera.json", color_dir=tmp_path / "rgb")
+    fuse(tmp_path / "v.ply", _cfg(voxel_m=0.05), r / "traj.txt", r / "depth", r / "camera.json", color_dir=tmp_path / "rgb")
     _, rgbv = read_ply_points(tmp_path / "v.ply")
     assert (rgbv[:, 1] == 0).all() and ((rgbv[:, 0] > 0) & (rgbv[:, 2] > 0)).mean() > 0.3
     assert ((rgbv[:, 0] + rgbv[:, 2]).astype(int) - 200 <= 1).all()
     # the TSDF carries colour too
-    fuse(tmp_path / "t.ply", FuseConfig(tsdf=True, voxel=0.03), tmp_path / "even.txt", r / "depth", r / "camera.json",
+    fuse(tmp_path / "t.ply", FuseConfig(tsdf=True, tsdf_voxel_m=0.03), tmp_path / "even.txt", r / "depth", r / "camera.json",
          color_dir=tmp_path / "rgb")
     _, rgbt = read_ply_points(tmp_path / "t.ply")
     assert np.median(rgbt[:, 0]) == 200 and rgbt[:, 1:].max() == 0
@@ -332,16 +333,39 @@ def test_cli_json_and_errors(seq, tmp_path, mst):
     # infinite max depth is allowed (no limit) and the JSON stays valid
     p = mst("fuse", "--traj", r / "traj.txt", "--depth", r / "depth", "--camera", r / "camera.json",
             "--max-depth", "inf", "-o", tmp_path / "inf.ply", "--json", "-q")
-    assert json.loads(p.stdout)["config"]["max_depth"] is None
+    assert json.loads(p.stdout)["config"]["depth"]["max_m"] is None
     p = mst("fuse", "--help")
     assert "mst fuse --traj traj.txt --depth seq/depth --camera seq/camera.json --voxel 0.01 -o cloud.ply" in p.stdout
+
+
+def test_cli_config_file_sets_a_setting_and_repeats_a_run(seq, tmp_path, mst):
+    """A setting from a --config YAML file takes effect; the --json config repeats the run exactly;
+    an explicit option overrides the file; an unknown key fails naming it (dotted), writing nothing."""
+    r = seq["root"]
+    args = ["fuse", "--traj", r / "traj.txt", "--depth", r / "depth", "--camera", r / "camera.json", "--json", "-q"]
+    (tmp_path / "c.yaml").write_text("stride: 2\nvoxel_m: 0.02\ndepth:\n  max_m: 2.5\n")
+    js = json.loads(mst(*args, "--config", tmp_path / "c.yaml", "-o", tmp_path / "a.ply").stdout)
+    assert js["fused_frames"] == 3 and js["skipped_stride"] == 3
+    assert js["config"]["depth"]["max_m"] == 2.5 and js["config"]["voxel_m"] == 0.02
+    full = json.loads(mst(*args, "--config", tmp_path / "c.yaml", "--set", "depth.max_m=50",
+                          "-o", tmp_path / "far.ply").stdout)
+    assert full["dropped_range"] < js["dropped_range"]  # the 2.5 m limit dropped samples
+    (tmp_path / "echo.json").write_text(json.dumps(js["config"]))
+    mst(*args, "--config", tmp_path / "echo.json", "-o", tmp_path / "b.ply")
+    assert (tmp_path / "a.ply").read_bytes() == (tmp_path / "b.ply").read_bytes()
+    js3 = json.loads(mst(*args, "--config", tmp_path / "c.yaml", "--stride", "1", "-o", tmp_path / "s1.ply").stdout)
+    assert js3["fused_frames"] == 6 and js3["config"]["stride"] == 1
+    (tmp_path / "bad.yaml").write_text("depth:\n  scal: 5000\n")
+    p = mst(*args, "--config", tmp_path / "bad.yaml", "-o", tmp_path / "bad.ply", check=False)
+    assert p.returncode == 1 and "depth.scal: unknown key" in p.stderr and "bad.yaml" in p.stderr
+    assert not (tmp_path / "bad.ply").exists()
 
 
 def test_real_cube_colour_through_extrinsic(shared_data, tmp_path):
     """Colour frames seen by the colour camera, mapped with depth_M_color (frames 0 and 5)."""
     cube = shared_data / "visp-cube-rgbd"
     write_tum(tmp_path / "id.txt", np.array([0.0, 5.0]), np.repeat(np.eye(4)[None], 2, axis=0))
-    s = fuse(tmp_path / "c.ply", FuseConfig(voxel=0.004, max_depth=1.0), tmp_path / "id.txt", cube,
+    s = fuse(tmp_path / "c.ply", _cfg(voxel_m=0.004, depth__max_m=1.0), tmp_path / "id.txt", cube,
              cube / "model" / "cube_depth.xml", depth_to_color_path=cube / "depth_M_color.txt", color_dir=cube,
              color_camera_path=cube / "model" / "cube.xml")
     X, rgb = read_ply_points(tmp_path / "c.ply")

@@ -38,13 +38,13 @@ def test_ground_truth_poses_exact(house, tmp_path):
     """Noise-free depth + gt.txt (t = k / 30 s): every fused sample within 1e-3 m of scene.ply."""
     seq = tmp_path / "seq"
     synthesize("orbit", house, seq, SynthConfig(frames=5, width=320, height=240, texture_size=64, depth_noise="none"))
-    s = fuse(tmp_path / "c.ply", FuseConfig(voxel=0.0, fps=30.0), seq / "gt.txt", seq / "depth", seq / "camera.json")
+    s = fuse(tmp_path / "c.ply", FuseConfig(voxel_m=0.0, fps=30.0), seq / "gt.txt", seq / "depth", seq / "camera.json")
     X, _ = read_ply_points(tmp_path / "c.ply")
     assert s["fused_frames"] == 5 and len(X) > 50_000
     d = _distance_to(seq / "scene.ply", X)
     assert d.max() < 1e-3, d.max()
     # the millimetre PNGs give the same surface within the 0.5 mm quantisation (+ grazing magnification)
-    fuse(tmp_path / "p.ply", FuseConfig(voxel=0.0, fps=30.0), seq / "gt.txt", str(seq / "depth" / "*.png"), seq / "camera.json")
+    fuse(tmp_path / "p.ply", FuseConfig(voxel_m=0.0, fps=30.0), seq / "gt.txt", str(seq / "depth" / "*.png"), seq / "camera.json")
     Xp, _ = read_ply_points(tmp_path / "p.ply")
     assert np.quantile(_distance_to(seq / "scene.ply", Xp), 0.99) < 1e-3
 

@@ -1,4 +1,4 @@
-"""Model readers/writers, triangulation and procedural TINs (mst.meshtools.io / generate)."""
+"""Model readers/writers, triangulation and procedural TINs (mst.meshtools.formats / polygons / generate)."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import pytest
 
 from mst import InputError
 from mst.meshtools import generate as gen
-from mst.meshtools.io import (
+from mst.meshtools.formats import (
     load_model,
     load_triangles,
     read_cao,
@@ -254,10 +254,10 @@ def test_polygon_model_write_unknown_suffix(tmp_path):
         save_model(tmp_path / "x.ply", PolygonModel(np.eye(3), [[0, 1, 2]]))
 
 
-def test_ply_fast_reader_agrees_with_trimesh(tmp_path):
+def test_ply_reader_agrees_with_trimesh(tmp_path):
     import trimesh
 
-    from mst.meshtools.io import _read_ply_triangles_fast
+    from mst.core.ply import read_header, read_mesh
 
     V, F = gen.gabled_house(split=3)
     a = tmp_path / "ours.ply"
@@ -267,13 +267,14 @@ def test_ply_fast_reader_agrees_with_trimesh(tmp_path):
     np.testing.assert_array_equal(t.faces, F)
     b = tmp_path / "trimesh.ply"
     trimesh.Trimesh(V, F, process=False).export(b)  # float32, written by trimesh
-    Vb, Fb = _read_ply_triangles_fast(b)
+    mb = read_mesh(read_header(b))
+    Vb, Fb = mb.vertices, mb.faces
     tb = trimesh.load(b, process=False)
     np.testing.assert_array_equal(Vb, tb.vertices)
     np.testing.assert_array_equal(Fb, tb.faces)
     c = tmp_path / "ascii.ply"
     trimesh.Trimesh(V, F, process=False).export(c, encoding="ascii")
-    assert _read_ply_triangles_fast(c) is None  # ASCII goes through trimesh
+    assert isinstance(read_mesh(read_header(c)).faces, list)  # ASCII: line by line, faces as loops
     Vc, Fc = load_triangles(c)
     np.testing.assert_allclose(Vc, V, atol=1e-5)
     np.testing.assert_array_equal(Fc, F)
@@ -337,3 +338,16 @@ def test_vrml_switch_and_lod(tmp_path):
     m = load_model(p)
     assert m.n_faces == 2
     assert sorted(m.vertices[:, 0].tolist()) == [2, 2, 2, 4, 4, 4]
+
+
+def test_load_tracking_model_refuses_degenerate_geometry(tmp_path):
+    from mst.meshtools.formats import load_tracking_model
+
+    p = tmp_path / "line.obj"
+    p.write_text("v 0 0 0\nv 1 0 0\nv 2 0 0\nf 1 2 3\n")
+    assert load_model(p).n_faces == 1  # a valid file ...
+    with pytest.raises(InputError, match="degenerate") as e:  # ... but nothing to track
+        load_tracking_model(p)
+    assert str(p) in str(e.value)
+    save_model(tmp_path / "box.obj", gen.box_model())
+    assert load_tracking_model(tmp_path / "box.obj").n_faces == 6

@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from mst.core.camera import Camera
-from mst.core.poses import inv_T, look_at, make_T
+from mst.core.poses import inv_T, look_at, make_T, transform_points
 
 DYNAMIC_SCENARIOS = ("turntable", "occluder", "blackout")
 DEFAULT_FRAMES_DYNAMIC = {"turntable": 80, "occluder": 60, "blackout": 60}
@@ -201,7 +201,8 @@ def synthesize_dynamic(scenario: str, model_path: str | os.PathLike, out_dir: st
     from mst.core.camera import write_camera
     from mst.core.poses import format_tum, write_pose_file
     from mst.meshtools.io import save_triangles
-    from mst.pipeline.synth import _commit_out_dir, _prepare_out_dir, load_model_triangles, model_corners
+    from mst.pipeline.synth.scene import load_model_triangles, model_corners
+    from mst.pipeline.synth.writers import _commit_out_dir, _prepare_out_dir
 
     t0 = time.perf_counter()
     model_path = Path(model_path)
@@ -234,8 +235,8 @@ def synthesize_dynamic(scenario: str, model_path: str | os.PathLike, out_dir: st
         save_triangles(tmp / "model.obj", V, F)
         corners = V[model_corners(V, F)]
         T0 = sc.T_cam_model(0)
-        Xc = corners @ T0[:3, :3].T + T0[:3, 3]
-        uv = Xc[:, :2] / Xc[:, 2:3] * [f, f] + [cam.cx, cam.cy]
+        Xc = transform_points(T0, corners)
+        uv = cam.project(Xc)
         inside = (Xc[:, 2] > 0) & (uv[:, 0] >= 0) & (uv[:, 0] < cam.width) & (uv[:, 1] >= 0) & (uv[:, 1] < cam.height)
         clk = [f"{x:.6f} {y:.6f} {z:.6f} {u:.3f} {v:.3f}" for (x, y, z), (u, v) in zip(corners[inside], uv[inside])][:8]
         (tmp / "clicks.txt").write_text("\n".join(clk) + "\n")
@@ -251,4 +252,4 @@ def synthesize_dynamic(scenario: str, model_path: str | os.PathLike, out_dir: st
     _commit_out_dir(tmp, Path(out_dir))
     return {"frames": sc.n, "scenario": scenario, "width": cfg.width, "height": cfg.height, "distance_m": sc.D,
             "out_dir": str(out_dir), "render_ms_per_frame": 1e3 * render_s / max(sc.n, 1), "clicks": len(clk),
-            "seconds": time.perf_counter() - t0}
+            "total_s": time.perf_counter() - t0, "config": cfg.to_dict()}

@@ -1,0 +1,335 @@
+"""Nearest-triangle search of the C2M grid engine (exact float64, no Open3D).
+
+:class:`DenseGrid` (meshes up to ``small_mesh_triangles``): a dense grid of lazily computed per-cell
+candidate lists; :class:`BinGrid` (larger meshes): every triangle binned into the cells its bounding
+box overlaps, shells of cells searched around each point until provably exact; :class:`TriangleGrid`:
+the numpy coarse-to-fine candidate search used for points outside the dense grid (and by the BVH
+engine for points far from the mesh). The compiled loops are in :mod:`mst.eval.c2m.kernels`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from mst.eval.c2m.geometry import MeshIndex, triangle_distances
+
+
+class TriangleGrid:
+    """Nearest-triangle search for small meshes, numpy float64 only (no Open3D).
+
+    Points are binned in cubic cells. Every occupied cell gets a conservative candidate set: the
+    triangles whose distance to the cell centre is at most ``dmin + 2 r`` (``dmin`` the smallest
+    centre-triangle distance, ``r`` the cell half-diagonal); by the triangle inequality the nearest
+    triangle of every point of the cell is in it. Candidate sets are computed coarse to fine (cell
+    size halved per level, each cell testing only its parent's candidates, which is exact because a
+    child cell lies inside its parent). Then, candidate slot by slot, each point is tested against
+    its cell's j-th candidate exactly in float64; points are ordered by candidate count so every
+    slot is a contiguous prefix.
+    """
+
+    def __init__(self, idx: MeshIndex, points_per_cell: float = 24.0):
+        self.idx = idx
+        self.ext = float(np.ptp(idx.V, axis=0).max()) or 1.0
+        self.ppc = points_per_cell
+
+    def candidates(self, key_fine: np.ndarray, org: np.ndarray, h: float, levels: int, nb=None
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """CSR candidate lists (ptr, tri) and distance lower bounds for the sorted unique fine cell keys."""
+        idx = self.idx
+        m = idx.n_triangles
+        prev_k = ptr = tri = lb = None
+        for lev in range(levels, -1, -1):
+            hl = h * (1 << lev)
+            u = np.unique(_shift_key(key_fine, lev))
+            if prev_k is None:  # coarsest level: every triangle is a candidate
+                cand_cnt = np.full(len(u), m, np.int64)
+                parent_start = np.zeros(len(u), np.int64)
+                tri = np.arange(m)
+            else:  # each cell tests its parent's candidates only
+                pi = np.searchsorted(prev_k, _shift_key(u, 1))
+                cand_cnt = ptr[pi + 1] - ptr[pi]
+                parent_start = ptr[pi]
+            prev_k = u
+            centres = org + (_unkey(u) + 0.5) * hl
+            r = 0.5 * hl * np.sqrt(3.0)
+            tot = int(cand_cnt.sum())
+            cell_of = np.repeat(np.arange(len(u)), cand_cnt)
+            offs = np.arange(tot) - np.repeat(np.cumsum(cand_cnt) - cand_cnt, cand_cnt)
+            ti = tri[np.repeat(parent_start, cand_cnt) + offs]
+            if nb is not None:
+                d = np.sqrt(nb.pairs_d2(centres, cell_of, ti, idx.A, idx.AB, idx.AC, idx.BC, idx.N, idx.G))
+            else:
+                d = np.sqrt(triangle_distances(idx, centres[cell_of], ti)[0])
+            dmin = np.minimum.reduceat(d, np.cumsum(cand_cnt) - cand_cnt)
+            keep = d <= (dmin + 2 * r + 1e-9 * self.ext)[cell_of]
+            ptr = np.zeros(len(u) + 1, np.int64)
+            np.cumsum(np.bincount(cell_of[keep], minlength=len(u)), out=ptr[1:])
+            tri = ti[keep]
+            lb = dmin - r
+        return ptr, tri, lb
+
+    def nearest(self, P: np.ndarray, max_dist: float | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(tri, d2, feature)`` per point; tri = -1 where provably farther than ``max_dist``."""
+        idx = self.idx
+        n = len(P)
+        lo = P.min(0)
+        span = np.maximum(P.max(0) - lo, 1e-9 * self.ext)
+        area_guess = 2 * (span[0] * span[1] + span[1] * span[2] + span[0] * span[2])
+        h = float(np.sqrt(area_guess * self.ppc / n))
+        h = min(max(h, 1e-7 * self.ext, float(span.max()) / 1e6), float(span.max()) + 1e-9)
+        ijk = np.floor((P - lo) / h).astype(np.int64)
+        levels = max(0, int(np.ceil(np.log2(max(int(ijk.max()), 1) + 1))) - 2)
+        key = _key(ijk)
+        del ijk
+        order = np.argsort(key)
+        ks = key[order]
+        first = np.r_[True, ks[1:] != ks[:-1]]
+        cell_start = np.nonzero(first)[0]
+        cnt = np.diff(np.r_[cell_start, n])
+        ptr, tri, lb = self.candidates(ks[cell_start], lo, h, levels)
+        ncand = np.diff(ptr)
+        if max_dist is not None:
+            ncand = np.where(lb > max_dist, 0, ncand)
+        # order points by candidate count (descending) so that slot j is a prefix
+        cell_of_sorted = np.repeat(np.arange(len(cnt)), cnt)
+        pc = ncand[cell_of_sorted]
+        o2 = np.argsort(-pc, kind="stable")
+        perm = order[o2]
+        pc = pc[o2]
+        cstart = ptr[:-1][cell_of_sorted[o2]]
+        Ps = P[perm]
+        best_d2 = np.full(n, np.inf)
+        best_t = np.full(n, -1, np.int64)
+        best_f = np.zeros(n, np.int8)
+        nj = np.searchsorted(-pc, -np.arange(1, int(pc.max(initial=0)) + 1), side="right")
+        blk = 131072
+        for j, nslot in enumerate(nj):
+            for s in range(0, int(nslot), blk):
+                e = min(int(nslot), s + blk)
+                ti = tri[cstart[s:e] + j]
+                d2, f, _ = triangle_distances(idx, Ps[s:e], ti)
+                if j == 0:
+                    best_d2[s:e], best_t[s:e], best_f[s:e] = d2, ti, f
+                    continue
+                b = d2 < best_d2[s:e]
+                best_d2[s:e][b] = d2[b]
+                best_t[s:e][b] = ti[b]
+                best_f[s:e][b] = f[b]
+        out_t = np.empty(n, np.int64)
+        out_d = np.empty(n)
+        out_f = np.empty(n, np.int8)
+        out_t[perm], out_d[perm], out_f[perm] = best_t, best_d2, best_f
+        return out_t, out_d, out_f
+
+
+class BinGrid:
+    """Nearest-triangle search for large meshes (compiled, exact float64, no Open3D).
+
+    A uniform grid of cubic cells over the mesh box (plus a margin); every triangle is listed in each
+    cell its bounding box overlaps (conservative, CSR with int32 triangle ids). Per point, shells of
+    cells around its cell are searched outward until the best distance is at most the distance to the
+    cells not searched yet (:func:`mst.eval.c2m.kernels.bins_query`): exact, also near ties. The cell
+    size is about ``cell_factor`` times the mean triangle edge (from the mean area), enlarged when the
+    grid would exceed ``max_cells``. Points far outside the grid (more than ``far_cells`` cells) scan
+    the occupied cells instead (:func:`mst.eval.c2m.kernels.bins_far_query`).
+    """
+
+    def __init__(self, idx: MeshIndex, nb, cell_factor: float = 2.0, max_cells: int = 4_000_000,
+                 far_cells: float = 32.0):
+        self.idx, self.nb = idx, nb
+        m = idx.n_triangles
+        vmin, vmax = idx.V.min(0), idx.V.max(0)
+        ext = float((vmax - vmin).max()) or 1.0
+        area = 0.5 * float(np.linalg.norm(np.cross(idx.AB, idx.AC), axis=1).sum())
+        h = cell_factor * np.sqrt(2.0 * area / m)
+        size = np.maximum(vmax - vmin, 1e-9 * ext)
+        h = max(h, float(np.cbrt(np.prod(size + 4 * h) / max_cells)), ext / 4096)
+        for _ in range(8):  # the margin (2 cells each side) depends on h
+            dims = np.ceil((size + 4 * h) / h).astype(np.int64)
+            if int(np.prod(dims)) <= max_cells:
+                break
+            h *= 1.26
+        self.h = float(h)
+        self.lo = vmin - 2 * h
+        self.dims = dims
+        corners = np.stack([idx.A, idx.A + idx.AB, idx.A + idx.AC])
+        self.BB = np.concatenate([corners.min(0), corners.max(0)], axis=1)  # (m, 6) triangle boxes
+        self.start, self.items = nb.bin_triangles(self.BB, self.lo, 1.0 / self.h, self.dims)
+        self.far_d2 = (far_cells * self.h) ** 2
+        self.occ = np.nonzero(np.diff(self.start))[0]  # occupied cells, for the far points
+
+    def nearest(self, P: np.ndarray, max_dist: float | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(tri, d2, feature)`` per point; tri = -1 where farther than ``max_dist``."""
+        nb, idx = self.nb, self.idx
+        P = np.ascontiguousarray(P, np.float64)
+        md2 = np.inf if max_dist is None else (float(max_dist) * (1 + 1e-9)) ** 2
+        order = nb.bucket_order(P, self.lo, 1.0 / self.h, self.dims, 2)
+        tri, d2, feat, st = nb.bins_query(P, self.lo, self.h, self.dims, self.start, self.items, md2, self.far_d2,
+                                          idx.A, idx.AB, idx.AC, idx.BC, idx.N, idx.G, self.BB, order)
+        out = np.nonzero(st == 1)[0]
+        if len(out):
+            tri[out], d2[out], feat[out] = nb.bins_far_query(P[out], self.lo, self.h, self.dims, self.start,
+                                                             self.items, self.occ, md2, idx.A, idx.AB, idx.AC,
+                                                             idx.BC, idx.N, idx.G, self.BB)
+        return tri, d2, feat
+
+
+class DenseGrid:
+    """Nearest-triangle search for small meshes: a dense grid of cells over the mesh box.
+
+    Candidate triangle lists (see :class:`TriangleGrid` for the conservative rule) are computed
+    lazily, the first time a point falls in a cell, and cached for the following chunks (thread
+    safe). Per point the work is a cell lookup and exact float64 distances to the cell's few
+    candidates: no sorting. Points outside the grid box go to :class:`TriangleGrid`.
+    """
+
+    def __init__(self, idx: MeshIndex, max_cells: int = 500_000, compiled: bool = True):
+        import threading
+
+        self.idx = idx
+        vmin, vmax = idx.V.min(0), idx.V.max(0)
+        ext = float((vmax - vmin).max()) or 1.0
+        margin = 0.1 * ext
+        self.lo = vmin - margin
+        size = np.maximum(vmax + margin - self.lo, 1e-9 * ext)
+        self.h = float((np.prod(size) / max_cells) ** (1.0 / 3.0))
+        self.h = max(self.h, float(size.max()) / 1_000_000)
+        self.dims = np.minimum(np.ceil(size / self.h).astype(np.int64), 1 << 20)
+        n = int(np.prod(self.dims))
+        # per cell: (start << 16) | count into ``cand`` (-1: not computed yet); one 8-byte word per
+        # cell so that a point costs one cache miss; candidate ids as int32 (meshes < 65536 triangles)
+        self.cell = np.full(n, -1, np.int64)
+        self.lb = np.zeros(n, np.float32)
+        self.cand = np.zeros(0, np.int32)
+        self.levels = max(0, int(np.ceil(np.log2(int(self.dims.max())))) - 2)
+        self._lock = threading.Lock()
+        self._tg = TriangleGrid(idx)
+        self.ext = ext
+        nb = None
+        if compiled:  # the compiled kernels (about 10x faster); the numpy path is the tests' reference
+            from mst.eval.c2m import kernels as nb
+        self.nb = nb
+        corners = np.stack([idx.A, idx.A + idx.AB, idx.A + idx.AC])
+        self.BB = np.concatenate([corners.min(0), corners.max(0)], axis=1)  # (m, 6) triangle boxes
+
+    def _nearest_numba(self, P: np.ndarray, max_dist: float | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        nb, idx = self.nb, self.idx
+        md = -1.0 if max_dist is None else float(max_dist)
+        lo, inv_h = self.lo.astype(np.float64), 1.0 / self.h
+        args = (idx.A, idx.AB, idx.AC, idx.BC, idx.N, idx.G)
+        order = nb.bucket_order(P, lo, inv_h, self.dims, 3)
+        tri, d2, feat, st = nb.grid_query(P, lo, inv_h, self.dims, self.cell, self.lb, self.cand, md, *args, order,
+                                          self.BB)
+        new = np.nonzero(st == 2)[0]
+        if len(new):
+            flat = nb.cells_of(P[new], lo, inv_h, self.dims)
+            self._fill(np.unique(flat))
+            Pn = P[new]
+            t2, e2, f2, s2 = nb.grid_query(Pn, lo, inv_h, self.dims, self.cell, self.lb, self.cand, md, *args,
+                                           nb.bucket_order(Pn, lo, inv_h, self.dims, 3), self.BB)
+            tri[new], d2[new], feat[new], st[new] = t2, e2, f2, s2
+        out = np.nonzero(st == 1)[0]
+        if len(out):
+            tri[out], d2[out], feat[out] = self._tg.nearest(P[out], max_dist)
+        return tri, d2, feat
+
+    def _fill(self, flat: np.ndarray) -> None:
+        """Compute candidate lists of the (unique, not yet computed) flat cell ids."""
+        with self._lock:
+            flat = flat[self.cell[flat] < 0]
+            if not len(flat):
+                return
+            dy, dz = int(self.dims[1]), int(self.dims[2])
+            ijk = np.stack([flat // (dy * dz), (flat // dz) % dy, flat % dz], axis=1)
+            if self.nb is not None and self.levels >= 3:
+                # parents 3 levels up (8x coarser cells), their lists by the numpy hierarchy, then
+                # the fine cells refined from their parent's list in the compiled kernel
+                pkey = _key(ijk >> 3)
+                upk, pinv = np.unique(pkey, return_inverse=True)
+                pptr, ptri, _ = self._tg.candidates(upk, self.lo, self.h * 8, self.levels - 3, self.nb)
+                centres = self.lo + (ijk + 0.5) * self.h
+                ptr, tri, lb = self.nb.refine_cells(centres, 0.5 * self.h * np.sqrt(3.0), pinv.reshape(-1), pptr, ptri,
+                                                    1e-9 * self.ext, self.idx.A, self.idx.AB, self.idx.AC,
+                                                    self.idx.BC, self.idx.N, self.idx.G, self.BB)
+                cells = flat
+            else:
+                key = _key(ijk)
+                o = np.argsort(key)
+                ptr, tri, lb = self._tg.candidates(key[o], self.lo, self.h, self.levels, self.nb)
+                cells = flat[o]
+            base = len(self.cand)
+            self.lb[cells] = lb
+            self.cand = np.concatenate([self.cand, tri.astype(np.int32)])
+            self.cell[cells] = ((base + ptr[:-1]) << 16) | np.diff(ptr)  # last: marks the cells as computed
+
+    def nearest(self, P: np.ndarray, max_dist: float | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(tri, d2, feature)`` per point; tri = -1 where provably farther than ``max_dist``."""
+        if self.nb is not None:
+            return self._nearest_numba(np.ascontiguousarray(P, np.float64), max_dist)
+        idx = self.idx
+        n = len(P)
+        ijk = np.floor((P - self.lo) * (1.0 / self.h)).astype(np.int64)
+        inside = ((ijk >= 0) & (ijk < self.dims)).all(1)
+        tri = np.full(n, -1, np.int64)
+        d2 = np.full(n, np.inf)
+        feat = np.zeros(n, np.int8)
+        out = np.nonzero(~inside)[0]
+        if len(out):
+            tri[out], d2[out], feat[out] = self._tg.nearest(P[out], max_dist)
+            ins = np.nonzero(inside)[0]
+            Pi, ijk = P[ins], ijk[ins]
+        else:
+            ins, Pi = None, P
+        flat = (ijk[:, 0] * self.dims[1] + ijk[:, 1]) * self.dims[2] + ijk[:, 2]
+        del ijk
+        word = self.cell[flat]
+        if (word < 0).any():
+            self._fill(np.unique(flat[word < 0]))
+            word = self.cell[flat]
+        cand = self.cand
+        st = word >> 16
+        cnt = (word & 0xFFFF).astype(np.int64)
+        if max_dist is not None:
+            cnt = np.where(self.lb[flat] > max_dist, 0, cnt)
+        bt = np.full(len(Pi), -1, np.int64)
+        bd = np.full(len(Pi), np.inf)
+        bf = np.zeros(len(Pi), np.int8)
+        for j in range(int(cnt.max(initial=0))):
+            sel = np.nonzero(cnt > j)[0]
+            if j == 0 and len(sel) == len(Pi):
+                ti = cand[st]
+                bd, bf, _ = triangle_distances(idx, Pi, ti)
+                bt = ti
+                continue
+            ti = cand[st[sel] + j]
+            e2, f, _ = triangle_distances(idx, Pi[sel], ti)
+            b = e2 < bd[sel]
+            sb = sel[b]
+            bd[sb], bt[sb], bf[sb] = e2[b], ti[b], f[b]
+        if ins is None:
+            return bt, bd, bf
+        tri[ins], d2[ins], feat[ins] = bt, bd, bf
+        return tri, d2, feat
+
+
+_B = 21  # bits per axis in a cell key
+
+
+def _key(ijk: np.ndarray) -> np.ndarray:
+    """Int64 key of non-negative integer cell coordinates (21 bits each); key order = lexicographic."""
+    ijk = np.asarray(ijk, np.int64)
+    return (ijk[:, 0] << (2 * _B)) | (ijk[:, 1] << _B) | ijk[:, 2]
+
+
+def _unkey(k: np.ndarray) -> np.ndarray:
+    msk = (1 << _B) - 1
+    return np.stack([k >> (2 * _B), (k >> _B) & msk, k & msk], axis=1)
+
+
+def _shift_key(k: np.ndarray, lev: int) -> np.ndarray:
+    """Keys of the parent cells ``lev`` levels up (each coordinate shifted right by ``lev``)."""
+    if lev == 0:
+        return k
+    msk = ((1 << _B) - 1) >> lev << 0
+    x, y, z = k >> (2 * _B), (k >> _B) & ((1 << _B) - 1), k & ((1 << _B) - 1)
+    return ((x >> lev) << (2 * _B)) | (((y >> lev) & msk) << _B) | ((z >> lev) & msk)
