@@ -30,25 +30,18 @@ class FrontEnd:
         return None if T_prev is None else np.asarray(T_prev, float)
 
     def _project(self, T_cam_model: np.ndarray, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Model points (N,3) -> pixels (N,2) and camera depth (N,)."""
+        """Model points (N,3) -> pixels (N,2) (:meth:`Camera.project`, depth clamped at 1e-9) and
+        camera depth (N,)."""
         Xc = X @ T_cam_model[:3, :3].T + T_cam_model[:3, 3]
         z = Xc[:, 2]
         zs = np.where(z > 1e-9, z, 1e-9)
-        if self.dist is None:
-            uv = (Xc[:, :2] / zs[:, None]) * [self.K[0, 0], self.K[1, 1]] + [self.K[0, 2], self.K[1, 2]]
-        else:
-            uv = self.cam.project(np.c_[Xc[:, :2], zs])
-        return uv, z
+        return self.cam.project(np.c_[Xc[:, :2], zs]), z
 
     def _normalised(self, uv: np.ndarray) -> np.ndarray:
-        """Pixels (N,2) -> normalised image coordinates (N,2) (distortion removed)."""
-        import cv2
-
+        """Pixels (N,2) -> normalised image coordinates (N,2) (:meth:`Camera.unproject`: distortion removed)."""
         if len(uv) == 0:
             return np.zeros((0, 2))
-        if self.dist is None:
-            return (np.asarray(uv, float) - [self.K[0, 2], self.K[1, 2]]) / [self.K[0, 0], self.K[1, 1]]
-        return cv2.undistortPoints(np.asarray(uv, np.float64).reshape(-1, 1, 2), self.K, self.dist).reshape(-1, 2)
+        return self.cam.unproject(uv)
 
     def _landmark_array(self, tids: np.ndarray) -> np.ndarray:
         nan = np.full(3, np.nan)
