@@ -14,7 +14,7 @@ import math
 import numpy as np
 
 from mst.core.klt import track_forward_backward
-from mst.core.poses import inv_T, pnp_ransac
+from mst.core.poses import inv_T, pnp_ransac, transform_points
 from mst.pipeline.slam.geometry import pose_information
 
 
@@ -32,7 +32,7 @@ class FrontEnd:
     def _project(self, T_cam_model: np.ndarray, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Model points (N,3) -> pixels (N,2) (:meth:`Camera.project`, depth clamped at 1e-9) and
         camera depth (N,)."""
-        Xc = X @ T_cam_model[:3, :3].T + T_cam_model[:3, 3]
+        Xc = transform_points(T_cam_model, X)
         z = Xc[:, 2]
         zs = np.where(z > 1e-9, z, 1e-9)
         return self.cam.project(np.c_[Xc[:, :2], zs]), z

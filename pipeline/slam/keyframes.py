@@ -13,7 +13,7 @@ import math
 
 import numpy as np
 
-from mst.core.poses import inv_T, pnp_ransac, se3_log
+from mst.core.poses import inv_T, pnp_ransac, se3_log, transform_points
 from mst.pipeline.slam.state import STATUS_MODEL, Keyframe
 
 
@@ -75,7 +75,7 @@ class KeyframeMap:
             D = self._depth_frame(k) if self.mode == "rgbd" else None
             if D is not None:
                 Xc = self._depth_at(D, uv)
-                Xk = Xc @ inv_T(T)[:3, :3].T + inv_T(T)[:3, 3]
+                Xk = transform_points(inv_T(T), Xc)
             else:
                 Xk = np.full((len(uv), 3), np.nan)
                 has = np.flatnonzero(np.isfinite(X[:, 0]))
