@@ -63,7 +63,7 @@ def _model_sample_c2m(seq, traj, step: int = 4, every: int = 5) -> float:
     k = np.rint(t * FPS).astype(int)
     d = []
     for i in range(0, len(t), every):
-        P = backproject(read_depth(files[k[i]]), cam, step, 0.1, 100.0)
+        P, _ = backproject(read_depth(files[k[i]]), cam, step, 0.1, 100.0)
         on_model = surf.distance(transform_points(T_gt[k[i]], P)) < 0.02
         d.append(surf.distance(transform_points(T[i], P[on_model])))
     return float(np.concatenate(d).mean())

@@ -23,6 +23,8 @@ class RefineConfig(Config):
         (0.08, 0.04, 0.02), help="ICP correspondence distances coarse to fine, x median depth")
     icp_iterations: int = param(30, min=1, help="ICP iterations per distance")
     tukey_rel: float = param(0.01, min=0, min_open=True, help="Tukey kernel width of the ICP residuals, x median depth")
+    max_normal_deg: float = param(30.0, min=0, min_open=True, max=90,
+                                  help="an ICP match needs the depth's and the model's normals within this, deg")
     min_points: int = param(100, min=6, help="a keyframe ICP is a prior only when this many samples found the model")
     prior_points_eff: float = param(200.0, min=1,
                                     help="a prior's information is capped at this many independent samples "

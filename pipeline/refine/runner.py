@@ -29,6 +29,8 @@ log = logging.getLogger(__name__)
 #: keyframe samples kept per keyframe (seeded subsample), and for the global ICP of the fused cloud
 MAX_KF_POINTS = 4000
 MAX_GLOBAL_POINTS = 60_000
+#: samples of a keyframe's own ICP (its prior's information is capped at prior_points_eff anyway)
+MAX_ICP_POINTS = 1500
 
 
 @dataclass
@@ -102,36 +104,46 @@ def ate_rmse(t: np.ndarray, T: np.ndarray, t_gt: np.ndarray, T_gt: np.ndarray) -
     return float(np.sqrt(np.mean(e**2))), int(ok.sum())
 
 
-def _keyframe_clouds(cfg, files, k_of_pose, cam, sel, rng) -> tuple[list[int], list[np.ndarray]]:
-    kf, clouds = [], []
+def _keyframe_clouds(cfg, files, k_of_pose, cam, sel, rng):
+    """-> (keyframe pose indices, their camera-frame samples, their normals)."""
+    kf, clouds, normals = [], [], []
     for i in sel:
-        P = backproject(read_depth(files[k_of_pose[i]], cfg.depth.scale), cam, cfg.pixel_step, cfg.depth.min_m,
-                        cfg.depth.max_m)
+        P, N = backproject(read_depth(files[k_of_pose[i]], cfg.depth.scale), cam, cfg.pixel_step, cfg.depth.min_m,
+                           cfg.depth.max_m, cfg.depth.edge_rel or 1e9)
         if len(P) < cfg.min_points:
             continue
         if len(P) > MAX_KF_POINTS:
-            P = P[rng.choice(len(P), MAX_KF_POINTS, replace=False)]
+            pick = rng.choice(len(P), MAX_KF_POINTS, replace=False)
+            P, N = P[pick], N[pick]
         kf.append(i)
         clouds.append(P)
-    return kf, clouds
+        normals.append(N)
+    return kf, clouds, normals
 
 
-def _round(surface, cfg, clouds, T_kf, Z, med, first: bool):
+def _round(surface, cfg, clouds, normals, T_kf, Z, med):
     """One round: rigid ICP of the fused cloud, then the keyframe pose graph. -> (poses, priors, G)."""
-    X = fused_points(clouds, T_kf)
+    X, NX = fused_points(clouds, T_kf), fused_points(normals, T_kf, rotate_only=True)
     rng = np.random.default_rng(cfg.seed)
     if len(X) > MAX_GLOBAL_POINTS:
-        X = X[rng.choice(len(X), MAX_GLOBAL_POINTS, replace=False)]
+        pick = rng.choice(len(X), MAX_GLOBAL_POINTS, replace=False)
+        X, NX = X[pick], NX[pick]
     dists = tuple(r * med for r in cfg.icp_max_rel)
-    X = X[surface.distance(X) < dists[0]]
-    G, *_ = surface.icp(X, np.eye(4), dists, cfg.tukey_rel * med, cfg.icp_iterations)
+    near = surface.near(X, dists[0])
+    G, *_ = surface.icp(X[near], NX[near], np.eye(4), dists, cfg.tukey_rel * med, cfg.icp_iterations,
+                        cfg.max_normal_deg)
     T_kf = G @ T_kf
     priors = []
-    for i, (P, T) in enumerate(zip(clouds, T_kf)):
-        P = P[surface.distance(transform_points(T, P)) < dists[0]]  # the scene far from the model cannot match
+    for i, (P, N, T) in enumerate(zip(clouds, normals, T_kf)):
+        near = surface.near(transform_points(T, P), dists[0])  # the scene far from the model cannot match
+        P, N = P[near], N[near]
+        if len(P) > MAX_ICP_POINTS:
+            pick = rng.choice(len(P), MAX_ICP_POINTS, replace=False)
+            P, N = P[pick], N[pick]
         if len(P) < cfg.min_points:
             continue
-        T_icp, _, n_in, rmse, info = surface.icp(P, T, dists[1:] or dists, cfg.tukey_rel * med, cfg.icp_iterations)
+        T_icp, n_in, rmse, info = surface.icp(P, N, T, dists[1:] or dists, cfg.tukey_rel * med, cfg.icp_iterations,
+                                              cfg.max_normal_deg)
         if n_in < cfg.min_points:
             continue
         sigma = max(rmse, 1e-4 * med)
@@ -163,7 +175,7 @@ def refine(traj_path: str | os.PathLike, model_path: str | os.PathLike, camera_p
     if sel[-1] != has_depth[-1]:
         sel.append(int(has_depth[-1]))
     rng = np.random.default_rng(cfg.seed)
-    kf, clouds = _keyframe_clouds(cfg, files, k_of_pose, cam, sel, rng)
+    kf, clouds, normals = _keyframe_clouds(cfg, files, k_of_pose, cam, sel, rng)
     if not kf:
         raise InputError(depth_dir, f"no keyframe has {cfg.min_points} valid depth samples "
                                     f"(depth range {cfg.depth.min_m:g}-{cfg.depth.max_m:g} m, scale {cfg.depth.scale:g})")
@@ -184,7 +196,7 @@ def refine(traj_path: str | os.PathLike, model_path: str | os.PathLike, camera_p
     n_priors, G0 = 0, np.eye(4)
     for r in range(cfg.rounds):
         rounds += 1
-        T_new, priors, G = _round(surface, cfg, clouds, best, Z, med, r == 0)
+        T_new, priors, G = _round(surface, cfg, clouds, normals, best, Z, med)
         if r == 0:
             G0 = G
         s = c2m_stats(surface, fused_points(clouds, T_new), near, c2m_max)
