@@ -5,7 +5,8 @@ noise 0.3 m / 0.5 deg per axis (3-D RMS 0.52 m / 0.87 deg) with a 6 s loss; GPS 
 horizontal / 5 m vertical (3-D RMS 6.6 m) + 0.05 m/sqrt(s) bias walk + 2 % multipath of 15-40 m;
 AHRS 3 deg; mount 60 deg pan, 20 deg down, lever 0.18 m; the model frame rotated 30 deg and shifted
 ~110 m from the world frame. Motion model of the fusion: 1 m/s^2 and 0.5 deg/s^2 white (the path's
-own accelerations are ~0.6 m/s^2 and < 0.5 deg/s^2).
+own accelerations are ~0.6 m/s^2 and < 0.5 deg/s^2); the position uses the default constant-
+acceleration model (white jerk 0.5 m/s^3/sqrt(Hz)).
 """
 
 from __future__ import annotations
@@ -153,6 +154,38 @@ def test_gps_dropout_bridged_by_vision_without_jump(scene):
     steps = np.linalg.norm(np.diff(res.T_model_cam[:, :3, 3], 2, axis=0), axis=1)
     k = int(np.searchsorted(t, t_back))
     assert steps[k - 3:k + 3].max() <= 2 * np.percentile(steps, 99)
+
+
+def _all_frames_seeds(seeds):
+    """The issue's bound on ALL frames (the 6 s vision gap included: 10 % of the frames) for 8 seeds
+    of vision and GPS noise. With the former constant-velocity model (white acceleration 1 m/s^2,
+    loose enough for the 0.6 m/s^2 turn) the gap bridge followed the 3 m GPS noise (gap RMSE
+    0.4-1.0 m) and 2-4 of 8 seeds broke the bound; the constant-acceleration model (white jerk
+    0.5 m/s^3/sqrt(Hz): the acceleration may change by 1.2 m/s^2 over the gap, 3x what the flight's
+    turn does) carries the turn through the gap. Across these seeds the ratio is 0.3-0.65."""
+    t, T = flight()
+    ratio, e_ca, e_cv = [], [], []
+    for s in seeds:
+        t_v, T_v, C_v, keep, e = noisy_vision(t, T, seed=s + 1, gap=(20.0, 26.0))
+        sim = _sim(t, T, seed=s + 3)
+        res = fuse_navigation(t_v, T_v, C_v, sim.nav, _cfg())
+        cv = fuse_navigation(t_v, T_v, C_v, sim.nav, _cfg(motion_model="cv"))
+        bound = 0.5 * min(_rms(np.linalg.norm(e[keep, :3], axis=1)), _gps_only_rmse(sim, t, T))
+        e_ca.append(_rms(_pos_err(res.T_model_cam, T)))
+        e_cv.append(_rms(_pos_err(cv.T_model_cam, T)))
+        ratio.append(e_ca[-1] / bound)
+    assert max(ratio) <= 1.0, np.round(ratio, 2)
+    # the default is at least as good as the simpler model, seed by seed
+    assert all(a <= b for a, b in zip(e_ca, e_cv)), (np.round(e_ca, 3), np.round(e_cv, 3))
+
+
+def test_fused_rmse_on_all_frames_seeds_the_cv_model_failed():
+    _all_frames_seeds([2, 7])
+
+
+@pytest.mark.slow
+def test_fused_rmse_on_all_frames_over_8_seeds():
+    _all_frames_seeds(range(8))
 
 
 def test_filter_mode_is_causal_and_the_smoother_is_at_least_as_good(scene):
