@@ -78,6 +78,11 @@ class FusionConfig(Config):
     max_world_yaw_std_deg: float = param(2.0, min=0, min_open=True,
                                          help="refuse when the fit cannot pin the model-to-world yaw, deg")
     min_pairs: int = param(10, min=1, help="GPS fixes with vision needed for the calibration")
+    time_offset_s: float = param(0.0, min=-60, max=60, help="added to the log's times to put them on the video clock, s")
+    estimate_time_offset: bool = param(False, help="estimate the clock offset (1-D search of the calibration cost "
+                                                   "around time_offset_s)")
+    max_time_offset_s: float = param(1.0, min=0, min_open=True, max=30,
+                                     help="the search spans time_offset_s +- this, s")
 
 
 @dataclass
@@ -388,6 +393,12 @@ def _fuse_position(al: _Aligned, T_vis, cov_vis, R_fused, R_wm, t_wm, R_bc, cfg:
     return xp_, Pp_, wp, gi
 
 
+def _shifted(nav: NavLog, delta: float, keep: np.ndarray | None = None) -> NavLog:
+    """``nav`` with ``delta`` s added to its times (and only the rows ``keep``)."""
+    k = slice(None) if keep is None else keep
+    return NavLog(t=nav.t[k] + delta, p_world=nav.p_world[k], ypr_deg=nav.ypr_deg[k], fix=nav.fix[k], offset=nav.offset)
+
+
 def fuse_navigation(t_vis: np.ndarray, T_vis: np.ndarray, cov_vis: np.ndarray | None, nav: NavLog,
                     cfg: FusionConfig | None = None, nav_name: str | os.PathLike | None = None, *,
                     R_body_cam: np.ndarray | None = None, T_world_model: np.ndarray | None = None) -> FusionResult:
@@ -403,6 +414,13 @@ def fuse_navigation(t_vis: np.ndarray, T_vis: np.ndarray, cov_vis: np.ndarray | 
     cfg = cfg or FusionConfig()
     if cov_vis is None:
         cov_vis = np.tile(np.diag([cfg.vision_sigma_m**2] * 3 + [np.radians(cfg.vision_sigma_deg) ** 2] * 3), (len(t_vis), 1, 1))
+    offset, offset_std = cfg.time_offset_s, 0.0
+    if cfg.estimate_time_offset:
+        from mst.pipeline.navfusion_offset import estimate_time_offset
+
+        offset, offset_std = estimate_time_offset(t_vis, T_vis, nav, cfg, R_body_cam, T_world_model, nav_name)
+    if offset:
+        nav = _shifted(nav, offset)
     al = _align(t_vis, T_vis, nav, nav_name)
     T_wm, R_bc, yaw_std, mount_std, w_g, w_a = _calibrate(al, cfg, R_body_cam, T_world_model, nav_name)
     R_wm, t_wm = T_wm[:3, :3], T_wm[:3, 3]
@@ -427,8 +445,9 @@ def fuse_navigation(t_vis: np.ndarray, T_vis: np.ndarray, cov_vis: np.ndarray | 
         "mount_std_deg": float(np.degrees(mount_std)),
         "lever_arm_m": lever.tolist(),
         "lever_arm_estimated": False,
-        "time_offset_s": 0.0,
-        "time_offset_estimated": False,
+        "time_offset_s": float(offset),
+        "time_offset_estimated": bool(cfg.estimate_time_offset),
+        "time_offset_std_s": float(offset_std),
         "gps_bias_m_start_end": [xp_[0, -3:].tolist(), xp_[-1, -3:].tolist()],
         "nav_offset_enh": nav.offset.tolist(),
     }
