@@ -5,7 +5,7 @@ Frames: ``T_cam_model`` (model -> camera, camera x right, y down, z forward), me
 1. Edges of the image (Canny on the 8-bit gray frame) and their distance transform ``D`` (px),
    truncated at ``dt_max_px``.
 2. Score of a pose: the mean of ``min(D, dt_max) / dt_max`` at the model's visible edge samples
-   (:func:`mst.pipeline.visibility.visible_samples`, hidden lines removed), 1 when fewer than
+   (:func:`mst.pipeline.tracking.visibility.visible_samples`, hidden lines removed), 1 when fewer than
    ``min_samples`` are visible. 0 = every projected edge on an image edge.
 3. Coarse: ``n_coarse`` quasi-random (Halton) perturbations of the guess in the box position
    +- n_sigma * pos_sigma (model axes) and attitude +- n_sigma * att_sigma (model-frame rotation
@@ -109,8 +109,8 @@ class _EdgeScorer:
     def __init__(self, gray: np.ndarray, model, camera, T_cam_model_guess: np.ndarray, cfg: AutoInitConfig, tc):
         import cv2
 
-        from mst.pipeline.settings import scene_near_m
-        from mst.pipeline.visibility import ModelGeometry
+        from mst.pipeline.tracking.config import scene_near_m
+        from mst.pipeline.tracking.visibility import ModelGeometry
 
         self.cfg, self.tc, self.K = cfg, tc, camera.K
         self.H, self.W = gray.shape[:2]
@@ -118,16 +118,16 @@ class _EdgeScorer:
         D = cv2.distanceTransform((edges == 0).astype(np.uint8), cv2.DIST_L2, 3)
         self.D = np.minimum(D, cfg.dt_max_px) / cfg.dt_max_px
         self.geom = ModelGeometry.from_model(model)
-        self.near_m = scene_near_m(self.geom.vertices, T_cam_model_guess, tc.near_clip)  # fixed at the guess, as the tracker does
+        self.near_m = scene_near_m(self.geom.vertices, T_cam_model_guess, tc.edges.near_clip_m)  # fixed at the guess, as the tracker does
         self.n_eval = 0
 
     def samples(self, T_cam_model):
-        from mst.pipeline.visibility import visible_samples
+        from mst.pipeline.tracking.visibility import visible_samples
 
-        cfg, tc = self.cfg, self.tc
-        return visible_samples(self.geom, T_cam_model, self.K, self.W, self.H, cfg.sample_step_px, self.near_m, tc.far_clip,
-                               tc.angle_appear, tc.angle_disappear, None, border_px=2.0, hidden_lines=tc.hidden_lines,
-                               zbuffer_scale=tc.zbuffer_scale)
+        cfg, te = self.cfg, self.tc.edges
+        return visible_samples(self.geom, T_cam_model, self.K, self.W, self.H, cfg.sample_step_px, self.near_m, te.far_clip_m,
+                               te.angle_appear_deg, te.angle_disappear_deg, None, border_px=2.0,
+                               hidden_lines=te.hidden_lines, zbuffer_scale=te.zbuffer_scale)
 
     def score_many(self, T_mc: np.ndarray) -> np.ndarray:
         W, H, D = self.W, self.H, self.D
@@ -219,10 +219,10 @@ def _second_best(sc_: _EdgeScorer, cands: list, T_best: np.ndarray, dt_max_px: f
 def auto_init(gray: np.ndarray, model, camera, T_cam_model_guess: np.ndarray, cfg: AutoInitConfig | None = None,
               tracker_cfg=None) -> AutoInitResult:
     """Search the pose of ``model`` in the 8-bit ``gray`` image around ``T_cam_model_guess``."""
-    from mst.pipeline.settings import TrackerConfig
+    from mst.pipeline.tracking.config import TrackConfig
 
     cfg = cfg or AutoInitConfig()
-    tc = tracker_cfg or TrackerConfig()
+    tc = tracker_cfg or TrackConfig()
     sc_ = _EdgeScorer(gray, model, camera, T_cam_model_guess, cfg, tc)
     T0 = inv_T(np.asarray(T_cam_model_guess, float))
     half = cfg.n_sigma * np.array([*cfg.pos_sigma_m, *([cfg.att_sigma_deg] * 3)])
@@ -230,7 +230,7 @@ def auto_init(gray: np.ndarray, model, camera, T_cam_model_guess: np.ndarray, cf
     # refine every kept candidate with the edge tracker (moving edges + robust VVS, as on a first
     # frame) and score the refined poses: the true pose then lands on the image edges (score ~0.05),
     # a wrong basin does not; refined poses that leave the search box or are unhealthy are dropped
-    from mst.pipeline.tracker import EdgeTracker
+    from mst.pipeline.tracking import EdgeTracker
 
     tr = EdgeTracker(model, camera, tc)
     cands = _confirm(sc_, tr, gray, finals, T0, half, cfg)

@@ -164,7 +164,7 @@ def _T_from_rt(rvec, tvec) -> np.ndarray:
 def refine_pose(T: np.ndarray, K: np.ndarray, X: np.ndarray, uv: np.ndarray, iters: int = 30, huber_px: float = 2.0) -> np.ndarray:
     """Robust LM (Huber) refinement of the reprojection error; perturbation ``se3_exp(xi) @ T``."""
     from mst.core.poses import se3_exp
-    from mst.pipeline.vvs import _point_jacobian
+    from mst.pipeline.tracking.vvs import _point_jacobian
 
     fx, fy = K[0, 0], K[1, 1]
     mu = 1e-3
@@ -325,7 +325,7 @@ def draw_model(bgr: np.ndarray, model, T_cam_model: np.ndarray, K: np.ndarray, n
     """Draw the model's edges (clipped at the near plane) and optional numbered points."""
     import cv2
 
-    from mst.pipeline.visibility import _clip_near_far
+    from mst.pipeline.tracking.visibility import _clip_near_far
 
     out = bgr.copy()
     E = model.edges()
@@ -427,7 +427,7 @@ def run_init(model_path, camera_path, out, *, clicks_path=None, points_path=None
     from mst.core.camera import read_camera
     from mst.core.trajectory import write_pose_file
     from mst.meshtools.formats import load_tracking_model
-    from mst.pipeline.tracker import check_pose_in_view
+    from mst.pipeline.tracking import check_pose_in_view
 
     if overlay_path is not None and image_path is None:
         raise InputError(overlay_path, "an overlay needs the image to draw on")

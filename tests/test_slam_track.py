@@ -22,10 +22,10 @@ def _synth(tmp_path_factory, name, scenario, **kw):
 
 
 def _track(seq, mode, out):
-    from mst.pipeline.tracker import run_track
+    from mst.pipeline.tracking import TrackConfig, run_track
 
     s = run_track(seq / "rgb", seq / "model.obj", seq / "camera.json", seq / "cMo" / "000000.txt", out,
-                  slam=mode, depth_dir=seq / "depth" if mode == "rgbd" else None, fps=30.0)
+                  TrackConfig(aid=mode), depth_dir=seq / "depth" if mode == "rgbd" else None, fps=30.0)
     return s, trajectory_errors(seq, out)
 
 
@@ -131,12 +131,12 @@ def test_mono_landmarks_written_and_lie_on_the_scene(fast, tmp_path):
 
     from mst.meshtools.formats import load_triangles
     from mst.pipeline.fusion import read_ply_points
-    from mst.pipeline.tracker import run_track
+    from mst.pipeline.tracking import TrackConfig, run_track
 
     seq = fast[8]
     lm = tmp_path / "map.ply"
     s = run_track(seq / "rgb", seq / "model.obj", seq / "camera.json", seq / "cMo" / "000000.txt", tmp_path / "t.txt",
-                  slam="mono", fps=30.0, landmarks_path=lm)
+                  TrackConfig(aid="mono"), fps=30.0, landmarks_path=lm)
     X, _ = read_ply_points(lm)
     assert s["landmarks"] == len(X) >= 50
     V, F = load_triangles(seq / "scene.ply")

@@ -32,9 +32,9 @@ def _synth(tmp_path_factory, scenario, frames, width=320, height=240):
 def _track(seq, mode, out):
     from mst.core.poses import pose_error
     from mst.core.trajectory import read_tum
-    from mst.pipeline.tracker import run_track
+    from mst.pipeline.tracking import TrackConfig, run_track
 
-    s = run_track(seq / "rgb", seq / "model.obj", seq / "camera.json", seq / "cMo" / "000000.txt", out, slam=mode, fps=30.0)
+    s = run_track(seq / "rgb", seq / "model.obj", seq / "camera.json", seq / "cMo" / "000000.txt", out, TrackConfig(aid=mode), fps=30.0)
     st = np.array([r["status"] for r in csv.DictReader(open(out.with_suffix(".csv")))])
     tg, Pg = read_tum(seq / "gt.txt")
     t, P = read_tum(out)
@@ -98,7 +98,7 @@ def test_occluder_bridged_by_the_default(tmp_path_factory, tmp_path):
 
 @pytest.mark.slow
 def test_blackout_relocalised_and_blur_bridged(tmp_path_factory, tmp_path):
-    from mst.pipeline.relocalise import RelocConfig
+    from mst.pipeline.tracking.relocalise import RelocConfig
 
     seq = _synth(tmp_path_factory, "blackout", 60)
     s, st, rel, deg, truth = _track(seq, "auto", tmp_path / "t.txt")

@@ -29,9 +29,9 @@ def _sequence(d, model, cam, poses, seed=0):
 
 
 def _track(d, model_path, out, edges, slam="off"):
-    from mst.pipeline.tracker import run_track
+    from mst.pipeline.tracking import TrackConfig, run_track
 
-    return run_track(d / "rgb", model_path, d / "camera.json", d / "pose0.txt", out, slam=slam, edges=edges)
+    return run_track(d / "rgb", model_path, d / "camera.json", d / "pose0.txt", out, TrackConfig(aid=slam, edge_source=edges))
 
 
 def test_box_tin_render_vs_polygon(tmp_path):
@@ -156,10 +156,10 @@ def test_no_silhouette_in_view_is_lost(tmp_path):
     away = inv_T(look_at(eye, eye + [1.0, 0.3, 0.0], (0, 0, 1)))
     poses = poses + [away] * 3
     d = _sequence(tmp_path / "seq", PolygonModel(V, list(F)), cam, poses)
-    from mst.pipeline.tracker import run_track
+    from mst.pipeline.tracking import TrackConfig, run_track
 
     s = run_track(d / "rgb", tmp_path / "t.obj", d / "camera.json", d / "pose0.txt", tmp_path / "o.txt",
-                  slam="off", edges="render")
+                  TrackConfig(aid="off", edge_source="render"))
     rows = list(csv.DictReader(open(tmp_path / "o.csv")))
     assert [r["status"] for r in rows[:3]] == ["model"] * 3
     # frames 3-5: the tracker starts from the last good pose, which sees the torus in an empty image

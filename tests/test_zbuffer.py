@@ -53,7 +53,7 @@ def test_inverse_depth_buffer_matches_ray_cast(courtyard, azimuth_deg):
     float32 rounding elsewhere."""
     from mst.core.poses import inv_T, look_at
     from mst.meshtools.formats import load_model
-    from mst.pipeline.visibility import ModelGeometry, face_visibility, inverse_depth_buffer
+    from mst.pipeline.tracking.visibility import ModelGeometry, face_visibility, inverse_depth_buffer
 
     geom = ModelGeometry.from_model(load_model(courtyard))
     c = geom.vertices.mean(axis=0)
@@ -87,7 +87,7 @@ def test_frustum_cull_changes_no_sample(courtyard, azimuth_deg):
     from mst.core.poses import inv_T, look_at
     from mst.meshtools.formats import load_model
     from mst.meshtools.model import PolygonModel
-    from mst.pipeline.visibility import ModelGeometry, visible_samples
+    from mst.pipeline.tracking.visibility import ModelGeometry, visible_samples
 
     m = load_model(courtyard)
     V = np.asarray(m.vertices)
