@@ -59,7 +59,7 @@ def simulate_nav_files(gt_path, out_path, cfg) -> dict:
     from pathlib import Path
 
     from mst import atomic_outputs
-    from mst.core.poses import read_tum
+    from mst.core.trajectory import read_tum
     from mst.pipeline.navlog import simulate_nav, write_sim_outputs
 
     t, T = read_tum(gt_path)
@@ -143,7 +143,8 @@ def fuse(traj_path, nav_path, out, cov_path, mode, offset, lever, mount_path, m2
     import numpy as np
 
     from mst import InputError, atomic_outputs
-    from mst.core.poses import format_tum, read_rigid_transform, read_tum
+    from mst.core.poses import read_rigid_transform
+    from mst.core.trajectory import format_tum, read_tum
     from mst.pipeline.navfusion import (
         FusionConfig,
         cov_path_for,

@@ -253,7 +253,7 @@ def run_autoinit(model_path, camera_path, out, nav_path, image_path, *, nav_time
 
     from mst import atomic_outputs
     from mst.core.camera import read_camera
-    from mst.core.poses import write_pose_file
+    from mst.core.trajectory import write_pose_file
     from mst.meshtools.formats import load_tracking_model
     from mst.pipeline.init_pose import _read_image, draw_model
 

@@ -373,7 +373,7 @@ def run_init(model_path, camera_path, out, *, clicks_path=None, points_path=None
 
     from mst import atomic_output, atomic_outputs
     from mst.core.camera import read_camera
-    from mst.core.poses import write_pose_file
+    from mst.core.trajectory import write_pose_file
     from mst.meshtools.formats import load_tracking_model
     from mst.pipeline.tracking import check_pose_in_view
 

@@ -9,7 +9,8 @@ import pytest
 
 from mst import InputError
 from mst.core.camera import Camera, write_camera
-from mst.core.poses import inv_T, look_at, se3_exp, write_tum
+from mst.core.poses import inv_T, look_at, se3_exp
+from mst.core.trajectory import write_tum
 from mst.pipeline.fusion import (
     FuseConfig,
     VoxelAccumulator,

@@ -9,7 +9,8 @@ import pytest
 from synth_helpers import look_at
 
 from mst.core.camera import Camera, write_camera
-from mst.core.poses import inv_T, pose_error, read_pose_file
+from mst.core.poses import inv_T, pose_error
+from mst.core.trajectory import read_pose_file
 from mst.pipeline.init_pose import init_from_clicks, pose_from_gps, project
 
 

@@ -199,7 +199,7 @@ def test_cov_side_file_round_trip(tmp_path):
 def test_cli_fuse_chain_and_bad_log(tmp_path, mst, scene):
     import json
 
-    from mst.core.poses import read_tum, write_tum
+    from mst.core.trajectory import read_tum, write_tum
 
     t, T, t_v, T_v, C_v, keep, _ = scene
     write_tum(tmp_path / "gt.txt", t, T)

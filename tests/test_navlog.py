@@ -128,7 +128,7 @@ def test_simulator_error_model():
 
 
 def test_cli_simulate_writes_log_and_truth_and_rejects_bad_gt(tmp_path, mst):
-    from mst.core.poses import write_tum
+    from mst.core.trajectory import write_tum
 
     t, T = flight(duration_s=20.0, fps=10.0)
     write_tum(tmp_path / "gt.txt", t, T)

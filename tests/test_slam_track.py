@@ -1,7 +1,7 @@
 """``mst track --slam rgbd|mono`` end to end on ``mst synth`` sequences (320x240 to stay fast).
 
 The same checks at 640x480 with the issue's bounds (error < 0.2 % within 5 frames of the model's
-return, fast x8/x10 mean <= 1 %) are in ``eval/bench_slam.py``: at 320x240 the edge tracker's own
+return, fast x8/x10 mean <= 1 %) are in ``eval/bench/slam.py``: at 320x240 the edge tracker's own
 noise is ~0.3-0.5 % of the distance, so the bounds here are looser.
 """
 
@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mst.eval.bench_slam import SAMPLE_MODEL, out_of_view, recovery_frames, trajectory_errors
+from mst.eval.bench.slam import SAMPLE_MODEL, out_of_view, recovery_frames, trajectory_errors
 
 
 def _synth(tmp_path_factory, name, scenario, **kw):
@@ -129,7 +129,7 @@ def test_mono_landmarks_written_and_lie_on_the_scene(fast, tmp_path):
     """``--landmarks``: the mono SLAM map is written as PLY in model coordinates, on the scene surfaces."""
     import open3d as o3d
 
-    from mst.meshtools.io import load_triangles
+    from mst.meshtools.formats import load_triangles
     from mst.pipeline.fusion import read_ply_points
     from mst.pipeline.tracking import TrackConfig, run_track
 

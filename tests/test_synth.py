@@ -10,9 +10,10 @@ import numpy as np
 import pytest
 
 from mst.core.camera import read_camera
-from mst.core.poses import inv_T, read_pose_file, read_tum
+from mst.core.poses import inv_T
+from mst.core.trajectory import read_pose_file, read_tum
+from mst.meshtools.formats import save_triangles
 from mst.meshtools.generate import box, gabled_house
-from mst.meshtools.io import save_triangles
 from mst.pipeline.synth import SynthConfig, synthesize, synthesize_from_scene
 
 SMALL = dict(width=160, height=120, texture_size=64)
@@ -65,7 +66,7 @@ def test_layout_and_ground_truth_consistency(orbit_seq: Path, house: Path):
     assert np.array_equal(mm[ok].astype(np.int64), np.round(z[ok].astype(np.float64) * 1000).astype(np.int64))
     assert 0.5 < ok.mean() < 1.0
     # model.obj is the rendered model exactly
-    from mst.meshtools.io import load_triangles
+    from mst.meshtools.formats import load_triangles
 
     V0, F0 = load_triangles(house)
     V1, F1 = load_triangles(d / "model.obj")
@@ -82,7 +83,7 @@ def test_clicks_consistent_with_gt_pose(orbit_seq: Path, house: Path, tmp_path: 
     uv = cam.project(a[:, :3] @ T[:3, :3].T + T[:3, 3])
     np.testing.assert_allclose(uv, a[:, 3:], atol=1e-3)
     # clicks are model corners (vertices of the house)
-    from mst.meshtools.io import load_triangles
+    from mst.meshtools.formats import load_triangles
 
     V, _ = load_triangles(house)
     assert all(np.min(np.linalg.norm(V - X, axis=1)) < 1e-8 for X in a[:, :3])
@@ -176,7 +177,7 @@ def test_flyover_and_scene_ply(house: Path, tmp_path: Path):
     import open3d as o3d
 
     m = o3d.io.read_triangle_mesh(str(out / "scene.ply"))
-    from mst.meshtools.io import load_triangles
+    from mst.meshtools.formats import load_triangles
 
     V, F = load_triangles(house)
     assert len(m.triangles) == len(F) + 2

@@ -11,7 +11,8 @@ import pytest
 from synth_helpers import look_at, orbit_poses, render_views
 
 from mst.core.camera import Camera, write_camera
-from mst.core.poses import inv_T, pose_error, read_tum, write_pose_file
+from mst.core.poses import inv_T, pose_error
+from mst.core.trajectory import read_tum, write_pose_file
 from mst.pipeline.init_pose import project
 
 
@@ -81,7 +82,7 @@ def test_teabox_last_frame_edges_supported(teabox_run):
 def _write_sequence(d: Path, model, cam: Camera, poses, click_ids, click_noise_px: float, seed: int = 0):
     import cv2
 
-    from mst.meshtools.io import save_model
+    from mst.meshtools.formats import save_model
 
     d.mkdir()
     (d / "rgb").mkdir()
@@ -208,8 +209,8 @@ def test_synth_orbit_accuracy(tmp_path, mst):
     lines run parallel to the wall bottoms 1-2 px away, about 0.3-0.4 %.)
     """
     synth = pytest.importorskip("mst.pipeline.synth")
+    from mst.meshtools.formats import save_model
     from mst.meshtools.generate import l_shape_model
-    from mst.meshtools.io import save_model
 
     save_model(tmp_path / "l.obj", l_shape_model())
     d = tmp_path / "seq"

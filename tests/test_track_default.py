@@ -12,7 +12,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mst.core.poses import inv_T, read_tum, write_pose_file
+from mst.core.poses import inv_T
+from mst.core.trajectory import read_tum, write_pose_file
 
 
 @pytest.fixture(scope="module")

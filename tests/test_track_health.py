@@ -155,7 +155,8 @@ def test_synthetic_pose_on_mirror_image_rejected(box_scene, axis):
 @pytest.fixture(scope="module")
 def teabox_scene(shared_data, tmp_path_factory):
     from mst.core.camera import read_camera
-    from mst.core.poses import inv_T, read_tum, write_pose_file
+    from mst.core.poses import inv_T
+    from mst.core.trajectory import read_tum, write_pose_file
     from mst.meshtools.formats import load_tracking_model
     from mst.pipeline.init_pose import init_from_clicks, read_clicks
     from mst.pipeline.tracking import EdgeTracker, run_track

@@ -18,7 +18,8 @@ import pytest
 from synth_helpers import look_at, render_textured
 
 from mst.core.camera import Camera, write_camera
-from mst.core.poses import inv_T, pose_error, read_tum, write_pose_file
+from mst.core.poses import inv_T, pose_error
+from mst.core.trajectory import read_tum, write_pose_file
 from mst.pipeline.tracking.relocalise import RelocConfig
 
 
@@ -29,8 +30,8 @@ def _statuses(out):
 @pytest.fixture(scope="module")
 def covered_box(tmp_path_factory):
     """Textured box orbit (10 frames), 3 black frames, then the camera 5 m to the side (~80 px jump)."""
+    from mst.meshtools.formats import save_model
     from mst.meshtools.generate import box_model
-    from mst.meshtools.io import save_model
 
     d = tmp_path_factory.mktemp("reloc_box")
     (d / "rgb").mkdir()

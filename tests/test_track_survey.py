@@ -25,7 +25,7 @@ def _cli(*args) -> None:
 
 
 def _ate(traj, gt):
-    from mst.core.poses import read_tum
+    from mst.core.trajectory import read_tum
 
     tg, Tg = read_tum(gt)
     te, Te = read_tum(traj)
@@ -59,7 +59,7 @@ def flyover(request, shared_data, tmp_path_factory):
         cov = list(csv.DictReader(open(out.with_suffix(".cov.csv"))))
         sig = np.array([[float(r[f"std_{a}_m"]) for a in "xyz"] for r in cov if r["status"] == "model"])
         runs[slam] = (s, ate, sig)
-    from mst.meshtools.io import load_model
+    from mst.meshtools.formats import load_model
 
     V = np.asarray(load_model(d / "m.wrl").vertices)
     dist = float(np.median(np.linalg.norm(Tg[:, :3, 3] - V.mean(axis=0), axis=1)))  # camera to the block centre

@@ -180,7 +180,8 @@ def _write_outputs(paths, records: list[FrameRecord], summary: TrackSummary, lan
     """traj.txt, traj.csv, traj.cov.csv (+ json, landmarks, overlay), all or nothing."""
     import json
 
-    from mst.core.poses import format_tum, inv_T
+    from mst.core.poses import inv_T
+    from mst.core.trajectory import format_tum
 
     out_traj, csv_path, cov_path, json_path, landmarks_path = paths
     tracked = [r for r in records if r.T_cam_model is not None]
@@ -271,7 +272,8 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
     for bad input before anything is written.
     """
     from mst.core.camera import read_camera
-    from mst.core.poses import read_pose_file, read_rigid_transform
+    from mst.core.poses import read_rigid_transform
+    from mst.core.trajectory import read_pose_file
     from mst.pipeline.frames import check_camera_size, open_frames
     from mst.pipeline.tracking.overlay import OverlayWriter
 

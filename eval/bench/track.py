@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 SHARED = ROOT.parent / "shared" / "data"
 
 
@@ -63,8 +63,9 @@ def _visp_anchor_rows(tb: Path, workdir: Path) -> list[dict]:
     import os
     import subprocess
 
-    from mst.core.poses import inv_T, pose_error, read_tum
-    from mst.eval.bench import mst_cmd
+    from mst.core.poses import inv_T, pose_error
+    from mst.core.trajectory import read_tum
+    from mst.eval.bench.harness import mst_cmd
 
     exe = Path(os.environ.get("VISP_ANCHOR", "/tmp/visp_build/visp_mbt_anchor"))
     if not exe.is_file():
@@ -119,7 +120,7 @@ def run(workdir: Path) -> list[dict]:
     import cv2
 
     from mst.core.camera import Camera, read_camera
-    from mst.eval.bench import mst_cmd, timed_command
+    from mst.eval.bench.harness import mst_cmd, timed_command
     from mst.meshtools.formats import load_tracking_model
     from mst.pipeline.init_pose import init_from_clicks, read_clicks
     from mst.pipeline.tracking.config import TrackConfig, read_tracker_xml
@@ -142,7 +143,7 @@ def run(workdir: Path) -> list[dict]:
                 break
             grays.append(cv2.cvtColor(img, cv2.COLOR_BGR2GRAY))
         rows += _rows("teabox", model, cam, cfg, grays, T0)
-        from mst.core.poses import write_pose_file
+        from mst.core.trajectory import write_pose_file
 
         write_pose_file(workdir / "pose0.txt", T0)
         r = timed_command(mst_cmd("track", tb / "teabox.mp4", "--model", tb / "teabox.cao", "--camera", tb / "teabox.xml",
