@@ -25,6 +25,7 @@ COMMANDS: dict[str, str] = {
     "c2m": "c2m:c2m",
     "eval": "eval_cmd:eval_group",
     "nav": "nav:nav_group",
+    "batch": "batch:batch",
 }
 
 

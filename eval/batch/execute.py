@@ -1,0 +1,104 @@
+"""One stage of a batch, as run inside a dask task: skip it when fresh, else run its ``mst`` command.
+
+The command runs in-process through the click group (``standalone_mode=False``), its ``--json``
+summary captured from stdout and kept in the stage's summary file (atomically). The result is a
+plain dict (it travels back to the client): ``status`` (ok, skipped, failed, blocked), the one-line
+``error``, ``elapsed_s`` and the new state ``entry`` that the client records. A worker never writes
+the state file, and a stage whose predecessor failed is ``blocked`` without running.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import time
+import warnings
+from typing import Any
+
+from mst.eval.batch.plan import Stage
+from mst.eval.batch.state import HashCache, is_fresh, output_hashes, stage_key
+
+
+def call_mst(argv: tuple[str, ...]) -> tuple[int, str, str | None]:
+    """Run ``mst ARGV`` in this process: (exit code, stdout, the one-line error or None).
+
+    The error line is the one ``mst`` itself prints (``mst track: error: ...``); tasks run one at a
+    time per worker process (stdout is redirected for the call).
+    """
+    import click
+
+    from mst import MstError
+    from mst.cli.main import cli
+
+    prog = "mst " + " ".join(argv[:2] if argv[0] == "eval" else argv[:1])
+    buf = io.StringIO()
+    code, error = 0, None
+    with warnings.catch_warnings(), contextlib.redirect_stdout(buf):
+        warnings.simplefilter("ignore")
+        try:
+            rv = cli.main(args=list(argv), prog_name="mst", standalone_mode=False)
+            code = rv if isinstance(rv, int) else 0
+        except MstError as e:
+            code, error = 1, f"{prog}: error: {e}"
+        except click.exceptions.Exit as e:
+            code = e.exit_code
+        except click.ClickException as e:
+            code, error = 1, f"{prog}: error: {e.format_message()}".replace("\n", " ")
+        except (OSError, ValueError, RuntimeError, ArithmeticError, LookupError, TypeError) as e:
+            # a bug or an unforeseen input problem: reported, the other sequences go on
+            code, error = 1, f"{prog}: error: {type(e).__name__}: {e}".replace("\n", " ")
+    if code != 0 and error is None:
+        error = f"{prog}: error: exit code {code}"
+    return code, buf.getvalue(), error
+
+
+def _result(stage: Stage, status: str, **kw: Any) -> dict[str, Any]:
+    return {"id": stage.id, "unit": stage.unit, "stage": stage.name, "status": status, "error": None,
+            "elapsed_s": 0.0, "entry": None, **kw}
+
+
+def check_fresh(stage: Stage, entry: dict | None) -> tuple[bool, str, HashCache]:
+    """(fresh, key, the hashes used) for ``stage`` against its recorded ``entry``."""
+    cache: HashCache = dict((entry or {}).get("files") or {})
+    used: HashCache = {}
+    key = stage_key(stage.argv, stage.inputs, cache, used)
+    return is_fresh(entry, key, cache, used), key, used
+
+
+def known_outcome(stage: Stage, entry: dict | None, retry_failed: bool = False) -> dict[str, Any] | None:
+    """The result of ``stage`` without running it, or None: ``skipped`` when fresh; ``failed`` (the
+    recorded error, ``cached``) when it failed with the same command line and inputs (unless
+    ``retry_failed``)."""
+    fresh, key, _ = check_fresh(stage, entry)
+    if fresh:
+        return _result(stage, "skipped", entry=entry)
+    if not retry_failed and entry and entry.get("status") == "failed" and entry.get("key") == key:
+        return _result(stage, "failed", error=entry.get("error"), cached=True)
+    return None
+
+
+def run_stage(stage: Stage, entry: dict | None, retry_failed: bool, *upstream: dict[str, Any]) -> dict[str, Any]:
+    """The dask task of one stage (``upstream``: the results of the stages it needs)."""
+    bad = [u for u in upstream if u["status"] in ("failed", "blocked")]
+    if bad:
+        return _result(stage, "blocked", error=bad[0]["error"], cause=bad[0]["id"])
+    t0 = time.perf_counter()
+    known = known_outcome(stage, entry, retry_failed)
+    if known is not None:
+        return known
+    _, key, used = check_fresh(stage, entry)
+    code, stdout, error = call_mst(stage.argv)
+    elapsed = time.perf_counter() - t0
+    if code != 0:
+        return _result(stage, "failed", error=error, elapsed_s=elapsed,
+                       entry={"status": "failed", "key": key, "error": error, "files": used})
+    if stage.summary is not None:
+        from mst import atomic_output
+
+        with atomic_output(stage.summary) as tmp:
+            tmp.write_text(stdout)
+    cache = dict(used)
+    outs = output_hashes((*stage.outputs, *([stage.summary] if stage.summary else [])), cache, used)
+    new = {"status": "ok", "key": key, "argv": list(stage.argv), "outputs": outs, "files": used,
+           "elapsed_s": round(elapsed, 3), "finished": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
+    return _result(stage, "ok", elapsed_s=elapsed, entry=new)
