@@ -26,6 +26,7 @@ COMMANDS: dict[str, str] = {
     "eval": "eval_cmd:eval_group",
     "nav": "nav:nav_group",
     "batch": "batch:batch",
+    "report": "report:report",
 }
 
 
