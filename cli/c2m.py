@@ -8,6 +8,7 @@ import click
 
 from mst import InputError, atomic_output, check_outputs
 from mst.cli.common import (
+    CONFIG_CLASSES,
     build_config,
     config_options,
     emit_json,
@@ -19,6 +20,8 @@ from mst.cli.common import (
     setup_logging,
     verbosity_options,
 )
+
+CONFIG_CLASSES["mst c2m"] = "mst.eval.c2m.config:C2MConfig"  # for --show-config
 
 #: config field -> the option that sets it (errors on these fields name the option)
 FLAGS = {"thresholds_m": "--thresholds", "signed": "--signed", "max_dist_m": "--max-dist",
@@ -85,8 +88,8 @@ def c2m(cloud, mesh, thresholds, signed, max_dist, output, as_csv, markdown, plo
       mst c2m cloud.ply building.obj --config c2m.yaml --set engine=bvh
 
     Settings (--config FILE, --set KEY=VALUE; the options above override them): thresholds_m,
-    signed, max_dist_m, chunk_points, workers, small_mesh_triangles, engine; the "config" block of
-    --json is the effective set.
+    signed, max_dist_m, chunk_points, workers, small_mesh_triangles, engine (--show-config lists
+    them); the "config" block of --json is the effective set.
     """
     from mst.eval.c2m import C2MConfig, markdown_report, overall_rows, run_c2m, table1_csv, table1_rows
     from mst.eval.cloud_io import open_cloud

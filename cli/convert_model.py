@@ -6,8 +6,8 @@ import sys
 
 import click
 
-from mst import check_outputs
 from mst.cli.common import (
+    CONFIG_CLASSES,
     NON_NEGATIVE,
     build_config,
     config_options,
@@ -23,6 +23,7 @@ from mst.cli.common import (
 STEPS = ("read", "weld", "orient", "regions", "outlines", "write")
 #: config field -> the option that sets it (errors name the flag the user typed)
 FLAGS = {"angle_tol_deg": "--angle-tol", "dist_tol_m": "--dist-tol", "weld_tol_m": "--weld-tol"}
+CONFIG_CLASSES["mst convert-model"] = "mst.meshtools.convert:ConvertConfig"
 
 
 @click.command("convert-model")
@@ -65,7 +66,6 @@ def convert_model(input_path: str, output_path: str, angle_tol: float | None, di
     from mst.meshtools.convert import convert_model as run
 
     setup_logging(quiet, verbose, "mst convert-model")
-    check_outputs([output_path], [input_path])
     cfg = build_config(ConvertConfig, config_file=config_file, set_values=set_values, section_name="convert-model",
                        options={"angle_tol_deg": angle_tol, "dist_tol_m": dist_tol, "weld_tol_m": weld_tol},
                        flags=FLAGS)

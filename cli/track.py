@@ -5,7 +5,24 @@ from __future__ import annotations
 import click
 
 from mst import check_outputs
-from mst.cli.common import POSITIVE, emit_json, info, json_option, progress_bar, quiet_option
+from mst.cli.common import (
+    CONFIG_CLASSES,
+    POSITIVE,
+    config_options,
+    emit_json,
+    info,
+    json_option,
+    progress_bar,
+    quiet_option,
+    setup_logging,
+    verbosity_options,
+)
+
+#: config field -> the option that sets it (errors on these fields name the option)
+FLAGS = {"edges.search_range_px": "--range", "edges.sample_step_px": "--step", "edges.pyramid_levels": "--pyramid",
+         "edges.constant_velocity": "--constant-velocity", "use_klt": "--klt", "relocalise": "--relocalise",
+         "aid": "--slam", "edge_source": "--edges", "depth.scale": "--depth-scale"}
+CONFIG_CLASSES["mst track"] = "mst.pipeline.tracking.config:TrackConfig"  # --show-config
 
 
 @click.command("track")
@@ -19,31 +36,35 @@ from mst.cli.common import POSITIVE, emit_json, info, json_option, progress_bar,
 @click.option("--frames", "frame_range", default=None, help="Frame selection a:b:step (b exclusive).")
 @click.option("--scale", type=POSITIVE, default=1.0, show_default=True, help="Resize frames by this factor (intrinsics follow).")
 @click.option("--fps", type=POSITIVE, default=None, help="Frame rate for time stamps (default: the video's; image sequences: t = index).")
-@click.option("--range", "search_range", type=int, default=None, help="Moving-edge search range, px each side (overrides settings).")
-@click.option("--step", "sample_step", type=float, default=None, help="Sample step along edges, px (overrides settings).")
+@click.option("--range", "search_range", type=int, default=None, help="Moving-edge search range, px each side (edges.search_range_px; overrides settings).")
+@click.option("--step", "sample_step", type=float, default=None, help="Sample step along edges, px (edges.sample_step_px; overrides settings).")
 @click.option("--pyramid", "pyramid_levels", type=int, default=None, help="Coarse-to-fine levels (1 = none, 2 = half resolution first).")
-@click.option("--constant-velocity", is_flag=True, help="Predict each pose by repeating the last motion (no SLAM aid).")
+@click.option("--constant-velocity", is_flag=True, default=None, help="Predict each pose by repeating the last motion (no SLAM aid).")
 @click.option("--klt/--no-klt", default=None,
               help="Add KLT points inside visible faces (ViSP hybrid tracker); default: on with --slam auto without --depth, else off.")
-@click.option("--relocalise/--no-relocalise", default=True, show_default=True,
-              help="Learn the object's keypoints while tracked and re-acquire a lost pose without clicks (status relocalised).")
+@click.option("--relocalise/--no-relocalise", default=None,
+              help="Learn the object's keypoints while tracked and re-acquire a lost pose without clicks (status relocalised; default: on).")
 @click.option("--overlay", default=None, type=click.Path(), help="Write an overlay video (.mp4) or a folder of PNGs.")
-@click.option("--slam", type=click.Choice(["auto", "mono", "rgbd", "off"]), default="auto", show_default=True,
-              help="SLAM aid: auto = rgbd with --depth, else edges + KLT with the mono aid switched on only when the edges weaken; off = edges only.")
+@click.option("--slam", type=click.Choice(["auto", "mono", "rgbd", "off"]), default=None,
+              help="SLAM aid (default auto): auto = rgbd with --depth, else edges + KLT with the mono aid switched on only when the edges weaken; off = edges only.")
 @click.option("--depth", "depth_dir", type=click.Path(file_okay=False), default=None, help="Depth frames folder (for --slam rgbd).")
+@click.option("--depth-scale", type=POSITIVE, default=None,
+              help="Raw depth units per metre of 16-bit depth frames (default 1000 = mm; TUM RGB-D: 5000).")
 @click.option("--depth-camera", "depth_camera", type=click.Path(dir_okay=False), default=None, help="Depth camera file (default: the colour camera).")
 @click.option("--landmarks", "landmarks_path", type=click.Path(dir_okay=False), default=None,
               help="Write the SLAM map points (model frame) as PLY, e.g. for `mst fuse --landmarks` (mono).")
 @click.option("--depth-to-color", "depth_to_color", type=click.Path(dir_okay=False), default=None, help="4x4 depth-to-colour transform file.")
-@click.option("--edges", type=click.Choice(["auto", "polygon", "render"]), default="auto", show_default=True,
-              help="Edges to track: polygon = the model's polygon edges; render = contours and creases from CPU renders "
+@click.option("--edges", type=click.Choice(["auto", "polygon", "render"]), default=None,
+              help="Edges to track (default auto): polygon = the model's polygon edges; render = contours and creases from CPU renders "
                    "of the mesh (curved objects, raw TINs); auto = polygon for .cao/.wrl and small planar meshes, "
                    "render for triangle meshes with many faces or curved parts.")
+@config_options(presets=True)
 @json_option
 @quiet_option
+@verbosity_options
 def track(frames_src, model_path, camera_path, init_path, out, settings_path, frame_range, scale, fps, search_range,
-          sample_step, pyramid_levels, constant_velocity, klt, relocalise, overlay, slam, depth_dir, depth_camera, depth_to_color,
-          landmarks_path, edges, as_json, quiet):
+          sample_step, pyramid_levels, constant_velocity, klt, relocalise, overlay, slam, depth_dir, depth_scale, depth_camera,
+          depth_to_color, landmarks_path, edges, config_file, set_values, preset, as_json, quiet, verbose):
     """Track MODEL through FRAMES (video, image folder, glob or printf pattern) from an initial pose.
 
     Per frame: visible model edges are sampled, moving edges searched along their normals (ViSP's
@@ -66,17 +87,13 @@ def track(frames_src, model_path, camera_path, init_path, out, settings_path, fr
     """
     from pathlib import Path
 
-    from mst import InputError
+    from mst.cli.common import build_config
+    from mst.errors import ConfigError
     from mst.pipeline.depth_io import DEPTH_SUFFIXES, IMAGE_SUFFIXES
-    from mst.pipeline.settings import TrackerConfig, check_setting, read_tracker_xml
-    from mst.pipeline.tracker import run_track
+    from mst.pipeline.tracking.config import TrackConfig, visp_xml_settings
+    from mst.pipeline.tracking.runner import run_track
 
-    # options are bounded by the same table as the XML settings (settings.BOUNDS), named as options
-    for name, value, label in (("search_range", search_range, "--range"), ("sample_step", sample_step, "--step"),
-                               ("pyramid_levels", pyramid_levels, "--pyramid")):
-        problem = check_setting(name, value, label)
-        if problem:
-            raise InputError(None, f"bad option: {problem}")
+    setup_logging(quiet, verbose, "mst track")
     out_p = Path(out)
     frames_p = Path(frames_src)
     # the trajectory, its side outputs (traj.csv, traj.json) and the others must not replace an input
@@ -85,26 +102,43 @@ def track(frames_src, model_path, camera_path, init_path, out, settings_path, fr
                    overlay],
                   [(frames_p, IMAGE_SUFFIXES) if frames_p.is_dir() else frames_p if frames_p.exists() else None,
                    model_path, camera_path, init_path, settings_path, depth_camera, depth_to_color,
-                   (depth_dir, DEPTH_SUFFIXES) if depth_dir else None])
-    cfg = TrackerConfig()
-    if settings_path:
-        cfg = read_tracker_xml(settings_path)
-    elif Path(camera_path).is_file() and "<ecm>" in Path(camera_path).read_text(errors="replace"):
-        cfg = read_tracker_xml(camera_path)
-    cfg = cfg.updated(search_range=search_range, sample_step=sample_step, pyramid_levels=pyramid_levels,
-                      constant_velocity=constant_velocity or None)
-    notes: list[str] = []
-    summary = run_track(frames_src, model_path, camera_path, init_path, out, cfg, frames=frame_range, scale=scale,
-                        fps=fps, overlay=overlay, slam=slam, depth_dir=depth_dir, depth_camera_path=depth_camera,
-                        depth_to_color_path=depth_to_color, landmarks_path=landmarks_path, write_json=as_json, notes=notes, klt=klt,
-                        relocalise=relocalise, progress=lambda total: progress_bar(total, "tracking", quiet), edges=edges)
-    for nt in notes:
-        info(f"note: {nt}", quiet)
-    res = summary["mean_residual_px"]
-    sc = summary["status_counts"]
-    info(f"tracked {summary['tracked']}/{summary['frames']} frames (model {sc['model']}, slam {sc['slam']}, relocalised "
-         f"{sc['relocalised']}, lost {sc['lost']}; {summary['health_score_rejects']} edge poses rejected by the health "
-         f"score" + (f"; SLAM aid switched on {summary['aid_wakes']}x" if summary.get("aid_wakes") else "") + "), median "
-         f"{summary['median_ms']:.1f} ms/frame, mean residual {'-' if res is None else f'{res:.2f}'} px -> {out}", quiet)
+                   (depth_dir, DEPTH_SUFFIXES) if depth_dir else None, config_file])
+    # a ViSP tracker XML (--settings, or the camera file when it is one): the base layer
+    xml = settings_path or (camera_path if Path(camera_path).is_file()
+                            and "<ecm>" in Path(camera_path).read_text(errors="replace") else None)
+    base = visp_xml_settings(xml) if xml else None
+    options = {"edges.search_range_px": search_range, "edges.sample_step_px": sample_step,
+               "edges.pyramid_levels": pyramid_levels, "edges.constant_velocity": constant_velocity, "use_klt": klt,
+               "relocalise": relocalise, "aid": slam, "edge_source": edges, "depth.scale": depth_scale}
+    cfg = build_config(TrackConfig, config_file=config_file, set_values=set_values, preset=preset, options=options,
+                       flags=FLAGS, section_name="track", base=base)
+    try:
+        summary = run_track(frames_src, model_path, camera_path, init_path, out, cfg, frames=frame_range, scale=scale,
+                            fps=fps, overlay=overlay, depth_dir=depth_dir, depth_camera_path=depth_camera,
+                            depth_to_color_path=depth_to_color, landmarks_path=landmarks_path, write_json=as_json,
+                            progress=lambda total: progress_bar(total, "tracking", quiet))
+    except ConfigError as e:
+        raise _named(e, xml, base or {}, options) from None
+    res = summary.mean_residual_px
+    sc = summary.status_counts
+    wakes = summary.optional.get("aid_wakes")
+    info(f"tracked {summary.tracked}/{summary.frames} frames (model {sc['model']}, slam {sc['slam']}, relocalised "
+         f"{sc['relocalised']}, lost {sc['lost']}; {summary.health_score_rejects} edge poses rejected by the health "
+         f"score" + (f"; SLAM aid switched on {wakes}x" if wakes else "") + "), median "
+         f"{summary.median_ms:.1f} ms/frame, mean residual {'-' if res is None else f'{res:.2f}'} px -> {out}", quiet)
     if as_json:
-        emit_json(summary)
+        emit_json(summary.to_json())
+
+
+def _named(e, xml, base: dict, options: dict):
+    """A library ConfigError raised while tracking, named as the user set it: the option, the ViSP
+    tag of the settings file, or the dotted field (a config file, --set, a default)."""
+    from mst import InputError
+    from mst.pipeline.tracking.config import TAG_OF
+
+    if e.field in base and e.source is None and options.get(e.field) is None:
+        tag = "<" + TAG_OF[e.field].strip("<>").split("/")[-1] + ">"
+        return InputError(xml, e.problem.replace("this setting", tag))
+    if e.field in FLAGS and e.source is None and options.get(e.field) is not None:
+        return InputError(None, f"{FLAGS[e.field]}: {e.problem}")
+    return e

@@ -214,6 +214,11 @@ class Config:
             for k, v in d.items():
                 if k not in known:
                     raise ConfigError(f"{dotted}{k}", f"unknown key (known: {', '.join(sorted(known))})")
+                factory = known[k].default_factory
+                if isinstance(v, Mapping) and _is_config(_optional_of(hints[k])[1]) and factory is not dataclasses.MISSING:
+                    # a partial section keeps the stage's own defaults for it (e.g. the SLAM's KLT),
+                    # not the section class's
+                    v = deep_merge(factory().to_dict(), v)
                 kw[k] = _coerce(v, hints[k], f"{dotted}{k}")
             try:
                 return cls(**kw)

@@ -198,7 +198,6 @@ def ascii_rows(p: Path, start: int, n: int, cols, what: str, unit: str):
     return reader
 
 
-
 class VertexStream:
     """The ``vertex`` element of a PLY, read in chunks (bounded memory) as float64 columns.
 
@@ -270,9 +269,9 @@ def open_vertices(path: str | os.PathLike) -> VertexStream:
 # ====================================================================== meshes
 @dataclass
 class PlyMesh:
-    """``vertices`` float64 (N, 3); ``faces`` a list of int64 index loops, or an (M, k) int64
-    array when every face has k indices; ``face_properties``: the face element's scalar
-    properties (binary triangle meshes; e.g. the ``label`` of mst synth's scene.ply)."""
+    """``vertices`` float64 (N, 3); ``faces`` a list of int64 index loops (ascii), or an (M, 3)
+    int64 array (binary triangles); ``face_properties``: the face element's scalar properties
+    in their stored types (e.g. the ``label`` of mst synth's scene.ply)."""
 
     vertices: np.ndarray
     faces: list[np.ndarray] | np.ndarray
@@ -350,6 +349,7 @@ def _ascii_mesh(h: PlyHeader) -> PlyMesh:
     rows = [r for r in rows if r.strip()]
     k = 0
     V = faces = None
+    fprops: dict[str, np.ndarray] = {}
     for e in h.elements:
         if k + e.count > len(rows):
             raise InputError(p, f"ascii PLY is truncated: {e.count} {e.name} elements announced, {len(rows) - k} lines left")
@@ -367,14 +367,15 @@ def _ascii_mesh(h: PlyHeader) -> PlyMesh:
                 raise InputError(p, f"ascii PLY: vertex lines hold {A.size} numbers, {e.count} x {len(e.properties)} expected")
             V = A.reshape(e.count, len(e.properties))[:, cols]
         elif e.name == "face":
-            faces = _ascii_faces(p, e, chunk)
+            faces, fprops = _ascii_faces(p, e, chunk)
     if V is None or faces is None:
         raise InputError(p, "ascii PLY without vertex or face data")
-    return PlyMesh(V, faces, {})
+    return PlyMesh(V, faces, fprops)
 
 
-def _ascii_faces(p: Path, e: PlyElement, chunk: list[str]) -> list[np.ndarray]:
-    """Face index lists of an ascii face element, one instance per line, properties in header order."""
+def _ascii_faces(p: Path, e: PlyElement, chunk: list[str]) -> tuple[list[np.ndarray], dict[str, np.ndarray]]:
+    """Face index lists and scalar properties of an ascii face element, one instance per line,
+    properties in header order."""
     props = e.properties
     lists = [i for i, q in enumerate(props) if q.is_list]
     named = [i for i in lists if props[i].name in FACE_INDEX_NAMES]
@@ -382,6 +383,7 @@ def _ascii_faces(p: Path, e: PlyElement, chunk: list[str]) -> list[np.ndarray]:
         raise InputError(p, "ascii PLY face element without an index list")
     which = (named or lists)[0]
     faces = []
+    scalars: dict[str, list[float]] = {q.name: [] for q in props if not q.is_list}
     for j, r in enumerate(chunk):
         t = r.split()
         pos, idx = 0, None
@@ -396,7 +398,7 @@ def _ascii_faces(p: Path, e: PlyElement, chunk: list[str]) -> list[np.ndarray]:
                             raise IndexError
                     pos += 1 + n
                 else:
-                    float(t[pos])
+                    scalars[q.name].append(float(t[pos]))
                     pos += 1
         except (ValueError, IndexError):
             raise InputError(p, f"ascii PLY: face {j} is not a list of >= 3 integer indices with its "
@@ -405,7 +407,9 @@ def _ascii_faces(p: Path, e: PlyElement, chunk: list[str]) -> list[np.ndarray]:
             raise InputError(p, f"ascii PLY: face {j} has {len(t)} values, its properties need {pos} "
                                 f"({r.strip()[:40]!r})")
         faces.append(np.array(idx, np.int64))
-    return faces
+    types = {q.name: q.type for q in props}
+    with np.errstate(invalid="ignore", over="ignore"):  # a value outside its declared type wraps, as in C
+        return faces, {k: np.array(v, np.float64).astype(types[k]) for k, v in scalars.items()}
 
 
 # ====================================================================== writing

@@ -1,4 +1,5 @@
-"""Rigid poses, quaternions, SE(3) exp/log and pose/trajectory files.
+"""Rigid poses, quaternions, SE(3) exp/log, small number/transform files (trajectory and pose files:
+:mod:`mst.core.trajectory`).
 
 Conventions (used everywhere in mst):
 
@@ -210,102 +211,9 @@ def pose_error(T_est: np.ndarray, T_ref: np.ndarray) -> tuple[np.ndarray, np.nda
 
 
 # ---------------------------------------------------------------------------- files
-def tum_to_T(rows: np.ndarray) -> np.ndarray:
-    """(N, 7) rows ``tx ty tz qx qy qz qw`` -> (N, 4, 4) ``T_model_cam``."""
-    rows = np.asarray(rows, dtype=np.float64).reshape(-1, 7)
-    return make_T(R_from_quat(rows[:, 3:]), rows[:, :3])
-
-
-def T_to_tum(T_model_cam: np.ndarray) -> np.ndarray:
-    """(N, 4, 4) -> (N, 7) rows ``tx ty tz qx qy qz qw``."""
-    T = np.asarray(T_model_cam, dtype=np.float64).reshape(-1, 4, 4)
-    return np.concatenate([T[:, :3, 3], quat_from_R(T[:, :3, :3])], axis=1)
-
-
 #: largest accepted coordinate of a position in a pose or trajectory file, metres: 1e9 m is far beyond
 #: any map (Earth-centred coordinates are ~6.4e6 m); larger values are corrupt and overflow later
 MAX_POSITION_M = 1e9
-#: accepted deviation of a file quaternion's norm from 1: files print >= 3 decimals (rounding <= 2e-3),
-#: a norm far from 1 (0 0 0 0, 1e-310) is not a rotation and must not be normalised into one
-QUAT_NORM_TOL = 0.01
-
-
-def check_pose_rows(p: Path, rows: np.ndarray, line_numbers: np.ndarray | None, quat_cols: slice | None = slice(3, 7),
-                    pos_cols: slice = slice(0, 3)) -> None:
-    """Validate pose rows ``(N, k)`` read from file ``p`` (``line_numbers`` (N,) 1-based).
-
-    Raises :class:`mst.InputError` naming the file and the first offending line for NaN/inf, a
-    position beyond :data:`MAX_POSITION_M`, or a quaternion whose norm is not 1 within
-    :data:`QUAT_NORM_TOL`.
-    """
-    rows = np.asarray(rows, np.float64)
-
-    def at(k) -> str:
-        return "" if line_numbers is None else f"line {line_numbers[k]}: "
-
-    bad = ~np.isfinite(rows).all(axis=1)
-    if bad.any():
-        raise InputError(p, f"{at(np.argmax(bad))}NaN or infinite value")
-    far = (np.abs(rows[:, pos_cols]) > MAX_POSITION_M).any(axis=1)
-    if far.any():
-        raise InputError(p, f"{at(np.argmax(far))}position beyond {MAX_POSITION_M:g} m "
-                            "(corrupt value?)")
-    if quat_cols is not None:
-        qn = np.linalg.norm(rows[:, quat_cols], axis=1)
-        off = np.abs(qn - 1.0) > QUAT_NORM_TOL
-        if off.any():
-            k = np.argmax(off)
-            raise InputError(p, f"{at(k)}quaternion norm {qn[k]:.3g} is not 1: not a rotation")
-
-
-def read_tum(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
-    """Read a TUM trajectory: returns ``(t (N,) seconds, T_model_cam (N, 4, 4))``.
-
-    Lines starting with ``#`` and blank lines are ignored; every other line needs 8 numbers
-    ``t tx ty tz qx qy qz qw`` (metres; a unit quaternion). UTF-8 text, a byte-order mark is
-    accepted. Raises :class:`mst.InputError` naming the file and line for anything else (see
-    :func:`check_pose_rows`).
-    """
-    from mst import read_text
-
-    p = Path(path)
-    if not p.exists():
-        raise InputError(p, "trajectory file does not exist")
-    rows, lines = [], []
-    for ln, line in enumerate(read_text(p, "trajectory file").splitlines(), 1):
-        s = line.strip()
-        if not s or s.startswith("#"):
-            continue
-        parts = s.replace(",", " ").split()
-        if len(parts) != 8:
-            raise InputError(p, f"line {ln}: expected 8 values 't tx ty tz qx qy qz qw', got {len(parts)}")
-        try:
-            rows.append([float(x) for x in parts])
-        except ValueError:
-            raise InputError(p, f"line {ln}: not a number") from None
-        lines.append(ln)
-    if not rows:
-        raise InputError(p, "trajectory has no poses")
-    a = np.asarray(rows)
-    bad_t = ~np.isfinite(a[:, 0])
-    if bad_t.any():
-        raise InputError(p, f"line {lines[int(np.argmax(bad_t))]}: the timestamp is NaN or infinite")
-    check_pose_rows(p, a[:, 1:], np.asarray(lines))
-    return a[:, 0], tum_to_T(a[:, 1:])
-
-
-def format_tum(t: np.ndarray, T_model_cam: np.ndarray) -> str:
-    """TUM text for times ``t`` (seconds) and poses (N, 4, 4)."""
-    rows = T_to_tum(T_model_cam)
-    return "".join(f"{ti:.6f} " + " ".join(f"{v:.9f}" for v in r) + "\n" for ti, r in zip(np.atleast_1d(t), rows))
-
-
-def write_tum(path: str | os.PathLike, t: np.ndarray, T_model_cam: np.ndarray, header: str | None = None) -> None:
-    """Write a TUM trajectory (call inside :func:`mst.atomic_output` for atomicity)."""
-    text = format_tum(t, T_model_cam)
-    if header:
-        text = "".join(f"# {h}\n" for h in header.splitlines()) + text
-    Path(path).write_text(text)
 
 
 def read_numbers(p: Path, what: str = "file") -> np.ndarray:
@@ -331,8 +239,9 @@ def read_numbers(p: Path, what: str = "file") -> np.ndarray:
     return a
 
 
-def _rigid_from_rows(a: np.ndarray, p: Path) -> np.ndarray:
-    """12 or 16 row-major numbers -> 4x4 rigid transform, rotation re-orthonormalised (SVD)."""
+def rigid_from_rows(a: np.ndarray, p: Path) -> np.ndarray:
+    """12 or 16 row-major numbers -> 4x4 rigid transform, rotation re-orthonormalised (SVD); an
+    :class:`mst.InputError` naming ``p`` when they are not one."""
     T = np.eye(4)
     T[: len(a) // 4] = a.reshape(-1, 4)
     R = T[:3, :3]
@@ -357,43 +266,7 @@ def read_rigid_transform(path: str | os.PathLike, what: str = "transform file") 
     a = read_numbers(p, what)
     if len(a) not in (12, 16):
         raise InputError(p, f"{len(a)} numbers: expected a 4x4 (16) or 3x4 (12) matrix")
-    return _rigid_from_rows(a, p)
-
-
-def read_pose_file(path: str | os.PathLike) -> np.ndarray:
-    """Read one pose and return ``T_cam_model`` (ViSP's cMo), 4x4.
-
-    Accepted, detected by the count of numbers (``#`` comments ignored):
-
-    * 16 (or 12): a 4x4 (or 3x4) model-to-camera matrix ``cMo``, row-major;
-    * 8: one TUM line ``t tx ty tz qx qy qz qw`` (camera pose in model coordinates);
-    * 7: ``tx ty tz qx qy qz qw`` (camera pose in model coordinates).
-    """
-    p = Path(path)
-    if not p.exists():
-        raise InputError(p, "pose file does not exist")
-    a = read_numbers(p, "pose file")
-    if len(a) in (16, 12):
-        from mst import read_text
-
-        widths = [len(ln.split("#", 1)[0].replace(",", " ").split()) for ln in read_text(p, "pose file").splitlines()]
-        if [w for w in widths if w] == [8, 8]:  # two TUM lines are 16 numbers too: not a matrix
-            raise InputError(p, "holds 2 TUM poses: give one pose (the first frame's), or a 4x4 cMo matrix")
-        return _rigid_from_rows(a, p)
-    if len(a) in (7, 8):
-        check_pose_rows(p, a[None, -7:], None)
-        return inv_T(tum_to_T(a[-7:])[0])
-    raise InputError(p, f"{len(a)} numbers: expected 16 (4x4 cMo matrix), 8 (TUM line) or 7")
-
-
-def write_pose_file(path: str | os.PathLike, T_cam_model: np.ndarray, t: float = 0.0) -> None:
-    """Write one pose as a TUM line (camera pose in model coordinates) with a cMo comment."""
-    T = np.asarray(T_cam_model, dtype=np.float64)
-    cmo = "\n".join("# " + " ".join(f"{v: .9f}" for v in row) for row in T)
-    Path(path).write_text(
-        "# mst pose: TUM line 't tx ty tz qx qy qz qw' (camera pose in model frame)\n"
-        "# cMo (model-to-camera, 4x4) for reference:\n" + cmo + "\n" + format_tum(np.array([t]), inv_T(T)[None])
-    )
+    return rigid_from_rows(a, p)
 
 
 def pnp_ransac(X_model: np.ndarray, uv_px: np.ndarray, K: np.ndarray, dist, iterations: int, reproj_px: float,

@@ -103,6 +103,7 @@ def _open_pcd(p: Path) -> CloudSource:
         hdr[tok[0].upper()] = tok[1:]
         if tok[0].upper() == "DATA":
             break
+
     def ints(key: str, default: list[str]) -> list[int]:
         vals = hdr.get(key, default)
         if not vals or not all(re.fullmatch(r"\d+", v) for v in vals):

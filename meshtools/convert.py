@@ -51,7 +51,7 @@ from typing import Any
 
 import numpy as np
 
-from mst import InputError, atomic_output
+from mst import InputError, atomic_output, check_outputs
 from mst.core.config import Config, param
 from mst.meshtools.model import PolygonModel
 from mst.meshtools.outlines import outlines
@@ -86,7 +86,7 @@ class ConvertConfig(Config):
 @dataclass
 class ConvertResult:
     """What :func:`tin_to_polygons` found and did (counts), the plane tolerance it used
-    (``dist_tol_m``, derived when the config leaves it null), the configuration, and for
+    (``dist_tol_used_m``: the config's ``dist_tol_m``, or derived when that is null), the configuration, and for
     :func:`convert_model` the files and the time taken."""
 
     config: ConvertConfig
@@ -112,7 +112,7 @@ class ConvertResult:
     polygons_out: int = 0
     vertices_out: int = 0
     holes: int = 0
-    dist_tol_m: float = 0.0
+    dist_tol_used_m: float = 0.0
     input: str | None = None
     output: str | None = None
     elapsed_s: float = 0.0
@@ -138,12 +138,9 @@ def convert_model(input_path: str | Path, output_path: str | Path, config: Conve
 
     cfg = config or ConvertConfig()
     out = Path(output_path)
+    check_outputs([out], [input_path])  # not over the input; the folder exists and is writable
     if model_suffix(out) not in WRITE_SUFFIXES:
         raise InputError(out, f"unknown output format {out.suffix!r} (use .wrl, .cao or .obj)")
-    if not out.parent.is_dir():
-        raise InputError(out, "output folder does not exist")
-    if out.exists() and Path(input_path).exists() and out.resolve() == Path(input_path).resolve():
-        raise InputError(out, "the output would overwrite the input")
     t0 = time.perf_counter()
     step = progress or (lambda name: None)
     V, F = load_triangles(input_path)
@@ -239,7 +236,8 @@ def tin_to_polygons(V: np.ndarray, F: np.ndarray, config: ConvertConfig | None =
     if not faces:
         raise InputError(path, "no polygon could be formed (degenerate mesh)")
     model = PolygonModel(V[used], [remap[f] for f in faces], holes=[[remap[h] for h in hs] for hs in holes])
-    stats.update(polygons_out=model.n_faces, vertices_out=int(used.sum()), holes=model.n_holes, dist_tol_m=dist_tol)
+    stats.update(polygons_out=model.n_faces, vertices_out=int(used.sum()), holes=model.n_holes,
+                 dist_tol_used_m=dist_tol)
     step("outlines")
     return model, ConvertResult(cfg, **stats)
 
@@ -276,7 +274,7 @@ def summary_lines(s: ConvertResult) -> list[str]:
         f"degenerate dropped {s.degenerate_dropped:,}, non-manifold edges {s.nonmanifold_edges:,}, "
         f"components {s.components:,} ({s.closed_components:,} closed), flipped {s.flipped_triangles:,}",
         f"regions {s.regions:,} -> polygons out {s.polygons_out:,}, vertices out {s.vertices_out:,}, "
-        f"holes {s.holes:,} (tolerances: angle {s.config.angle_tol_deg:g} deg, dist {s.dist_tol_m:.3g} m)",
+        f"holes {s.holes:,} (tolerances: angle {s.config.angle_tol_deg:g} deg, dist {s.dist_tol_used_m:.3g} m)",
         f"wrote {s.output} in {s.elapsed_s:.2f} s",
     ]
 

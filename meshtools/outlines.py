@@ -14,18 +14,40 @@ from mst.meshtools.regions import Edges
 def outlines(X, F, region, n_regions, cr, E: Edges, col_tol: float, diag: float):
     """Boundary loops per region: outer loop + holes, simplified without cracks (:mod:`mst.meshtools.convert` doc, steps 5-6).
 
-    Returns ``(faces, holes, stats)`` with vertex indices into ``X``.
+    Returns ``(faces, holes, stats, face_region)`` with vertex indices into ``X``.
     """
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
-    from mst.meshtools.polygons import split_simple
-
     R = n_regions
     # region normals (area-weighted) for planar coordinates
     nsum = np.stack([np.bincount(region, weights=cr[:, k], minlength=R) for k in range(3)], 1)
     nR = nsum / np.maximum(np.linalg.norm(nsum, axis=1, keepdims=True), 1e-300)
-    # boundary half-edges: opposite triangle missing, non-manifold, or in another region
+    bu, bv, br, n_open = _boundary_half_edges(X, F, region, E)
+    B = len(bu)
+    if B == 0:
+        return [], [], {"loops": 0, "slit_loops_dropped": 0, "pinch_vertices": 0, "vertices_removed": 0,
+                        "regions_without_outer_loop": int(R), "open_boundary_edges_dropped": n_open}, np.zeros(0, np.int64)
+    order, lab_o, n_loops, n_pinch = _chain_loops(X, bu, bv, br, nR)
+    u_o = bu[order]
+    loop_start = np.concatenate([[0], np.flatnonzero(np.diff(lab_o)) + 1])
+    loop_len = np.diff(np.concatenate([loop_start, [B]]))
+    loop_reg = br[order][loop_start]
+    # signed area of each loop in its region plane
+    pu, pv = X[bu[order]], X[bv[order]]
+    cx = np.cross(pu, pv)
+    av = np.stack([np.bincount(lab_o, weights=cx[:, k], minlength=n_loops) for k in range(3)], 1)
+    loop_area = 0.5 * np.einsum("ij,ij->i", av[lab_o[loop_start]], nR[loop_reg])
+    removable = _removable_vertices(X, u_o, lab_o, loop_start, loop_len, n_loops, col_tol)
+    loops, n_split = _simple_loops(X, nR, u_o[~removable], lab_o[~removable], lab_o[loop_start], loop_area,
+                                   loop_reg, n_loops)
+    faces, holes, face_region, n_dropped, regions_without_outer = _faces_of_loops(loops, R, 1e-12 * diag**2)
+    stats = {"loops": len(loops), "slit_loops_dropped": int(n_dropped), "pinch_vertices": int(n_pinch),
+             "loops_split_at_pinches": n_split, "vertices_removed": int(len(np.unique(u_o[removable]))),
+             "regions_without_outer_loop": int(regions_without_outer), "open_boundary_edges_dropped": n_open}
+    return faces, holes, stats, np.array(face_region, np.int64)
+
+
+def _boundary_half_edges(X, F, region, E: Edges):
+    """Boundary half-edges ``(u, v, region)``: opposite triangle missing, non-manifold, or in another
+    region; with the number dropped to balance tangles."""
     h_all = np.arange(3 * len(F))
     fr = region[h_all // 3]
     interior = np.zeros(len(h_all), bool)
@@ -53,10 +75,17 @@ def outlines(X, F, region, n_regions, cr, E: Edges, col_tol: float, diag: float)
         drop = bad_key[inv[:n]] | bad_key[inv[n:]]
         n_open += int(drop.sum())
         bu, bv, br = bu[~drop], bv[~drop], br[~drop]
+    return bu, bv, br, n_open
+
+
+def _chain_loops(X, bu, bv, br, nR):
+    """Chain the boundary half-edges into loops: ``(order, loop label in that order, n_loops,
+    n_pinch)``, ``order`` listing each loop's half-edges in turn (list ranking)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
     B = len(bu)
-    if B == 0:
-        return [], [], {"loops": 0, "slit_loops_dropped": 0, "pinch_vertices": 0, "vertices_removed": 0,
-                        "regions_without_outer_loop": int(R), "open_boundary_edges_dropped": n_open}, np.zeros(0, np.int64)
+    nv = len(X)
     # successor: next boundary half-edge of the same region leaving bv
     out_key = br * nv + bu
     o = np.argsort(out_key, kind="stable")
@@ -91,17 +120,13 @@ def outlines(X, F, region, n_regions, cr, E: Edges, col_tol: float, diag: float)
             break
         nxt = nxt2
     order = np.lexsort((-dist, lab))
-    lab_o = lab[order]
-    u_o = bu[order]
-    loop_start = np.concatenate([[0], np.flatnonzero(np.diff(lab_o)) + 1])
-    loop_len = np.diff(np.concatenate([loop_start, [B]]))
-    loop_reg = br[order][loop_start]
-    # signed area of each loop in its region plane
-    pu, pv = X[bu[order]], X[bv[order]]
-    cx = np.cross(pu, pv)
-    av = np.stack([np.bincount(lab_o, weights=cx[:, k], minlength=n_loops) for k in range(3)], 1)
-    loop_area = 0.5 * np.einsum("ij,ij->i", av[lab_o[loop_start]], nR[loop_reg])
-    # simplification: vertices that are straight pass-throughs in every loop using them
+    return order, lab[order], n_loops, n_pinch
+
+
+def _removable_vertices(X, u_o, lab_o, loop_start, loop_len, n_loops, col_tol: float) -> np.ndarray:
+    """Simplification: vertices that are straight pass-throughs in every loop using them (never
+    reducing a loop below 3 vertices); a mask over the chained half-edges."""
+    B = len(u_o)
     pos = np.arange(B)
     ls = np.repeat(loop_start, loop_len)
     ll = np.repeat(loop_len, loop_len)
@@ -118,13 +143,17 @@ def outlines(X, F, region, n_regions, cr, E: Edges, col_tol: float, diag: float)
     # never reduce a loop below 3 vertices
     keep_cnt = np.bincount(lab_o, weights=~removable, minlength=n_loops)
     removable &= keep_cnt[lab_o] >= 3
-    keep = ~removable
-    tiny = 1e-12 * diag**2
-    kept_u = u_o[keep]
-    kept_lab = lab_o[keep]
+    return removable
+
+
+def _simple_loops(X, nR, kept_u, kept_lab, lab_at_start, loop_area, loop_reg, n_loops):
+    """``[(region, signed area, vertex loop)]`` of the simplified loops; loops that pass a vertex
+    twice (pinches) are split there into simple loops (counted)."""
+    from mst.meshtools.polygons import split_simple
+
+    nv = len(X)
     bounds = np.concatenate([[0], np.flatnonzero(np.diff(kept_lab)) + 1, [len(kept_lab)]])
     loop_of_seg = kept_lab[bounds[:-1]]
-    lab_at_start = lab_o[loop_start]
     area_by_loop = np.empty(n_loops)
     area_by_loop[lab_at_start] = loop_area
     reg_by_loop = np.empty(n_loops, np.int64)
@@ -144,7 +173,13 @@ def outlines(X, F, region, n_regions, cr, E: Edges, col_tol: float, diag: float)
             P = X[sub]
             a = 0.5 * float(np.cross(P, np.roll(P, -1, axis=0)).sum(0) @ nR[r])
             loops.append((r, a, np.asarray(sub, np.int64)))
-    n_split = int(repeated.sum())
+    return loops, int(repeated.sum())
+
+
+def _faces_of_loops(loops, R: int, tiny: float):
+    """Faces (the largest outer loop of a region, with the region's holes; further outer loops as
+    faces of their own), dropping zero-area slits: ``(faces, holes, face_region, n_dropped,
+    regions_without_outer)``."""
     outer_of_region: dict[int, list[int]] = {}
     holes_of_region: dict[int, list[int]] = {}
     n_dropped = 0
@@ -169,11 +204,7 @@ def outlines(X, F, region, n_regions, cr, E: Edges, col_tol: float, diag: float)
             faces.append(loops[extra][2])
             holes.append([])
             face_region.append(r)
-    stats = {"loops": len(loops), "slit_loops_dropped": int(n_dropped), "pinch_vertices": int(n_pinch),
-             "loops_split_at_pinches": n_split, "vertices_removed": int(len(np.unique(u_o[removable]))),
-             "regions_without_outer_loop": int(regions_without_outer), "open_boundary_edges_dropped": n_open}
-    return faces, holes, stats, np.array(face_region, np.int64)
-
+    return faces, holes, face_region, n_dropped, regions_without_outer
 
 
 def resolve_pinches(X, bu, bv, br, nR, o, lo, hi, multi, succ):

@@ -63,7 +63,6 @@ def weld(X: np.ndarray, F: np.ndarray, tol: float) -> tuple[np.ndarray, int]:
     return m[F], merged
 
 
-
 class Edges:
     """Half-edge grouping. Half-edge ``h = 3*f + k`` goes ``F[f, k] -> F[f, (k+1)%3]``.
 
@@ -88,10 +87,8 @@ class Edges:
         self.u, self.v = u, v
 
 
-
 def edges(F: np.ndarray, nv: int) -> Edges:
     return Edges(F, nv)
-
 
 
 def orient(X, F, E: Edges, area2, cr):
@@ -156,7 +153,6 @@ def orient(X, F, E: Edges, area2, cr):
     return F, int(flip.sum()), comp, n_comp, closed
 
 
-
 def grow_regions(X, F, N, area2, E: Edges, angle_tol: float, dist_tol: float) -> tuple[np.ndarray, int]:
     """Label each triangle with a region id (:mod:`mst.meshtools.convert` doc, step 4). Returns ``(labels, n_regrown)``."""
     from scipy.sparse import coo_matrix
@@ -211,7 +207,6 @@ def grow_regions(X, F, N, area2, E: Edges, angle_tol: float, dist_tol: float) ->
     return rank[lab], n_bad
 
 
-
 def queue_grow(X, F, N, area2, sub, f1, f2, angle_tol, dist_tol) -> np.ndarray:
     """Region growing with an explicit FIFO queue (no recursion) over the triangles ``sub``.
 
@@ -225,13 +220,21 @@ def queue_grow(X, F, N, area2, sub, f1, f2, angle_tol, dist_tol) -> np.ndarray:
     angle_tol / 2`` (so every triangle is within ``angle_tol/2`` of ``n_s``) and all its vertices are
     within ``dist_tol`` of the plane. Returns a label per entry of ``sub``.
     """
-    from scipy.sparse import coo_matrix, csr_matrix
-    from scipy.sparse.csgraph import connected_components
-
     M = len(F)
     loc = np.full(M, -1)
     loc[sub] = np.arange(len(sub))
     a, b = loc[f1], loc[f2]
+    fac, nf, nF, spread, areaF, cenF = _facets(X, F, N, area2, sub, a, b, angle_tol, dist_tol)
+    label = _grow_facets(X, F, sub, fac, nf, nF, spread, areaF, cenF, a, b, angle_tol, dist_tol)
+    return np.array(label, np.int64)[fac]
+
+
+def _facets(X, F, N, area2, sub, a, b, angle_tol, dist_tol):
+    """The facets of :func:`queue_grow`: ``(facet per entry of sub, n_facets, facet normals,
+    spreads, areas, centroids)``."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
     n = len(sub)
     Ns = N[sub]
     # facets: tight components, each checked against its own plane (else split into triangles)
@@ -268,6 +271,13 @@ def queue_grow(X, F, N, area2, sub, f1, f2, angle_tol, dist_tol) -> np.ndarray:
         areaF = np.bincount(fac, weights=w, minlength=nf)
         cenF = np.stack([np.bincount(fac, weights=cen_t[:, k] * w, minlength=nf) for k in range(3)], 1)
         cenF /= np.maximum(areaF, 1e-300)[:, None]
+    return fac, nf, nF, spread, areaF, cenF
+
+
+def _grow_facets(X, F, sub, fac, nf, nF, spread, areaF, cenF, a, b, angle_tol, dist_tol) -> list[int]:
+    """Breadth-first region growing over the facet graph (:func:`queue_grow`): a label per facet."""
+    from scipy.sparse import csr_matrix
+
     fa, fb = fac[a], fac[b]
     cross_e = fa != fb
     A = csr_matrix((np.ones(2 * int(cross_e.sum()), np.int8),
@@ -328,8 +338,7 @@ def queue_grow(X, F, N, area2, sub, f1, f2, angle_tol, dist_tol) -> np.ndarray:
                 label[u] = r
                 q.append(u)
         r += 1
-    return np.array(label, np.int64)[fac]
-
+    return label
 
 
 def renumber(lab: np.ndarray) -> np.ndarray:
@@ -339,7 +348,6 @@ def renumber(lab: np.ndarray) -> np.ndarray:
     rank = np.empty(len(order), np.int64)
     rank[order] = np.arange(len(order))
     return rank[inv.ravel()]
-
 
 
 def regrow(X, F, N, area2, E: Edges, region, bad_tri, angle_tol: float, dist_tol: float) -> np.ndarray:
@@ -355,7 +363,6 @@ def regrow(X, F, N, area2, E: Edges, region, bad_tri, angle_tol: float, dist_tol
     out = region.copy()
     out[sub] = region.max() + 1 + newlab * (region.max() + 1) + region[sub]
     return renumber(out)
-
 
 
 def nonplanar_regions(X, faces, holes, face_region, dist_tol: float, diag: float) -> np.ndarray:

@@ -21,6 +21,9 @@ from pathlib import Path
 import numpy as np
 
 from mst import InputError
+from mst.core.config import Config, param, section
+from mst.core.poses import transform_points
+from mst.pipeline.autoinit import AutoInitConfig
 
 #: largest accepted model coordinate (metres) and pixel coordinate of a click: beyond these the
 #: values are corrupt (PnP would overflow or return a camera 1e12 m away)
@@ -29,6 +32,19 @@ MAX_PIXEL = 1e6
 #: clicks closer than this (px) are one position; the image points must also spread at least this
 #: far off their best-fit line (RMS), or the pose is not determined (a few px of click error)
 MIN_SPREAD_PX = 1.0
+
+
+@dataclass
+class InitConfig(Config):
+    """Settings of ``mst init``: the residual bound of a clicked pose, the camera mount of a pose
+    guess (a GPS/AHRS position and attitude) and the automatic search around a nav-log guess."""
+
+    max_residual_px: float = param(4.0, min=0, min_open=True,
+                                   help="RMS reprojection error above which init fails with a diagnosis, px")
+    mount_ypr_deg: tuple[float, float, float] = param((0.0, 0.0, 0.0), help="camera-mount rotation relative to the "
+                                                                         "vehicle body (yaw, pitch, roll), deg")
+    mount_offset_m: tuple[float, float, float] = param((0.0, 0.0, 0.0), help="camera lever arm in the body frame, m")
+    auto: AutoInitConfig = section(AutoInitConfig)
 
 
 def _read_numbers(path: Path, what: str) -> list[list[float]]:
@@ -97,16 +113,16 @@ def read_clicks(path: str | os.PathLike, points_path: str | os.PathLike | None =
     widths = {len(r) for r in rows}
     if points_path is not None:
         if widths != {2}:
-            raise InputError(p, "with --points, every click line needs 2 numbers 'u v'")
+            raise InputError(p, "with a points file, every click line needs 2 numbers 'u v'")
         X = read_init_points(points_path)
         uv = np.array(rows, float)
         if len(X) != len(uv):
             raise InputError(p, f"{len(uv)} clicks but {len(X)} points in {points_path}: they must pair up in order")
     else:
         if widths == {2}:
-            raise InputError(p, "clicks are 'u v' only: give the model points with --points FILE.init")
+            raise InputError(p, "clicks are 'u v' only: their model points come from a ViSP .init points file")
         if widths != {5}:
-            raise InputError(p, "every click line needs 5 numbers 'X Y Z u v' (or 'u v' with --points)")
+            raise InputError(p, "every click line needs 5 numbers 'X Y Z u v' (or 'u v' with a points file)")
         a = np.array(rows, float)
         X, uv = a[:, :3], a[:, 3:]
     x_file = p if points_path is None else Path(points_path)
@@ -126,9 +142,14 @@ def read_clicks(path: str | os.PathLike, points_path: str | os.PathLike | None =
 
 
 def project(T_cam_model: np.ndarray, K: np.ndarray, X: np.ndarray) -> np.ndarray:
-    """(N,3) model points -> (N,2) pixels (no distortion)."""
-    Xc = X @ T_cam_model[:3, :3].T + T_cam_model[:3, 3]
-    return Xc[:, :2] / Xc[:, 2:3] * [K[0, 0], K[1, 1]] + K[:2, 2]
+    """(N,3) model points -> (N,2) pixels (no distortion): :meth:`Camera.project` of the pinhole ``K``."""
+    return _pinhole(K).project(transform_points(T_cam_model, X))
+
+
+def _pinhole(K: np.ndarray):
+    from mst.core.camera import Camera
+
+    return Camera(K[0, 0], K[1, 1], K[0, 2], K[1, 2])
 
 
 def _T_from_rt(rvec, tvec) -> np.ndarray:
@@ -143,7 +164,7 @@ def _T_from_rt(rvec, tvec) -> np.ndarray:
 def refine_pose(T: np.ndarray, K: np.ndarray, X: np.ndarray, uv: np.ndarray, iters: int = 30, huber_px: float = 2.0) -> np.ndarray:
     """Robust LM (Huber) refinement of the reprojection error; perturbation ``se3_exp(xi) @ T``."""
     from mst.core.poses import se3_exp
-    from mst.pipeline.vvs import _point_jacobian
+    from mst.pipeline.tracking.vvs import _point_jacobian
 
     fx, fy = K[0, 0], K[1, 1]
     mu = 1e-3
@@ -304,17 +325,16 @@ def draw_model(bgr: np.ndarray, model, T_cam_model: np.ndarray, K: np.ndarray, n
     """Draw the model's edges (clipped at the near plane) and optional numbered points."""
     import cv2
 
-    from mst.pipeline.visibility import _clip_near_far
+    from mst.pipeline.tracking.visibility import _clip_near_far
 
     out = bgr.copy()
     E = model.edges()
     V = np.asarray(model.vertices)
-    A = V[E[:, 0]] @ T_cam_model[:3, :3].T + T_cam_model[:3, 3]
-    B = V[E[:, 1]] @ T_cam_model[:3, :3].T + T_cam_model[:3, 3]
+    A = transform_points(T_cam_model, V[E[:, 0]])
+    B = transform_points(T_cam_model, V[E[:, 1]])
     A, B, keep, _, _ = _clip_near_far(A, B, near, 1e12)
     A, B = A[keep], B[keep]
-    pa = A[:, :2] / A[:, 2:3] * [K[0, 0], K[1, 1]] + K[:2, 2]
-    pb = B[:, :2] / B[:, 2:3] * [K[0, 0], K[1, 1]] + K[:2, 2]
+    pa, pb = _pinhole(K).project(A), _pinhole(K).project(B)
     lim = 1e5
     for a, b in zip(np.clip(pa, -lim, lim), np.clip(pb, -lim, lim)):
         cv2.line(out, (int(a[0]), int(a[1])), (int(b[0]), int(b[1])), color, 1, cv2.LINE_AA)
@@ -361,24 +381,57 @@ def _read_image(path) -> np.ndarray:
     raise InputError(path, "no frame could be read")
 
 
-def run_init(model_path, camera_path, out, *, clicks_path=None, points_path=None, from_pose=None,
-             mount=(0.0, 0.0, 0.0), mount_offset=(0.0, 0.0, 0.0), image_path=None, overlay_path=None,
-             show_points: bool = False, max_residual: float = 4.0) -> dict:
-    """The ``mst init`` stage: write the pose file ``out`` (or, with ``show_points``, a PNG).
-
-    Returns a summary dict (pose as ``T_cam_model``, per-click residuals in px, RMS).
-    Raises :class:`mst.InputError` for bad input or a failed, diagnosed initialisation.
-    """
+def _write_points_picture(out, model, cam, img, clicks_path, points_path, summary: dict) -> dict:
+    """``--show-points``: the model with its numbered points, drawn with the clicked pose on the image
+    (when clicks and the image are given) or from a default view on white, written to ``out``."""
     import cv2
 
-    from mst import atomic_output, atomic_outputs
+    from mst import atomic_output
+
+    K = cam.K
+    pts = read_init_points(points_path) if points_path else None
+    if pts is None and clicks_path:
+        pts = read_clicks(clicks_path)[0]
+    if pts is None:
+        raise InputError(None, "showing the points needs a points file (or clicks with 'X Y Z u v')")
+    T = None
+    if clicks_path and img is not None:
+        X, uv = read_clicks(clicks_path, points_path)
+        T = solve_pnp(X, uv, K, cam.dist)
+    if T is None:
+        T = _default_view(model, K, cam.width, cam.height)
+        canvas = np.full((cam.height, cam.width, 3), 255, np.uint8)
+    else:
+        canvas = img
+    pic = draw_model(canvas, model, T, K, color=(200, 80, 0), points=pts, numbers=True)
+    with atomic_output(out) as tmp:
+        if not cv2.imwrite(str(tmp), pic):
+            raise InputError(out, "could not write the picture (use .png)")
+    summary.update({"picture": str(out), "points": pts})
+    return summary
+
+
+def run_init(model_path, camera_path, out, *, clicks_path=None, points_path=None, from_pose=None,
+             image_path=None, overlay_path=None, show_points: bool = False, cfg: InitConfig | None = None) -> dict:
+    """The ``mst init`` stage: write the pose file ``out`` (or, with ``show_points``, a PNG).
+
+    One source of the pose: ``clicks_path`` (with ``points_path`` for 'u v' clicks) or
+    ``from_pose`` (x y z yaw pitch roll; the mount from ``cfg``). Returns a summary dict (pose as
+    ``T_cam_model``, per-click residuals in px, RMS, the effective ``config``). Raises
+    :class:`mst.InputError` for bad input or a failed, diagnosed initialisation.
+    """
+    cfg = cfg or InitConfig()
+    import cv2
+
+    from mst import atomic_outputs
     from mst.core.camera import read_camera
-    from mst.core.poses import write_pose_file
-    from mst.pipeline.tracker import check_pose_in_view, load_polygon_model
+    from mst.core.trajectory import write_pose_file
+    from mst.meshtools.formats import load_tracking_model
+    from mst.pipeline.tracking import check_pose_in_view
 
     if overlay_path is not None and image_path is None:
-        raise InputError(overlay_path, "--overlay needs --image (the frame to draw on)")
-    model = load_polygon_model(model_path)
+        raise InputError(overlay_path, "an overlay needs the image to draw on")
+    model = load_tracking_model(model_path)
     cam = read_camera(camera_path)
     img = None
     if image_path is not None:
@@ -390,39 +443,21 @@ def run_init(model_path, camera_path, out, *, clicks_path=None, points_path=None
     if not cam.width:
         cam = cam.with_size(int(round(2 * cam.cx + 1)), int(round(2 * cam.cy + 1)))
     K = cam.K
-    summary: dict = {"camera": cam.to_dict(), "residual_px": None}
+    summary: dict = {"camera": cam.to_dict(), "residual_px": None, "config": cfg.to_dict()}
 
     if show_points:
-        pts = read_init_points(points_path) if points_path else None
-        if pts is None and clicks_path:
-            pts = read_clicks(clicks_path)[0]
-        if pts is None:
-            raise InputError(None, "--show-points needs --points FILE.init (or clicks with 'X Y Z u v')")
-        T = None
-        if clicks_path and img is not None:
-            X, uv = read_clicks(clicks_path, points_path)
-            T = solve_pnp(X, uv, K, cam.dist)
-        if T is None:
-            T = _default_view(model, K, cam.width, cam.height)
-            canvas = np.full((cam.height, cam.width, 3), 255, np.uint8)
-        else:
-            canvas = img
-        pic = draw_model(canvas, model, T, K, color=(200, 80, 0), points=pts, numbers=True)
-        with atomic_output(out) as tmp:
-            if not cv2.imwrite(str(tmp), pic):
-                raise InputError(out, "could not write the picture (use .png)")
-        summary.update({"picture": str(out), "points": pts})
-        return summary
+        return _write_points_picture(out, model, cam, img, clicks_path, points_path, summary)
 
     if from_pose is not None:
         if clicks_path:
-            raise InputError(clicks_path, "give either --clicks or --from-pose, not both")
-        T = pose_from_gps(np.array(from_pose[:3]), *from_pose[3:], mount_ypr_deg=tuple(mount), mount_offset_m=tuple(mount_offset))
+            raise InputError(clicks_path, "give either clicks or a pose guess, not both")
+        T = pose_from_gps(np.array(from_pose[:3]), *from_pose[3:], mount_ypr_deg=tuple(cfg.mount_ypr_deg),
+                          mount_offset_m=tuple(cfg.mount_offset_m))
         check_pose_in_view(model, T, cam, "--from-pose")  # the option is wrong, not the output file
         summary["source"] = "from-pose"
     else:
         if not clicks_path:
-            raise InputError(None, "give --clicks (with --points for 'u v' clicks) or --from-pose")
+            raise InputError(None, "no pose source: give clicks (with a points file for 'u v' clicks) or a pose guess")
         X, uv = read_clicks(clicks_path, points_path)
         if img is not None:
             outside = (uv[:, 0] < 0) | (uv[:, 1] < 0) | (uv[:, 0] > cam.width) | (uv[:, 1] > cam.height)
@@ -430,7 +465,7 @@ def run_init(model_path, camera_path, out, *, clicks_path=None, points_path=None
                 raise InputError(clicks_path, f"click(s) {', '.join(str(i + 1) for i in np.flatnonzero(outside))} lie outside the "
                                               f"{cam.width}x{cam.height} image")
         try:
-            res = init_from_clicks(X, uv, K, cam.dist, max_residual)
+            res = init_from_clicks(X, uv, K, cam.dist, cfg.max_residual_px)
         except ValueError as e:
             raise InputError(clicks_path, str(e)) from None
         summary.update({"source": "clicks", "uv": uv, "X_model": X, "residual_px": res.residual_px, "rms_px": res.rms_px})
@@ -442,8 +477,6 @@ def run_init(model_path, camera_path, out, *, clicks_path=None, points_path=None
     with atomic_outputs(out, overlay_path) as (tmp, tmp_ov):
         write_pose_file(tmp, T)
         if tmp_ov is not None:
-            if img is None:
-                raise InputError(overlay_path, "--overlay needs --image")
             pic = draw_model(img, model, T, K, points=summary.get("X_model"), clicks=summary.get("uv"))
             if not cv2.imwrite(str(tmp_ov), pic):
                 raise InputError(overlay_path, "could not write the overlay (use .png)")

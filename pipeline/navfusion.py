@@ -38,41 +38,40 @@ Estimator, in two stages:
 
 from __future__ import annotations
 
-import csv
-import io
 import os
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
 from mst import InputError
-from mst.core.poses import so3_exp, so3_log
+from mst.core.config import Config, param
+from mst.core.poses import so3_exp, so3_log, transform_points
 from mst.pipeline.navfusion_kernels import kf_rts as _kf_rts
 from mst.pipeline.navfusion_kernels import mekf_attitude as _mekf
 from mst.pipeline.navlog import NavLog, mount_ypr_deg_from_R
 
 
 @dataclass
-class FusionConfig:
-    """Noise model and options of :func:`fuse_navigation` (units in the names)."""
+class FusionConfig(Config):
+    """Noise model and options of :func:`fuse_navigation` (units in the names). A fixed mount
+    rotation or model-to-world transform (files, not settings) are arguments of the function."""
 
-    mode: str = "smoother"                  # smoother (offline, RTS) | filter (causal)
-    gps_sigma_h_m: float = 3.0
-    gps_sigma_v_m: float = 5.0
-    gps_bias_rw_m_per_sqrt_s: float = 0.05  # random walk of the GPS bias
-    gps_bias_sigma_m: float = 3.0           # prior of the bias left after the calibration
-    ahrs_sigma_deg: float = 3.0
-    accel_sigma_mps2: float = 1.0           # white acceleration, (m/s^2)/sqrt(Hz)
-    ang_accel_sigma_dps2: float = 2.0       # white angular acceleration, (deg/s^2)/sqrt(Hz)
-    vision_sigma_m: float = 0.05            # when no covariance is given
-    vision_sigma_deg: float = 0.3
-    huber_k: float = 3.0                    # Mahalanobis distance where Huber down-weighting starts
-    lever_arm_m: tuple[float, float, float] = (0.0, 0.0, 0.0)  # camera in the body frame
-    R_body_cam: np.ndarray | None = None    # fixed mount rotation (None: estimated)
-    T_world_model: np.ndarray | None = None  # fixed model-to-world transform (None: estimated)
-    max_world_yaw_std_deg: float = 2.0      # refuse when the fit cannot pin the model-to-world yaw
-    min_pairs: int = 10                     # GPS fixes with vision needed for the calibration
+    mode: str = param("smoother", choices=("smoother", "filter"), help="smoother: offline (RTS); filter: causal")
+    gps_sigma_h_m: float = param(3.0, min=0, min_open=True, help="GPS noise, each horizontal axis, m")
+    gps_sigma_v_m: float = param(5.0, min=0, min_open=True, help="GPS noise, vertical, m")
+    gps_bias_rw_m_per_sqrt_s: float = param(0.05, min=0, help="random walk of the GPS bias, m / sqrt(s)")
+    gps_bias_sigma_m: float = param(3.0, min=0, min_open=True, help="prior of the bias left after the calibration, m")
+    ahrs_sigma_deg: float = param(3.0, min=0, min_open=True, help="AHRS noise, deg")
+    accel_sigma_mps2: float = param(1.0, min=0, min_open=True, help="motion model: white acceleration, (m/s^2)/sqrt(Hz)")
+    ang_accel_sigma_dps2: float = param(2.0, min=0, min_open=True,
+                                        help="motion model: white angular acceleration, (deg/s^2)/sqrt(Hz)")
+    vision_sigma_m: float = param(0.05, min=0, min_open=True, help="vision noise when no covariance is given, m")
+    vision_sigma_deg: float = param(0.3, min=0, min_open=True, help="vision noise when no covariance is given, deg")
+    huber_k: float = param(3.0, min=0, min_open=True, help="Mahalanobis distance where Huber down-weighting starts")
+    lever_arm_m: tuple[float, float, float] = param((0.0, 0.0, 0.0), help="camera in the body frame, m (not estimated)")
+    max_world_yaw_std_deg: float = param(2.0, min=0, min_open=True,
+                                         help="refuse when the fit cannot pin the model-to-world yaw, deg")
+    min_pairs: int = param(10, min=1, help="GPS fixes with vision needed for the calibration")
 
 
 @dataclass
@@ -170,7 +169,7 @@ def fit_world_from_model_4dof(q_model: np.ndarray, g_world: np.ndarray, sig: np.
         T = np.eye(4)
         T[:3, :3] = R
         T[:3, 3] = gc - R @ qc
-        r = (q_model @ R.T + T[:3, 3] - g_world) / sig
+        r = (transform_points(T, q_model) - g_world) / sig
         d = np.linalg.norm(r, axis=1)
         w = np.where(d > k, k / np.maximum(d, 1e-12), 1.0)
     spread = np.sqrt(np.sum(w * np.sum((q_model[:, :2] - (w / w.sum()) @ q_model[:, :2]) ** 2, axis=1)))
@@ -194,18 +193,30 @@ def frame_grid(t_vis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return t, idx
 
 
-def fuse_navigation(t_vis: np.ndarray, T_vis: np.ndarray, cov_vis: np.ndarray | None, nav: NavLog,
-                    cfg: FusionConfig | None = None, nav_name: str | os.PathLike | None = None) -> FusionResult:
-    """Fuse vision poses ``T_vis`` (K_v, 4, 4) ``T_model_cam`` at ``t_vis`` (s) having covariances
-    ``cov_vis`` (K_v, 6, 6) or None (then ``cfg.vision_sigma_*``) with the log ``nav``.
+@dataclass
+class _Aligned:
+    """The vision frame grid and the nav rows inside it, with the vision interpolated at nav times."""
 
-    Returns the fused poses at every frame of the vision time range (see :class:`FusionResult`).
-    Raises :class:`mst.InputError` (naming ``nav_name``) when the log does not overlap the video or
-    the calibration is not observable (too few fixes, a trajectory too short to fix the yaw).
-    """
-    cfg = cfg or FusionConfig()
-    if cfg.mode not in ("smoother", "filter"):
-        raise InputError(None, f"unknown fusion mode {cfg.mode!r} (smoother | filter)")
+    t_grid: np.ndarray      #: (K,) frame times, s
+    vidx: np.ndarray        #: grid index of each vision pose
+    K: int
+    dt_f: float             #: frame interval, s
+    has_vis: np.ndarray     #: (K,) bool
+    Tg: np.ndarray          #: (K, 4, 4) vision poses on the grid (identity where none)
+    tn: np.ndarray          #: nav times in the grid's range
+    fix: np.ndarray         #: their GPS fix flags
+    R_wb: np.ndarray        #: their platform attitudes
+    g_w: np.ndarray         #: their GPS positions (world)
+    pair: np.ndarray        #: both neighbouring frames of the nav row tracked
+    p_ci: np.ndarray        #: vision position interpolated at the nav times
+    R_ci: np.ndarray        #: vision rotation interpolated at the nav times
+    k_a: np.ndarray         #: nearest frame of each nav row
+    dtau_a: np.ndarray      #: its time from that frame, s
+    dts: np.ndarray         #: (K,) frame steps, s (0 first)
+
+
+def _align(t_vis: np.ndarray, T_vis: np.ndarray, nav: NavLog, nav_name) -> _Aligned:
+    """The frame grid of the vision times and the nav rows within it (refused when they do not overlap)."""
     t_grid, vidx = frame_grid(np.asarray(t_vis, float))
     K = len(t_grid)
     dt_f = float(np.median(np.diff(t_grid)))
@@ -213,8 +224,6 @@ def fuse_navigation(t_vis: np.ndarray, T_vis: np.ndarray, cov_vis: np.ndarray | 
     has_vis[vidx] = True
     Tg = np.tile(np.eye(4), (K, 1, 1))
     Tg[vidx] = T_vis
-    if cov_vis is None:
-        cov_vis = np.tile(np.diag([cfg.vision_sigma_m**2] * 3 + [np.radians(cfg.vision_sigma_deg) ** 2] * 3), (len(t_vis), 1, 1))
     lo, hi = max(t_grid[0], nav.t[0]), min(t_grid[-1], nav.t[-1])
     if hi <= lo:
         raise InputError(nav_name, f"time range {nav.t[0]:.3f}-{nav.t[-1]:.3f} s does not overlap the video "
@@ -229,42 +238,58 @@ def fuse_navigation(t_vis: np.ndarray, T_vis: np.ndarray, cov_vis: np.ndarray | 
     p_ci = (1 - a)[:, None] * Tg[j, :3, 3] + a[:, None] * Tg[j + 1, :3, 3]
     dR = so3_log(np.swapaxes(Tg[j, :3, :3], -1, -2) @ Tg[j + 1, :3, :3])
     R_ci = Tg[j, :3, :3] @ so3_exp(a[:, None] * dR)
+    k_a = np.clip(np.round((tn - t_grid[0]) / dt_f).astype(np.int64), 0, K - 1)
+    dtau_a = tn - t_grid[k_a]
+    dts = np.diff(t_grid, prepend=t_grid[0])
+    return _Aligned(t_grid, vidx, K, dt_f, has_vis, Tg, tn, fix, R_wb, g_w, pair, p_ci, R_ci, k_a, dtau_a, dts)
+
+
+def _noise(cfg: FusionConfig) -> tuple[np.ndarray, np.ndarray, float]:
+    """(lever arm (3,), GPS sigma per axis (3,), AHRS sigma rad) of ``cfg``."""
     lever = np.asarray(cfg.lever_arm_m, float)
     sig = np.array([cfg.gps_sigma_h_m, cfg.gps_sigma_h_m, cfg.gps_sigma_v_m])
     s_ahrs = np.radians(cfg.ahrs_sigma_deg)
+    return lever, sig, s_ahrs
 
-    # ---- 1. calibration
+
+def _calibrate(al: _Aligned, cfg: FusionConfig, R_body_cam, T_world_model, nav_name):
+    """Model-to-world transform and camera mount (fixed ones kept), robust, with their spreads."""
+    pair, fix, p_ci, g_w, R_ci, R_wb = al.pair, al.fix, al.p_ci, al.g_w, al.R_ci, al.R_wb
+    lever, sig, s_ahrs = _noise(cfg)
     use_g = pair & fix
-    if cfg.T_world_model is None and use_g.sum() < cfg.min_pairs:
+    if T_world_model is None and use_g.sum() < cfg.min_pairs:
         raise InputError(nav_name, f"only {int(use_g.sum())} GPS fixes at tracked frames (need {cfg.min_pairs}) "
                                    "to estimate the model-to-world transform")
-    if cfg.R_body_cam is None and pair.sum() < cfg.min_pairs:
+    if R_body_cam is None and pair.sum() < cfg.min_pairs:
         raise InputError(nav_name, f"only {int(pair.sum())} attitudes at tracked frames (need {cfg.min_pairs}) to estimate the mount")
-    T_wm = np.eye(4) if cfg.T_world_model is None else np.asarray(cfg.T_world_model, float)
-    R_bc = np.eye(3) if cfg.R_body_cam is None else np.asarray(cfg.R_body_cam, float)
+    T_wm = np.eye(4) if T_world_model is None else np.asarray(T_world_model, float)
+    R_bc = np.eye(3) if R_body_cam is None else np.asarray(R_body_cam, float)
     q = p_ci
     yaw_std = 0.0
     w_g = np.ones(int(use_g.sum()))
     w_a = np.ones(int(pair.sum()))
     mount_std = 0.0
     for _ in range(3):
-        if cfg.T_world_model is None:
+        if T_world_model is None:
             T_wm, w_g, yaw_std = fit_world_from_model_4dof(q[use_g], g_w[use_g], sig, cfg.huber_k)
-        if cfg.R_body_cam is None:
+        if R_body_cam is None:
             R_cb_j = np.swapaxes(R_ci[pair], -1, -2) @ T_wm[:3, :3].T[None] @ R_wb[pair]
             R_cb, w_a, mount_std = robust_rotation_mean(R_cb_j, s_ahrs, cfg.huber_k)
             R_bc = R_cb.T
         q = p_ci - np.einsum("nij,j->ni", R_ci @ R_bc.T[None], lever)
-    if cfg.T_world_model is None and np.degrees(yaw_std) > cfg.max_world_yaw_std_deg:
+    if T_world_model is None and np.degrees(yaw_std) > cfg.max_world_yaw_std_deg:
         raise InputError(nav_name, f"the tracked trajectory spans too little ground for the GPS noise to fix the "
                                    f"model-to-world yaw (std {np.degrees(yaw_std):.1f} deg); give the transform")
-    R_wm, t_wm = T_wm[:3, :3], T_wm[:3, 3]
+    return T_wm, R_bc, yaw_std, mount_std, w_g, w_a
 
-    # ---- 2a. attitude smoother
+
+def _fuse_attitude(al: _Aligned, T_vis, cov_vis, R_wm, R_bc, cfg: FusionConfig):
+    """Per-frame camera rotations from vision + AHRS: batch smoother (+ KF/RTS covariances), or the
+    causal multiplicative EKF. Returns ``(R (K, 3, 3), covariances, measurement weights)``."""
+    t_grid, vidx, K, dt_f, has_vis, Tg = al.t_grid, al.vidx, al.K, al.dt_f, al.has_vis, al.Tg
+    tn, R_wb, k_a, dtau_a, dts = al.tn, al.R_wb, al.k_a, al.dtau_a, al.dts
+    s_ahrs = np.radians(cfg.ahrs_sigma_deg)
     R_mc_ahrs = R_wm.T[None] @ R_wb @ R_bc[None]
-    k_a = np.clip(np.round((tn - t_grid[0]) / dt_f).astype(np.int64), 0, K - 1)
-    dtau_a = tn - t_grid[k_a]
-    dts = np.diff(t_grid, prepend=t_grid[0])
     F6, Q6 = _cv_model(dts, np.radians(cfg.ang_accel_sigma_dps2) ** 2)
     steps_r = np.concatenate([vidx, k_a])
     R_meas = np.concatenate([T_vis[:, :3, :3], R_mc_ahrs])
@@ -304,9 +329,15 @@ def fuse_navigation(t_vis: np.ndarray, T_vis: np.ndarray, cov_vis: np.ndarray | 
                                   cfg.huber_k)
         wr = np.empty_like(w_o)
         wr[order] = w_o
-    R_fused = R_ref
+    return R_ref, Pr, wr
 
-    # ---- 2b. position smoother
+
+def _fuse_position(al: _Aligned, T_vis, cov_vis, R_fused, R_wm, t_wm, R_bc, cfg: FusionConfig):
+    """Per-frame camera positions and the GPS bias from vision + GPS (smoother or causal filter).
+    Returns ``(states (K, 9), covariances, measurement weights, used GPS rows)``."""
+    fix, g_w, k_a, dtau_a, dts, vidx = al.fix, al.g_w, al.k_a, al.dtau_a, al.dts, al.vidx
+    lever, sig, _ = _noise(cfg)
+    smooth = cfg.mode == "smoother"
     gi = np.flatnonzero(fix)
     g_m = (g_w[gi] - t_wm) @ R_wm  # = R_wm^T (g - t)
     g_cam = g_m + np.einsum("nij,j->ni", R_fused[k_a[gi]] @ R_bc.T[None], lever)  # antenna -> camera
@@ -323,7 +354,31 @@ def fuse_navigation(t_vis: np.ndarray, T_vis: np.ndarray, cov_vis: np.ndarray | 
     x0[:3] = T_vis[0, :3, 3] if vidx[0] == 0 else (g_cam[0] if len(gi) else T_vis[0, :3, 3])
     P0 = np.diag([100.0**2] * 3 + [30.0**2] * 3 + [cfg.gps_bias_sigma_m**2] * 3)
     xp_, Pp_, wp = _run_kf(F9, Q9, x0, P0, steps_p, z_p, H_p, C_p, cfg.huber_k, smooth, smooth)
+    return xp_, Pp_, wp, gi
 
+
+def fuse_navigation(t_vis: np.ndarray, T_vis: np.ndarray, cov_vis: np.ndarray | None, nav: NavLog,
+                    cfg: FusionConfig | None = None, nav_name: str | os.PathLike | None = None, *,
+                    R_body_cam: np.ndarray | None = None, T_world_model: np.ndarray | None = None) -> FusionResult:
+    """Fuse vision poses ``T_vis`` (K_v, 4, 4) ``T_model_cam`` at ``t_vis`` (s) having covariances
+    ``cov_vis`` (K_v, 6, 6) or None (then ``cfg.vision_sigma_*``) with the log ``nav``.
+
+    ``R_body_cam`` (3, 3) / ``T_world_model`` (4, 4): a fixed camera-mount rotation / model-to-world
+    transform (None: estimated). Returns the fused poses at every frame of the vision time range
+    (see :class:`FusionResult`).
+    Raises :class:`mst.InputError` (naming ``nav_name``) when the log does not overlap the video or
+    the calibration is not observable (too few fixes, a trajectory too short to fix the yaw).
+    """
+    cfg = cfg or FusionConfig()
+    if cov_vis is None:
+        cov_vis = np.tile(np.diag([cfg.vision_sigma_m**2] * 3 + [np.radians(cfg.vision_sigma_deg) ** 2] * 3), (len(t_vis), 1, 1))
+    al = _align(t_vis, T_vis, nav, nav_name)
+    T_wm, R_bc, yaw_std, mount_std, w_g, w_a = _calibrate(al, cfg, R_body_cam, T_world_model, nav_name)
+    R_wm, t_wm = T_wm[:3, :3], T_wm[:3, 3]
+    R_fused, Pr, wr = _fuse_attitude(al, T_vis, cov_vis, R_wm, R_bc, cfg)
+    xp_, Pp_, wp, gi = _fuse_position(al, T_vis, cov_vis, R_fused, R_wm, t_wm, R_bc, cfg)
+    lever = np.asarray(cfg.lever_arm_m, float)
+    K, vidx, tn, t_grid, has_vis = al.K, al.vidx, al.tn, al.t_grid, al.has_vis
     T_out = np.tile(np.eye(4), (K, 1, 1))
     T_out[:, :3, :3] = R_fused
     T_out[:, :3, 3] = xp_[:, :3]
@@ -421,49 +476,3 @@ def _interp_R(t_grid: np.ndarray, R: np.ndarray, tau: np.ndarray) -> np.ndarray:
     j = np.clip(np.searchsorted(t_grid, tau) - 1, 0, K - 2)
     a = np.clip((tau - t_grid[j]) / (t_grid[j + 1] - t_grid[j]), 0.0, 1.0)
     return R[j] @ so3_exp(a[:, None] * so3_log(np.swapaxes(R[j], -1, -2) @ R[j + 1]))
-
-
-# ------------------------------------------------------------------------------ covariance side files
-COV_COLS = [f"c{i}{j}" for i in range(6) for j in range(6)]
-
-
-def cov_path_for(traj_path: str | os.PathLike) -> Path:
-    """``traj.txt`` -> ``traj.cov.csv``."""
-    p = Path(traj_path)
-    return p.with_name(p.stem + ".cov.csv")
-
-
-def format_cov_csv(t: np.ndarray, cov: np.ndarray, source: np.ndarray | None = None) -> str:
-    """CSV text: ``t[,source],c00..c55`` (row-major 6x6, convention in the module docstring)."""
-    out = io.StringIO()
-    out.write("# pose covariance: (x y z [m, model frame], rx ry rz [rad, model-frame perturbation R = exp(r) R_est])\n")
-    out.write(",".join(["t"] + (["source"] if source is not None else []) + COV_COLS) + "\n")
-    flat = cov.reshape(len(t), 36)
-    for i, ti in enumerate(t):
-        out.write(f"{ti:.6f}," + (f"{source[i]}," if source is not None else "") + ",".join(f"{v:.6e}" for v in flat[i]) + "\n")
-    return out.getvalue()
-
-
-def read_cov_csv(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
-    """Read a covariance side file: (t (N,), cov (N, 6, 6)); checks symmetry and positive diagonals."""
-    p = Path(path)
-    if not p.is_file():
-        raise InputError(p, "covariance file does not exist")
-    rows = [r for r in csv.reader(io.StringIO(p.read_text())) if r and not r[0].lstrip().startswith("#")]
-    if len(rows) < 2:
-        raise InputError(p, "covariance file needs a header row and rows")
-    hdr = [h.strip() for h in rows[0]]
-    miss = [c for c in ["t"] + COV_COLS if c not in hdr]
-    if miss:
-        raise InputError(p, f"missing column(s) {', '.join(miss[:4])}{' ...' if len(miss) > 4 else ''}")
-    idx = [hdr.index(c) for c in ["t"] + COV_COLS]
-    try:
-        a = np.array([[float(r[i]) for i in idx] for r in rows[1:]])
-    except (ValueError, IndexError):
-        raise InputError(p, "not a number or a short row") from None
-    if not np.isfinite(a).all():
-        raise InputError(p, "covariance holds NaN or infinite values")
-    C = a[:, 1:].reshape(-1, 6, 6)
-    if np.abs(C - np.swapaxes(C, 1, 2)).max() > 1e-9 * max(1.0, np.abs(C).max()) or (np.einsum("nii->ni", C) <= 0).any():
-        raise InputError(p, "covariances must be symmetric with positive diagonals")
-    return a[:, 0], C

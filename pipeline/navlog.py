@@ -26,12 +26,13 @@ import csv
 import io
 import json
 import os
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from mst import InputError
+from mst.core.config import Config, param
 
 #: camera axes (x right, y down, z forward) in a mount frame (x forward, y left, z up)
 R_MOUNT_CAM = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
@@ -236,25 +237,26 @@ def format_navlog(nav: NavLog, enh: bool = False, comments: list[str] | None = N
 
 # ------------------------------------------------------------------------------ simulator
 @dataclass
-class NavSimConfig:
+class NavSimConfig(Config):
     """Error model of :func:`simulate_nav` (seeded; defaults: a consumer UAV, as in the UAV paper)."""
 
-    rate_hz: float = 5.0                    # GPS/AHRS rows per second (1-10 Hz)
-    sigma_h_m: float = 3.0                  # GPS white noise, each horizontal axis
-    sigma_v_m: float = 5.0                  # GPS white noise, vertical
-    bias_rw_m_per_sqrt_s: float = 0.05      # GPS bias random walk (each axis), m / sqrt(s)
-    outlier_rate: float = 0.02              # share of GPS fixes hit by multipath
-    outlier_m: tuple[float, float] = (15.0, 40.0)  # multipath error magnitude range, metres
-    dropouts: int = 1                       # GPS dropouts (fix = 0, attitude still logged)
-    dropout_s: tuple[float, float] = (5.0, 10.0)    # their duration range, seconds
-    ahrs_sigma_deg: float = 3.0             # AHRS white noise, each of yaw/pitch/roll
-    ahrs_yaw_bias_deg: float = 2.0          # constant AHRS heading bias
-    mount_ypr_deg: tuple[float, float, float] = (60.0, -20.0, 0.0)  # camera mount: 60 deg pan, 20 deg down
-    lever_arm_m: tuple[float, float, float] = (0.10, 0.0, -0.15)    # camera in the body frame
-    world_yaw_deg: float = 0.0              # T_world_model: rotation about up
-    world_offset_m: tuple[float, float, float] = (0.0, 0.0, 0.0)    # T_world_model: translation
-    enh_offset: tuple[float, float, float] | None = None  # write easting/northing/height with this offset
-    seed: int = 0
+    rate_hz: float = param(5.0, min=0, min_open=True, max=100, help="GPS/AHRS rows per second (1-10 Hz)")
+    sigma_h_m: float = param(3.0, min=0, help="GPS white noise, each horizontal axis, m")
+    sigma_v_m: float = param(5.0, min=0, help="GPS white noise, vertical, m")
+    bias_rw_m_per_sqrt_s: float = param(0.05, min=0, help="GPS bias random walk (each axis), m / sqrt(s)")
+    outlier_rate: float = param(0.02, min=0, max=1, help="share of GPS fixes hit by multipath")
+    outlier_m: tuple[float, float] = param((15.0, 40.0), min=0, help="multipath error magnitude range, m")
+    dropouts: int = param(1, min=0, help="GPS dropouts (fix = 0, attitude still logged)")
+    dropout_s: tuple[float, float] = param((5.0, 10.0), min=0, help="their duration range, s")
+    ahrs_sigma_deg: float = param(3.0, min=0, help="AHRS white noise, each of yaw/pitch/roll, deg")
+    ahrs_yaw_bias_deg: float = param(2.0, help="constant AHRS heading bias, deg")
+    mount_ypr_deg: tuple[float, float, float] = param((60.0, -20.0, 0.0), help="camera mount yaw/pitch/roll, deg "
+                                                                              "(60 deg pan, 20 deg down)")
+    lever_arm_m: tuple[float, float, float] = param((0.10, 0.0, -0.15), help="camera in the body frame, m")
+    world_yaw_deg: float = param(0.0, help="T_world_model: rotation about up, deg")
+    world_offset_m: tuple[float, float, float] = param((0.0, 0.0, 0.0), help="T_world_model: translation, m")
+    enh_offset_m: tuple[float, float, float] | None = param(None, help="write easting/northing/height with this offset, m")
+    seed: int = param(0, help="seed of the errors")
 
 
 @dataclass
@@ -280,7 +282,7 @@ class NavSimResult:
             "effective_mount_ypr_deg": mount_ypr_deg_from_R(
                 R_from_ypr_deg(np.array([-self.config.ahrs_yaw_bias_deg, 0.0, 0.0])) @ self.T_body_cam[:3, :3]).tolist(),
             "gps_bias_mean_m": self.gps_bias_m[self.nav.fix].mean(axis=0).tolist() if self.nav.fix.any() else None,
-            "config": asdict(self.config),
+            "config": self.config.to_dict(),
         }
 
 
@@ -313,8 +315,6 @@ def simulate_nav(t_gt: np.ndarray, T_model_cam: np.ndarray, cfg: NavSimConfig | 
 
     cfg = cfg or NavSimConfig()
     rng = np.random.default_rng(cfg.seed)
-    if not 0 < cfg.rate_hz <= 100:
-        raise InputError(None, f"nav rate {cfg.rate_hz} Hz: must be in (0, 100]")
     t = np.arange(t_gt[0], t_gt[-1] + 1e-9, 1.0 / cfg.rate_hz)
     T_mc = interpolate_poses(t_gt, T_model_cam, t)
     c, s = np.cos(np.radians(cfg.world_yaw_deg)), np.sin(np.radians(cfg.world_yaw_deg))
@@ -341,7 +341,7 @@ def simulate_nav(t_gt: np.ndarray, T_model_cam: np.ndarray, cfg: NavSimConfig | 
     ypr = ypr_deg_from_R(T_wb[:, :3, :3]) + rng.normal(0.0, cfg.ahrs_sigma_deg, (n, 3))
     ypr[:, 0] = (ypr[:, 0] + cfg.ahrs_yaw_bias_deg + 180.0) % 360.0 - 180.0
     ypr[:, 1] = np.clip(ypr[:, 1], -90.0, 90.0)
-    off = np.asarray(cfg.enh_offset, float) if cfg.enh_offset is not None else np.zeros(3)
+    off = np.asarray(cfg.enh_offset_m, float) if cfg.enh_offset_m is not None else np.zeros(3)
     nav = NavLog(t=t, p_world=gps, ypr_deg=ypr, fix=fix, offset=off)
     return NavSimResult(nav=nav, T_world_model=T_wm, T_body_cam=T_bc, gps_bias_m=bias, outlier=outlier & fix, config=cfg)
 
@@ -352,6 +352,6 @@ def write_sim_outputs(res: NavSimResult, nav_path: str | os.PathLike, truth_path
     comments = [f"mst nav simulate (seed {cfg.seed}): GPS sigma {cfg.sigma_h_m}/{cfg.sigma_v_m} m, AHRS sigma "
                 f"{cfg.ahrs_sigma_deg} deg, {cfg.rate_hz} Hz",
                 "t [s], GPS antenna position in the world frame (ENU, m), platform yaw/pitch/roll [deg], fix 0/1"]
-    Path(nav_path).write_text(format_navlog(res.nav, enh=cfg.enh_offset is not None, comments=comments))
+    Path(nav_path).write_text(format_navlog(res.nav, enh=cfg.enh_offset_m is not None, comments=comments))
     if truth_path is not None:
         Path(truth_path).write_text(json.dumps(res.to_json(), indent=2) + "\n")

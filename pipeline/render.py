@@ -30,6 +30,10 @@ once and cached on disk), so the only multi-threaded part is Embree (``nthreads`
 Speed (``mst.eval.bench_synth``, 640x480 orbit of the sample house, colour + depth, one thread of
 this project's shared 2-core machine): about 41 ms of CPU per frame with 16 edge rays, 35 ms with 8
 (ray casting ~18 ms of it, shading ~15 ms); the numpy version before the kernels took 73 ms.
+
+Size (~520 lines): one class hierarchy (:class:`Renderer` and the :class:`ShadedRenderer` built on
+its ray set-up) with the materials and lights it shades with; its per-pixel kernels are already
+apart (``render_kernels``). Imports numpy, Open3D (lazily), :mod:`mst.core` and ``textures``.
 """
 
 from __future__ import annotations
@@ -39,6 +43,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from mst.core.camera import Camera
+from mst.core.poses import transform_points
 
 INVALID = np.uint32(0xFFFFFFFF)
 
@@ -184,7 +189,7 @@ class Renderer:
         """
         T = np.asarray(T_cam_model, np.float64)
         X = np.asarray(X_model, np.float64).reshape(-1, 3)
-        Xc = X @ T[:3, :3].T + T[:3, 3]
+        Xc = transform_points(T, X)
         z = Xc[:, 2]
         ok = z > 1e-9
         out = np.zeros(len(X), bool)

@@ -1,4 +1,4 @@
-"""Numba scanline rasteriser of the inverse-depth buffer (:func:`mst.pipeline.visibility.inverse_depth_buffer`).
+"""Numba scanline rasteriser of the inverse-depth buffer (:func:`mst.pipeline.tracking.visibility.inverse_depth_buffer`).
 
 One call fills ``1/z`` of many planar polygons (outer loop + holes, even-odd rule, non-convex
 allowed): per face, per buffer row in its bounding box, the crossings of the row (pixel centres at

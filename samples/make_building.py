@@ -13,8 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
+from mst.meshtools.formats import save_triangles
 from mst.meshtools.generate import model_to_tin
-from mst.meshtools.io import save_triangles
 from mst.meshtools.model import PolygonModel
 
 a, b, w = 5.0, 4.0, 2.5          # wing A length (x), wing B length (y), wing width

@@ -12,7 +12,8 @@ from pathlib import Path
 import numpy as np
 
 from mst.core.camera import Camera, write_camera
-from mst.core.poses import format_tum, inv_T, look_at, write_pose_file
+from mst.core.poses import inv_T, look_at
+from mst.core.trajectory import format_tum, write_pose_file
 
 CAM = Camera(200.0, 200.0, 79.5, 59.5, 160, 120)
 BOX_V = np.array([[x, y, z] for z in (0.0, 0.2) for y in (0.0, 0.3) for x in (0.0, 0.4)], float)

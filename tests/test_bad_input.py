@@ -845,7 +845,7 @@ def test_eval_degenerate_alignment_names_the_file(which, case_dir):
     lines = f[which].read_text().splitlines()
     f[which].write_text("".join(f"{ln.split()[0]} 1 2 3 0 0 0 1\n" for ln in lines))  # one position for all
     code, out, err = run_cli(["eval", "traj", f["traj"], f["gt"], "--align", "se3", "-q"])
-    assert_one_error(code, err, [str(f[which]), "--align se3"])
+    assert_one_error(code, err, [str(f[which]), "alignment se3"])
 
 
 def test_emit_json_writes_null_for_nan(capsys):

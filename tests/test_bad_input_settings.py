@@ -1,9 +1,9 @@
 """Absurd tracker settings (issue 9) are refused at parse time, naming the setting and the file.
 
-Every numeric tracker setting, from a ViSP tracker XML or a `mst track` option, is checked against
-its bounds (:data:`mst.pipeline.settings.BOUNDS`) before anything is allocated or written: a
-moving-edge search range of 10^8 px once asked for 547 GiB. In-process (the XML reader and the CLI
-entry point), no subprocess.
+Every numeric tracker setting, from a ViSP tracker XML, a config file or a `mst track` option, is
+checked against its bounds (the ``param`` of its :class:`mst.pipeline.tracking.config.TrackConfig`
+field) before anything is allocated or written: a moving-edge search range of 10^8 px once asked
+for 547 GiB. In-process (the XML reader and the CLI entry point), no subprocess.
 """
 
 from __future__ import annotations
@@ -11,7 +11,8 @@ from __future__ import annotations
 import pytest
 
 from mst import InputError
-from mst.pipeline.settings import BOUNDS, TrackerConfig, read_tracker_xml, setting_label, validate_config
+from mst.errors import ConfigError
+from mst.pipeline.tracking.config import EdgesConfig, TrackConfig, lod_thresholds, read_tracker_xml
 
 # (tag path under <conf>, value) -> refused; the message must name the tag
 BAD_XML = [
@@ -124,38 +125,42 @@ def test_bad_track_option_is_named_exit_1_no_output(tmp_path, capsys, opt, value
               "--init", str(tmp_path / "p.txt"), "-o", str(out), opt, value, "-q"])
     assert e.value.code == 1
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and opt in err[0] and "option" in err[0], err
+    assert len(err) == 1 and f"Invalid value for '{opt}'" in err[0], err
     assert not list(tmp_path.iterdir())  # nothing written
 
 
 def test_every_bound_is_enforced_on_the_dataclass():
-    """Each bounded field: its default passes, a NaN and a value past the upper bound are refused."""
-    cfg = TrackerConfig()
-    validate_config(cfg)
-    assert cfg.far_clip is None and cfg.near_clip is None  # survey-scale defaults: no far plane
-    import re
+    """Each bounded field: its default passes, a NaN and a value past a bound are refused, naming it."""
+    import dataclasses
 
-    for name, (lo, hi, _, _) in BOUNDS.items():
-        for bad in (float("nan"), hi * 2 + 1, lo - 1):
-            with pytest.raises(InputError, match=re.escape(setting_label(name))):
-                validate_config(cfg.updated(**{name: bad}))
+    cfg = TrackConfig()
+    assert cfg.edges.far_clip_m is None and cfg.edges.near_clip_m is None  # survey-scale defaults: no far plane
+    n = 0
+    for f in dataclasses.fields(EdgesConfig):
+        lo, hi = f.metadata.get("min"), f.metadata.get("max")
+        if lo is None and hi is None:
+            continue
+        bad = [float("nan")] + ([hi * 2 + 1] if hi is not None else []) + ([lo - 1] if lo is not None else [])
+        for v in bad:
+            with pytest.raises(ConfigError) as e:
+                cfg.merged({f"edges.{f.name}": v})
+            assert e.value.field == f"edges.{f.name}"
+            n += 1
+    assert n >= 3 * 25
 
 
 def test_visp_teabox_values_still_apply(shared_data):
     """The tea-box XML's explicit 0.1 / 100 m clipping is kept as given (not replaced by the defaults)."""
     c = read_tracker_xml(shared_data / "visp-teabox/teabox.xml")
-    assert (c.near_clip, c.far_clip, c.search_range) == (0.1, 100.0, 8)
-    assert c.source.endswith("teabox.xml")
+    assert (c.edges.near_clip_m, c.edges.far_clip_m, c.edges.search_range_px) == (0.1, 100.0, 8)
 
 
 def test_visp_lod_tags(tmp_path):
     """ViSP's <lod> section: thresholds as given, use_lod 0 turns the rule off; default derived."""
-    from mst.pipeline.settings import lod_thresholds
-
-    assert lod_thresholds(TrackerConfig()) == (12.0, 64.0)  # 3 x 4 px step, 8 px range squared
+    assert lod_thresholds(TrackConfig().edges) == (12.0, 64.0)  # 3 x 4 px step, 8 px range squared
     f = tmp_path / "lod.xml"
     f.write_text("<conf><lod><use_lod>1</use_lod><min_line_length_threshold>50</min_line_length_threshold>"
                  "<min_polygon_area_threshold>2500</min_polygon_area_threshold></lod></conf>")
-    assert lod_thresholds(read_tracker_xml(f)) == (50.0, 2500.0)
+    assert lod_thresholds(read_tracker_xml(f).edges) == (50.0, 2500.0)
     f.write_text("<conf><lod><use_lod>0</use_lod></lod></conf>")
-    assert lod_thresholds(read_tracker_xml(f)) == (0.0, 0.0)
+    assert lod_thresholds(read_tracker_xml(f).edges) == (0.0, 0.0)

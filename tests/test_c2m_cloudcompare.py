@@ -39,7 +39,7 @@ def _read_scalar_ply(path) -> np.ndarray:
 
 def test_distances_equal_cloudcompare(tmp_path, mst):
     from mst.meshtools import generate
-    from mst.meshtools.io import save_triangles
+    from mst.meshtools.formats import save_triangles
 
     V, F = generate.courtyard()
     V, F = np.asarray(V, float), np.asarray(F)

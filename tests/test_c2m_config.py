@@ -12,8 +12,8 @@ import pytest
 from mst import ConfigError
 from mst.eval import c2m
 from mst.eval.cloud_io import write_cloud
+from mst.meshtools.formats import save_triangles
 from mst.meshtools.generate import box
-from mst.meshtools.io import save_triangles
 
 
 @pytest.fixture()
@@ -63,6 +63,13 @@ def test_unknown_key_and_bad_values_name_the_key(case, tmp_path, mst):
         c2m.C2MConfig(thresholds_m=())
     with pytest.raises(ConfigError, match="max_dist_m"):
         c2m.C2MConfig(max_dist_m=-1.0)
+
+
+def test_show_config_lists_the_settings(mst):
+    r = mst("c2m", "--show-config")
+    assert r.returncode == 0 and "thresholds_m" in r.stdout and "max_dist_m" in r.stdout
+    r = mst("eval", "traj", "--show-config")
+    assert r.returncode == 0 and "t_max_diff_s" in r.stdout and "csv_columns" in r.stdout
 
 
 def test_array_core_equals_the_file_runner(case):

@@ -62,7 +62,7 @@ def point_segment_distance(P, A, B):
 def check_conversion(V, F, model: PolygonModel, stats,  angle_tol_deg: float, rel_area_tol: float = 1e-9,
                      max_polygons: int | None = None, closed: bool | None = None) -> None:
     """The issue's acceptance checks for one converted TIN."""
-    dist_tol = stats.dist_tol_m
+    dist_tol = stats.dist_tol_used_m
     diag = float(np.linalg.norm(np.ptp(V[np.unique(F)], axis=0)))
     # 1. area preserved
     Vo, Fo = model.triangulate()
@@ -453,7 +453,7 @@ def test_mobius_strip_does_not_crash():
 @pytest.mark.slow
 def test_city_block_1m():
     """The benchmark's ~1,000,000-triangle city block (terrain of planar patches + 64 buildings):
-    every property checked (the timing is in eval/bench_convert.py)."""
+    every property checked (the timing is in eval/bench/convert.py)."""
     V, F = gen.city_block(n_triangles=1_000_000, buildings=64, seed=0)
     model, stats = convert(V, F)
     # 16 each of box (6), L (8), courtyard (10, 2 holes), gabled (7) + at most 7 x 7 terrain patches
@@ -505,3 +505,8 @@ def test_config_bounds_checked_once_in_the_config():
     with pytest.raises(ConfigError, match="dist_tol_m"):
         ConvertConfig(dist_tol_m=-1.0)
     assert ConvertConfig.from_dict({"collinear_tol_m": "null"}).collinear_tol_m is None
+
+
+def test_cli_show_config_lists_every_setting(mst):
+    out = mst("convert-model", "--show-config").stdout
+    assert all(k in out for k in ("angle_tol_deg", "dist_tol_m", "weld_tol_m", "collinear_tol_m"))

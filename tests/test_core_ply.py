@@ -79,3 +79,13 @@ def test_strict_header_names_the_file(tmp_path):
     with pytest.raises(InputError, match="truncated") as e:
         read_header(p)
     assert str(p) in str(e.value)
+
+
+def test_ascii_mesh_polygons_and_face_properties(tmp_path):
+    p = tmp_path / "a.ply"
+    p.write_text("ply\nformat ascii 1.0\ncomment hand made\nelement vertex 5\nproperty float x\nproperty float y\n"
+                 "property float z\nelement face 2\nproperty list uchar int vertex_indices\nproperty uchar label\n"
+                 "end_header\n0 0 0\n1 0 0\n1 1 0\n0 1 0\n2 2 0\n4 0 1 2 3 7\n3 1 4 2 9\n")
+    m = read_mesh(read_header(p))
+    assert [f.tolist() for f in m.faces] == [[0, 1, 2, 3], [1, 4, 2]]
+    assert m.face_properties["label"].tolist() == [7, 9] and m.face_properties["label"].dtype == np.uint8

@@ -1,4 +1,4 @@
-"""Poses, quaternions, SE(3) and pose/trajectory files (mst.core.poses)."""
+"""Poses, quaternions, SE(3) and small transform files (mst.core.poses); trajectory files: test_core_trajectory."""
 
 from __future__ import annotations
 
@@ -40,51 +40,6 @@ def test_quaternion_roundtrip_including_180_degrees():
     assert np.abs(P.R_from_quat(q) - R).max() < 1e-12
     # angle of a 180-degree rotation
     assert np.allclose(P.rotation_angle_deg(R[:3]), 180.0)
-
-
-def test_tum_write_read_roundtrip(tmp_path):
-    T = random_T(50)
-    t = np.arange(50) / 30.0
-    f = tmp_path / "traj.txt"
-    P.write_tum(f, t, T, header="generated")
-    t2, T2 = P.read_tum(f)
-    assert np.allclose(t2, t, atol=1e-6)
-    assert np.abs(T2 - T).max() < 1e-8
-    assert f.read_text().startswith("# generated\n")
-
-
-def test_pose_file_tum_and_cmo_forms_agree(tmp_path):
-    T_cam_model = random_T(1)[0]
-    a = tmp_path / "pose.txt"
-    P.write_pose_file(a, T_cam_model)
-    assert np.abs(P.read_pose_file(a) - T_cam_model).max() < 1e-8
-    b = tmp_path / "cMo.txt"
-    b.write_text("\n".join(" ".join(f"{v:.12f}" for v in row) for row in T_cam_model))
-    assert np.abs(P.read_pose_file(b) - T_cam_model).max() < 1e-10
-
-
-@pytest.mark.parametrize(
-    "content, msg",
-    [("1 2 3\n", "3 numbers"), ("a b c d e f g h\n", "not a number"), ("0 0 0 0 0 0 0 nan\n", "NaN"),
-     ("\n".join(["2 0 0 0", "0 1 0 0", "0 0 1 0", "0 0 0 1"]), "not a rigid transform")],
-)
-def test_bad_pose_files_raise_input_error(tmp_path, content, msg):
-    f = tmp_path / "bad.txt"
-    f.write_text(content)
-    with pytest.raises(InputError, match=msg):
-        P.read_pose_file(f)
-
-
-def test_read_tum_errors(tmp_path):
-    with pytest.raises(InputError, match="does not exist"):
-        P.read_tum(tmp_path / "missing.txt")
-    f = tmp_path / "t.txt"
-    f.write_text("# only a comment\n")
-    with pytest.raises(InputError, match="no poses"):
-        P.read_tum(f)
-    f.write_text("0 1 2 3 0 0 0\n")
-    with pytest.raises(InputError, match="line 1: expected 8 values"):
-        P.read_tum(f)
 
 
 def test_pose_error_units():

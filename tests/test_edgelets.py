@@ -1,4 +1,4 @@
-"""Edgelet extraction from CPU renders (mst.pipeline.edgelets): shapes, units, geometry on a sphere,
+"""Edgelet extraction from CPU renders (mst.pipeline.tracking.edgelets): shapes, units, geometry on a sphere,
 a box and a torus; even and stable sampling; the --edges auto rule; render-edge samples for the tracker."""
 
 from __future__ import annotations
@@ -40,7 +40,7 @@ def test_sphere_silhouette_subpixel():
     1/256 of a half-resolution pixel. Bound 0.25 px (mean 0.15 px). Normals: exact image of the surface
     normal at a grazing hit, facets of ~4 deg: bound 5 deg.
     """
-    from mst.pipeline.edgelets import SILHOUETTE, extract_edgelets
+    from mst.pipeline.tracking.edgelets import SILHOUETTE, extract_edgelets
 
     V, F = _icosphere()
     r = _renderer(V, F)
@@ -68,7 +68,7 @@ def test_sphere_silhouette_subpixel():
 def test_sampling_even_and_stable():
     """Buckets x 4 sectors: the budget is respected, the four orientation sectors of a circle are equally
     filled (within 2x), and a 0.2-deg turn of the view keeps most edgelets within 0.5 px of the old ones."""
-    from mst.pipeline.edgelets import extract_edgelets
+    from mst.pipeline.tracking.edgelets import extract_edgelets
 
     V, F = _icosphere()
     r = _renderer(V, F)
@@ -90,7 +90,7 @@ def test_box_creases_and_silhouette():
     """A box seen from a corner: crease edgelets lie on the box's edges with tangents along an axis,
     silhouette ones on its outline; all points on the surface (metres)."""
     from mst.meshtools.generate import box
-    from mst.pipeline.edgelets import CREASE, SILHOUETTE, extract_edgelets
+    from mst.pipeline.tracking.edgelets import CREASE, SILHOUETTE, extract_edgelets
 
     V, F = box((0.2, 0.15, 0.1), split=3)
     V = V - [0.1, 0.075, 0.05]
@@ -110,7 +110,7 @@ def test_torus_hole_contours():
     """A lying torus seen from above at 50 deg: contours outside and around the hole, every point on the
     torus surface ((sqrt(x^2 + y^2) - R)^2 + z^2 = r^2, within 0.05 % of R)."""
     from mst.meshtools.generate import torus
-    from mst.pipeline.edgelets import extract_edgelets
+    from mst.pipeline.tracking.edgelets import extract_edgelets
 
     R, rr = 0.15, 0.05
     V, F = torus(R, rr, n_major=128, n_minor=64)
@@ -124,7 +124,7 @@ def test_torus_hole_contours():
 
 
 def test_nothing_in_view():
-    from mst.pipeline.edgelets import extract_edgelets
+    from mst.pipeline.tracking.edgelets import extract_edgelets
 
     V, F = _icosphere()
     e = extract_edgelets(_renderer(V, F), _T([0.5, 0, 0], target=(1.0, 0, 0)), K, W, H)  # looking away
@@ -134,7 +134,7 @@ def test_nothing_in_view():
 def test_edges_auto_rule(tmp_path):
     from mst.meshtools.generate import box, box_model, l_shape_model, torus
     from mst.meshtools.model import PolygonModel
-    from mst.pipeline.render_edges import choose_edges, curved_fraction
+    from mst.pipeline.tracking.render_edges import choose_edges, curved_fraction
 
     V, F = torus()
     assert curved_fraction(V, F) > 0.9
@@ -155,7 +155,7 @@ def test_provider_samples_and_rerender_rule():
     """Samples for the tracker: one local line per edgelet through X; reprojection without a re-render for a
     small motion, a re-render once the camera centre moved by more than a_max * D."""
     from mst.core.camera import Camera
-    from mst.pipeline.render_edges import RenderEdgeProvider
+    from mst.pipeline.tracking.render_edges import RenderEdgeProvider
 
     V, F = _icosphere()
     cam = Camera(300.0, 300.0, 159.5, 119.5, W, H)
@@ -174,7 +174,7 @@ def test_provider_samples_and_rerender_rule():
     p.samples(_T([0.5 * np.cos(big), 0.5 * np.sin(big), 0.05]), K, W, H)
     assert p.n_renders == 2
     # pyramid level: the same edgelets projected with half-resolution intrinsics
-    from mst.pipeline.edgelets import scaled_K
+    from mst.pipeline.tracking.edgelets import scaled_K
 
     S2 = p.samples(p.cache.T_cam_model, scaled_K(K, 0.5), W // 2, H // 2)
     assert p.n_renders == 2 and len(S2) > 0.8 * len(S)

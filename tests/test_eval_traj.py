@@ -7,7 +7,8 @@ import json
 import numpy as np
 import pytest
 
-from mst.core.poses import make_T, se3_exp, so3_exp, write_tum
+from mst.core.poses import make_T, se3_exp, so3_exp
+from mst.core.trajectory import read_trajectory, write_tum
 from mst.eval import traj as tj
 
 evo_metrics = pytest.importorskip("evo.core.metrics")
@@ -65,7 +66,7 @@ KEYS = ("rmse", "mean", "median", "std", "min", "max")
 @pytest.mark.parametrize("align", ["none", "se3", "sim3", "first"])
 def test_equals_evo(tmp_path, align):
     est, ref, keep = _make_pair(tmp_path, scale=1.3 if align == "sim3" else 1.0)
-    s = tj.evaluate_trajectories(est, ref, tj.TrajConfig(align=align, delta=3, delta_m=0.5))
+    s = tj.evaluate_trajectories(est, ref, tj.TrajConfig(align=align, delta_frames=3, delta_m=0.5)).to_json()
     ev = _evo(est, ref, align, delta=3)
     evm = _evo(est, ref, align, delta=0.5, unit="metres")
     assert s["associated"] == ev["n"] == keep.sum()
@@ -111,7 +112,7 @@ def test_uav_table_gaps_and_yaw(tmp_path):
     write_tum(tmp_path / "gt.txt", t, T_ref)
     write_tum(tmp_path / "est.txt", t[keep], T_est[keep])
     np.testing.assert_allclose(tj.camera_yaw_deg(T_ref), np.degrees(psi), atol=1e-9)
-    s = tj.evaluate_trajectories(tmp_path / "est.txt", tmp_path / "gt.txt", tj.TrajConfig(align="none", yaw_offset_deg=2.0))
+    s = tj.evaluate_trajectories(tmp_path / "est.txt", tmp_path / "gt.txt", tj.TrajConfig(align="none", yaw_offset_deg=2.0)).to_json()
     u = s["uav_table"]
     assert (u["dX"]["mean"], u["dY"]["mean"], u["dZ"]["mean"]) == pytest.approx((0.1, -0.2, 0.3), abs=1e-6)
     assert u["dX"]["std"] == pytest.approx(0, abs=1e-6)
@@ -130,17 +131,19 @@ def test_nadir_yaw_uses_image_up():
 
 def test_kitti_and_csv_formats(tmp_path):
     est, ref, keep = _make_pair(tmp_path)
-    t, T, _ = tj.read_trajectory(ref)
+    tr = read_trajectory(ref)
+    t, T = tr.t, tr.T_model_cam
     kitti = tmp_path / "gt.kitti"
     np.savetxt(kitti, T[:, :3, :].reshape(len(T), 12))
-    tk, Tk, _ = tj.read_trajectory(kitti, fps=30.0)
+    trk = read_trajectory(kitti, fps=30.0)
+    tk, Tk = trk.t, trk.T_model_cam
     np.testing.assert_allclose(tk, t, atol=1e-6)  # TUM stores 6 decimals
     np.testing.assert_allclose(Tk, T, atol=1e-8)
     csvp = tmp_path / "gps.csv"
     rows = ["time,east,north,up"] + [f"{a!r},{x!r},{y!r},{z!r}" for a, (x, y, z) in zip(t.tolist(), T[:, :3, 3].tolist())]
     csvp.write_text("\n".join(rows) + "\n")
-    s = tj.evaluate_trajectories(est, csvp, tj.TrajConfig(align="se3", csv_columns="t=time,x=east,y=north,z=up"))
-    s_ref = tj.evaluate_trajectories(est, ref, tj.TrajConfig(align="se3"))
+    s = tj.evaluate_trajectories(est, csvp, tj.TrajConfig(align="se3", csv_columns="t=time,x=east,y=north,z=up")).to_json()
+    s_ref = tj.evaluate_trajectories(est, ref, tj.TrajConfig(align="se3")).to_json()
     assert s["ate"]["rmse"] == pytest.approx(s_ref["ate"]["rmse"], abs=1e-6)
     assert s["rotation_error_deg"] is None and s["uav_table"]["dyaw"] is None
 
@@ -160,3 +163,50 @@ def test_cli_json_plot_and_errors(tmp_path, mst):
     assert r.returncode == 1 and "no timestamps match" in r.stderr
     r = mst("eval", "traj", tmp_path / "missing.txt", ref, check=False)
     assert r.returncode == 1 and "does not exist" in r.stderr
+
+
+def test_config_file_sets_a_setting_options_override_unknown_key_fails(tmp_path, mst):
+    """TrajConfig through --config: delta_m from the file changes the RPE pairs; --delta-m overrides
+    it; the --json config block repeats the run; an unknown key fails naming it."""
+    est, ref, keep = _make_pair(tmp_path)
+    base = json.loads(mst("eval", "traj", est, ref, "--json", "-q").stdout)
+    cfg = tmp_path / "eval.yaml"
+    cfg.write_text("delta_m: 0.25\nalign: sim3\n")
+    s = json.loads(mst("eval", "traj", est, ref, "--config", cfg, "--json", "-q").stdout)
+    assert s["rpe_metres"]["delta_m"] == 0.25 and s["align"] == "sim3" and s["config"]["delta_m"] == 0.25
+    assert s["rpe_metres"]["translation"]["count"] > base["rpe_metres"]["translation"]["count"]
+    s2 = json.loads(mst("eval", "traj", est, ref, "--config", cfg, "--delta-m", "1", "--json", "-q").stdout)
+    assert s2["rpe_metres"] == base["rpe_metres"] | {"rotation_deg": s2["rpe_metres"]["rotation_deg"],
+                                                     "translation": s2["rpe_metres"]["translation"]}
+    assert s2["config"]["delta_m"] == 1.0
+    again = tmp_path / "again.json"
+    again.write_text(json.dumps(s["config"]))
+    s3 = json.loads(mst("eval", "traj", est, ref, "--config", again, "--json", "-q").stdout)
+    assert s3["ate"] == s["ate"] and s3["rpe_metres"] == s["rpe_metres"]
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps({"delta_mm": 2}))
+    r = mst("eval", "traj", est, ref, "--config", bad, check=False)
+    assert r.returncode == 1 and "delta_mm" in r.stderr and "unknown key" in r.stderr
+
+
+def test_duplicate_poses_note_on_stderr_and_in_json(tmp_path, mst):
+    est, ref, keep = _make_pair(tmp_path)
+    lines = est.read_text().splitlines()
+    est.write_text("\n".join([lines[0]] + lines) + "\n")  # the first pose twice
+    r = mst("eval", "traj", est, ref, "--json")
+    note = f"{est}: 1 identical duplicate pose(s) dropped"
+    assert json.loads(r.stdout)["notes"] == [note]
+    assert f"mst eval traj: note: {note}" in r.stderr
+    r = mst("eval", "traj", est, ref, "--json", "-q")
+    assert r.stderr == ""
+
+
+def test_array_core_equals_the_file_form(tmp_path):
+    est, ref, keep = _make_pair(tmp_path)
+    e, r = read_trajectory(est), read_trajectory(ref)
+    cfg = tj.TrajConfig(align="sim3", delta_m=0.5)
+    a = tj.compare_trajectories(e.t, e.T_model_cam, r.t, r.T_model_cam, cfg).to_json()
+    b = tj.evaluate_trajectories(est, ref, cfg).to_json()
+    assert a["estimate"] == "estimate" and b["estimate"] == str(est)
+    for k in ("ate", "rotation_error_deg", "rpe_frames", "rpe_metres", "uav_table", "gaps", "alignment", "config"):
+        assert a[k] == b[k], k

@@ -9,7 +9,8 @@ import pytest
 
 from mst import InputError
 from mst.core.camera import Camera, write_camera
-from mst.core.poses import inv_T, look_at, se3_exp, write_tum
+from mst.core.poses import inv_T, look_at, se3_exp
+from mst.core.trajectory import read_tum, write_tum
 from mst.pipeline.fusion import (
     FuseConfig,
     VoxelAccumulator,
@@ -103,6 +104,24 @@ def test_points_lie_on_the_mesh(seq, tmp_path):
     assert dist.max() < 1e-3, dist.max()
     # every pose contributed: each frame adds points seen only from its viewpoint
     assert s["samples"] == s["points_fused"] + s["dropped_range"] + s["dropped_edge"] + s["dropped_grazing"]
+
+
+def test_fuse_frames_pure_core_equals_the_file_runner(seq, tmp_path):
+    """The core takes arrays (depth in metres, depth-camera poses) and returns a Cloud, no files:
+    the same points, bit for bit, as the runner that reads the frames and writes the PLY."""
+    from mst.pipeline.fusion import FuseFrame, fuse_frames
+
+    r = seq["root"]
+    cfg = _cfg(voxel_m=0.02)
+    fuse(tmp_path / "runner.ply", cfg, r / "traj.txt", r / "depth", r / "camera.json")
+    X_file, _ = read_ply_points(tmp_path / "runner.ply")
+    _, T_file = read_tum(r / "traj.txt")  # the poses as the runner reads them (TUM: 9 decimals)
+    frames = [FuseFrame(k, f"frame {k}", np.load(r / "depth" / f"{k:06d}.npy"), T) for k, T in enumerate(T_file)]
+    cloud = fuse_frames(frames, CAM, cfg)
+    np.testing.assert_array_equal(cloud.X, X_file)
+    js = cloud.to_json()
+    assert js["mode"] == "voxel" and js["fused_frames"] == 6 and js["points_out"] == len(X_file)
+    assert cloud.rgb is None and cloud.count.sum() == js["points_fused"]
 
 
 def test_png_millimetres_match_npy(seq, tmp_path):

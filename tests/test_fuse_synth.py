@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from mst.meshtools.formats import load_triangles, save_triangles
 from mst.meshtools.generate import gabled_house
-from mst.meshtools.io import load_triangles, save_triangles
 from mst.pipeline.fusion import FuseConfig, fuse, read_ply_points
 from mst.pipeline.synth import SynthConfig, synthesize
 

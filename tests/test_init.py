@@ -9,7 +9,8 @@ import pytest
 from synth_helpers import look_at
 
 from mst.core.camera import Camera, write_camera
-from mst.core.poses import inv_T, pose_error, read_pose_file
+from mst.core.poses import inv_T, pose_error
+from mst.core.trajectory import read_pose_file
 from mst.pipeline.init_pose import init_from_clicks, pose_from_gps, project
 
 
@@ -72,6 +73,32 @@ def test_init_swapped_clicks_named(tmp_path, mst):
     assert res.returncode == 1 and "camera intrinsics" in res.stderr and not out.exists()
 
 
+def test_init_config_file_sets_the_residual_bound(tmp_path, mst):
+    """max_residual_px from a --config file: swapped clicks (refused by default) are accepted under a
+    bound of 1000 px; an unknown key fails naming it."""
+    import json
+
+    from mst.meshtools.generate import l_shape_model
+
+    m = l_shape_model()
+    cam = Camera(300, 300, 159.5, 119.5, 320, 240)
+    X = m.vertices[[0, 1, 2, 5, 7, 8, 9, 11]]
+    uv = project(look_at([26, -14, 9], m.vertices.mean(0)), cam.K, X)
+    uv[[2, 5]] = uv[[5, 2]]
+    (tmp_path / "clicks.txt").write_text("".join(" ".join(f"{v:.4f}" for v in row) + "\n" for row in np.column_stack([X, uv])))
+    (tmp_path / "m.obj").write_text("".join(f"v {a} {b} {c}\n" for a, b, c in m.vertices) + "".join(
+        "f " + " ".join(str(i + 1) for i in f) + "\n" for f in m.faces))
+    write_camera(tmp_path / "cam.json", cam)
+    args = ["init", "--model", tmp_path / "m.obj", "--camera", tmp_path / "cam.json", "--clicks", tmp_path / "clicks.txt"]
+    assert mst(*args, "-o", tmp_path / "p0.txt", check=False).returncode == 1
+    (tmp_path / "loose.yaml").write_text("max_residual_px: 1000\n")
+    r = mst(*args, "--config", tmp_path / "loose.yaml", "-o", tmp_path / "p1.txt", "--json", "-q")
+    assert json.loads(r.stdout)["config"]["max_residual_px"] == 1000 and (tmp_path / "p1.txt").exists()
+    (tmp_path / "bad.yaml").write_text("max_residual: 1000\n")
+    r = mst(*args, "--config", tmp_path / "bad.yaml", "-o", tmp_path / "p2.txt", check=False)
+    assert r.returncode == 1 and "max_residual: unknown key" in r.stderr and not (tmp_path / "p2.txt").exists()
+
+
 @pytest.mark.parametrize("case", ["three", "mismatch", "uv_only"])
 def test_init_bad_clicks(shared_data, mst, tmp_path, case):
     t = shared_data / "visp-teabox"
@@ -91,7 +118,7 @@ def test_init_bad_clicks(shared_data, mst, tmp_path, case):
         expect = "3 clicks but 4 points"
     else:
         clicks.write_text("\n".join(uv) + "\n")
-        expect = "--points"
+        expect = "'u v' only: their model points come from a ViSP .init points file"  # the library names no flag
     out = tmp_path / "pose.txt"
     r = mst("init", *args, "-o", out, check=False)
     assert r.returncode == 1

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mst.pipeline.moving_edges import canonical_normals, search_edges
+from mst.pipeline.tracking.moving_edges import canonical_normals, search_edges
 
 
 @pytest.mark.parametrize("ang_deg", np.arange(0.0, 180.0, 7.5))

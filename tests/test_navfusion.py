@@ -16,7 +16,7 @@ from nav_helpers import flight, noisy_vision
 
 from mst import InputError
 from mst.core.poses import inv_T, so3_log
-from mst.pipeline.navfusion import FusionConfig, _rot_mean, format_cov_csv, fuse_navigation, read_cov_csv
+from mst.pipeline.navfusion import FusionConfig, _rot_mean, fuse_navigation
 from mst.pipeline.navlog import (
     NavSimConfig,
     R_from_ypr_deg,
@@ -24,6 +24,7 @@ from mst.pipeline.navlog import (
     mount_ypr_deg_from_R,
     simulate_nav,
 )
+from mst.pipeline.navrun import format_cov_csv, read_cov_csv
 
 LEVER = (0.10, 0.0, -0.15)
 
@@ -199,7 +200,7 @@ def test_cov_side_file_round_trip(tmp_path):
 def test_cli_fuse_chain_and_bad_log(tmp_path, mst, scene):
     import json
 
-    from mst.core.poses import read_tum, write_tum
+    from mst.core.trajectory import read_tum, write_tum
 
     t, T, t_v, T_v, C_v, keep, _ = scene
     write_tum(tmp_path / "gt.txt", t, T)
@@ -221,3 +222,14 @@ def test_cli_fuse_chain_and_bad_log(tmp_path, mst, scene):
     r = mst("nav", "fuse", "--traj", tmp_path / "traj.txt", "--nav", bad, "-o", tmp_path / "f2.txt", check=False)
     assert r.returncode == 1 and "bad.csv" in r.stderr and "NaN" in r.stderr and len(r.stderr.strip().splitlines()) == 1
     assert not (tmp_path / "f2.txt").exists() and not (tmp_path / "f2.cov.csv").exists()
+    # settings from a --config file (the --json config of a run repeats it); an unknown key is named
+    assert s["config"]["mode"] == "smoother" and s["config"]["lever_arm_m"] == list(LEVER)
+    (tmp_path / "f.yaml").write_text("mode: filter\nang_accel_sigma_dps2: 0.5\nlever_arm_m: [0.10, 0.0, -0.15]\n")
+    r = mst("nav", "fuse", "--traj", tmp_path / "traj.txt", "--nav", tmp_path / "nav.csv", "-o", tmp_path / "causal.txt",
+            "--config", tmp_path / "f.yaml", "--json")
+    assert json.loads(r.stdout)["config"]["mode"] == "filter"
+    assert "(filter)" in (tmp_path / "causal.txt").read_text().splitlines()[0]
+    (tmp_path / "k.yaml").write_text("huber: 2\n")
+    r = mst("nav", "fuse", "--traj", tmp_path / "traj.txt", "--nav", tmp_path / "nav.csv", "-o", tmp_path / "f3.txt",
+            "--config", tmp_path / "k.yaml", check=False)
+    assert r.returncode == 1 and "huber: unknown key" in r.stderr and not (tmp_path / "f3.txt").exists()

@@ -128,7 +128,7 @@ def test_simulator_error_model():
 
 
 def test_cli_simulate_writes_log_and_truth_and_rejects_bad_gt(tmp_path, mst):
-    from mst.core.poses import write_tum
+    from mst.core.trajectory import write_tum
 
     t, T = flight(duration_s=20.0, fps=10.0)
     write_tum(tmp_path / "gt.txt", t, T)
@@ -144,3 +144,22 @@ def test_cli_simulate_writes_log_and_truth_and_rejects_bad_gt(tmp_path, mst):
     r = mst("nav", "simulate", "--gt", tmp_path / "bad.txt", "-o", tmp_path / "nav2.csv", check=False)
     assert r.returncode == 1 and "bad.txt" in r.stderr and len(r.stderr.strip().splitlines()) == 1
     assert not (tmp_path / "nav2.csv").exists()
+
+
+def test_cli_simulate_settings_from_a_config_file(tmp_path, mst):
+    import json
+
+    from mst.core.trajectory import write_tum
+
+    t, T = flight(duration_s=20.0, fps=10.0)
+    write_tum(tmp_path / "gt.txt", t, T)
+    (tmp_path / "sim.yaml").write_text("rate_hz: 2\ndropouts: 0\n")
+    args = ["nav", "simulate", "--gt", tmp_path / "gt.txt", "--config", tmp_path / "sim.yaml", "--json"]
+    s = json.loads(mst(*args, "-o", tmp_path / "a.csv").stdout)
+    assert s["rows"] == 40 and s["fixes"] == 40 and s["config"]["rate_hz"] == 2.0  # 20 s at 2 Hz, no dropout
+    s = json.loads(mst(*args, "--rate", "4", "-o", tmp_path / "b.csv").stdout)  # the option overrides the file
+    assert s["rows"] == 80 and s["config"]["rate_hz"] == 4.0
+    (tmp_path / "bad.yaml").write_text("rate: 2\n")
+    r = mst("nav", "simulate", "--gt", tmp_path / "gt.txt", "--config", tmp_path / "bad.yaml", "-o", tmp_path / "c.csv",
+            check=False)
+    assert r.returncode == 1 and "rate: unknown key" in r.stderr and not (tmp_path / "c.csv").exists()

@@ -11,8 +11,8 @@ import json
 
 from nav_helpers import VISION_SIGMA_M, flight, noisy_vision
 
-from mst.core.poses import write_tum
-from mst.eval.navtable import nav_table_from_files
+from mst.core.trajectory import write_tum
+from mst.eval.traj.navtable import nav_table_from_files
 from mst.pipeline.navfusion import FusionConfig, fuse_navigation
 from mst.pipeline.navlog import NavSimConfig, simulate_nav, write_sim_outputs
 
@@ -29,7 +29,7 @@ def test_nav_table_columns_match_the_noise_budget(tmp_path, mst):
     (tmp_path / "fused.json").write_text(json.dumps(res.to_json()))
     tab = nav_table_from_files(tmp_path / "fused.txt", tmp_path / "gt.txt", tmp_path / "nav.csv", tmp_path / "fused.json",
                                tmp_path / "traj.txt")
-    c = tab.columns
+    c = tab.to_json()["columns"]
     assert list(c) == ["vision", "GPS/AHRS", "fused"]
     v, g, f = c["vision"], c["GPS/AHRS"], c["fused"]
     assert v["matched"] == keep.sum() and v["gaps"] == (~keep).sum() and f["gaps"] == 0
@@ -44,7 +44,7 @@ def test_nav_table_columns_match_the_noise_budget(tmp_path, mst):
     # without the calibration: the model frame is taken as the world frame and the constant yaw
     # offset (model-to-world yaw 30 - mount yaw 60 deg) is removed and reported
     tab2 = nav_table_from_files(tmp_path / "fused.txt", tmp_path / "gt.txt", tmp_path / "nav.csv")
-    assert abs(tab2.columns["GPS/AHRS"]["yaw_offset_deg"] - (30.0 - 60.0)) < 2.0
+    assert abs(tab2.columns["GPS/AHRS"].yaw_offset_deg - (30.0 - 60.0)) < 2.0
     # the CLI prints it and puts it in the JSON
     r = mst("eval", "traj", tmp_path / "fused.txt", tmp_path / "gt.txt", "--align", "none", "--nav", tmp_path / "nav.csv",
             "--nav-calib", tmp_path / "fused.json", "--nav-vision", tmp_path / "traj.txt", "--json")

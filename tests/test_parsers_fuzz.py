@@ -20,16 +20,8 @@ from hypothesis import strategies as st
 
 from mst import InputError
 from mst.core.camera import Camera, read_camera, write_camera
-from mst.core.poses import (
-    format_tum,
-    inv_T,
-    look_at,
-    read_pose_file,
-    read_rigid_transform,
-    read_tum,
-    write_pose_file,
-)
-from mst.eval.traj import read_trajectory
+from mst.core.poses import inv_T, look_at, read_rigid_transform
+from mst.core.trajectory import format_tum, read_pose_file, read_trajectory, read_tum, write_pose_file
 from mst.pipeline.depth_io import read_depth
 from mst.pipeline.init_pose import read_clicks, read_init_points
 
@@ -86,9 +78,11 @@ def _parse(kind: str, p: Path, valid: dict[str, bytes]):
     if kind.startswith("depth-"):
         return read_depth(p)
     if kind == "kitti":
-        return read_trajectory(p, "kitti")[:2]
+        tr = read_trajectory(p, "kitti")
+        return tr.t, tr.T_model_cam
     if kind == "csv":
-        return read_trajectory(p.with_suffix(".csv") if p.suffix != ".csv" else p, "csv")[:2]
+        tr = read_trajectory(p.with_suffix(".csv") if p.suffix != ".csv" else p, "csv")
+        return tr.t, tr.T_model_cam
     raise AssertionError(kind)
 
 

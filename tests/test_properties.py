@@ -26,20 +26,11 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from mst import InputError
-from mst.core.poses import (
-    inv_T,
-    make_T,
-    read_pose_file,
-    read_rigid_transform,
-    read_tum,
-    so3_exp,
-    write_pose_file,
-    write_tum,
-)
+from mst.core.poses import inv_T, make_T, read_rigid_transform, so3_exp
+from mst.core.trajectory import read_pose_file, read_trajectory, read_tum, write_pose_file, write_tum
 from mst.eval.cloud_io import read_cloud, write_cloud
-from mst.eval.traj import read_trajectory
 from mst.meshtools import generate as gen
-from mst.meshtools.io import load_model, load_triangles, save_model, save_triangles
+from mst.meshtools.formats import load_model, load_triangles, save_model, save_triangles
 from mst.meshtools.model import PolygonModel
 
 SETTINGS = dict(derandomize=True, deadline=None, database=None,
@@ -315,7 +306,7 @@ def test_cloud_round_trip_float32(cloud):
 
 
 # ====================================================================== poses and trajectories (readers owned by
-# pipeline/poses.py and eval/traj.py: tested here, not changed)
+# core/trajectory.py and core/poses.py: tested here, not changed)
 
 
 @st.composite
@@ -344,8 +335,8 @@ def test_tum_round_trip(traj):
     t2, T2 = read_tum(p)
     np.testing.assert_allclose(t2, times, atol=5e-7)  # 6 decimals
     _assert_poses_close(T2, T, np.abs(T[:, :3, 3]).max())
-    t3, T3, has_rot = read_trajectory(p)
-    assert has_rot and np.array_equal(t3, t2) and np.array_equal(T3, T2)
+    tr = read_trajectory(p)
+    assert tr.has_rotation and np.array_equal(tr.t, t2) and np.array_equal(tr.T_model_cam, T2)
 
 
 @settings(max_examples=25, **SETTINGS)
@@ -375,12 +366,13 @@ def test_kitti_and_csv_round_trip(traj):
     times, T = traj
     k = _tmpfile("poses.kitti")
     k.write_text("".join(" ".join(repr(float(v)) for v in Ti[:3].ravel()) + "\n" for Ti in T))
-    _, Tk, _ = read_trajectory(k, fmt="kitti")
+    Tk = read_trajectory(k, fmt="kitti").T_model_cam
     np.testing.assert_allclose(Tk, T, atol=1e-12 * max(1.0, np.abs(T).max()))
     c = _tmpfile("gps.csv")
     c.write_text("time,e,n,h\n" + "".join(",".join(repr(float(v)) for v in (ti, *xyz)) + "\n" for ti, xyz in zip(times, T[:, :3, 3])))
-    tc, Tc, has_rot = read_trajectory(c, csv_columns="t=time,x=e,y=n,z=h")
-    assert not has_rot
+    tr = read_trajectory(c, csv_columns="t=time,x=e,y=n,z=h")
+    tc, Tc = tr.t, tr.T_model_cam
+    assert not tr.has_rotation
     np.testing.assert_array_equal(tc, times)
     np.testing.assert_array_equal(Tc[:, :3, 3], T[:, :3, 3])
 

@@ -15,8 +15,8 @@ import json
 import numpy as np
 
 from mst.eval.cloud_io import write_cloud
+from mst.meshtools.formats import save_triangles
 from mst.meshtools.generate import box
-from mst.meshtools.io import save_triangles
 
 
 def _csv_without_timing(path) -> list[dict]:

@@ -1,7 +1,7 @@
 """``mst track --slam rgbd|mono`` end to end on ``mst synth`` sequences (320x240 to stay fast).
 
 The same checks at 640x480 with the issue's bounds (error < 0.2 % within 5 frames of the model's
-return, fast x8/x10 mean <= 1 %) are in ``eval/bench_slam.py``: at 320x240 the edge tracker's own
+return, fast x8/x10 mean <= 1 %) are in ``eval/bench/slam.py``: at 320x240 the edge tracker's own
 noise is ~0.3-0.5 % of the distance, so the bounds here are looser.
 """
 
@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mst.eval.bench_slam import SAMPLE_MODEL, out_of_view, recovery_frames, trajectory_errors
+from mst.eval.bench.slam import SAMPLE_MODEL, out_of_view, recovery_frames, trajectory_errors
 
 
 def _synth(tmp_path_factory, name, scenario, **kw):
@@ -22,10 +22,10 @@ def _synth(tmp_path_factory, name, scenario, **kw):
 
 
 def _track(seq, mode, out):
-    from mst.pipeline.tracker import run_track
+    from mst.pipeline.tracking import TrackConfig, run_track
 
     s = run_track(seq / "rgb", seq / "model.obj", seq / "camera.json", seq / "cMo" / "000000.txt", out,
-                  slam=mode, depth_dir=seq / "depth" if mode == "rgbd" else None, fps=30.0)
+                  TrackConfig(aid=mode), depth_dir=seq / "depth" if mode == "rgbd" else None, fps=30.0)
     return s, trajectory_errors(seq, out)
 
 
@@ -129,14 +129,14 @@ def test_mono_landmarks_written_and_lie_on_the_scene(fast, tmp_path):
     """``--landmarks``: the mono SLAM map is written as PLY in model coordinates, on the scene surfaces."""
     import open3d as o3d
 
-    from mst.meshtools.io import load_triangles
+    from mst.meshtools.formats import load_triangles
     from mst.pipeline.fusion import read_ply_points
-    from mst.pipeline.tracker import run_track
+    from mst.pipeline.tracking import TrackConfig, run_track
 
     seq = fast[8]
     lm = tmp_path / "map.ply"
     s = run_track(seq / "rgb", seq / "model.obj", seq / "camera.json", seq / "cMo" / "000000.txt", tmp_path / "t.txt",
-                  slam="mono", fps=30.0, landmarks_path=lm)
+                  TrackConfig(aid="mono"), fps=30.0, landmarks_path=lm)
     X, _ = read_ply_points(lm)
     assert s["landmarks"] == len(X) >= 50
     V, F = load_triangles(seq / "scene.ply")

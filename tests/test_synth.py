@@ -10,9 +10,10 @@ import numpy as np
 import pytest
 
 from mst.core.camera import read_camera
-from mst.core.poses import inv_T, read_pose_file, read_tum
+from mst.core.poses import inv_T
+from mst.core.trajectory import read_pose_file, read_tum
+from mst.meshtools.formats import save_triangles
 from mst.meshtools.generate import box, gabled_house
-from mst.meshtools.io import save_triangles
 from mst.pipeline.synth import SynthConfig, synthesize, synthesize_from_scene
 
 SMALL = dict(width=160, height=120, texture_size=64)
@@ -65,7 +66,7 @@ def test_layout_and_ground_truth_consistency(orbit_seq: Path, house: Path):
     assert np.array_equal(mm[ok].astype(np.int64), np.round(z[ok].astype(np.float64) * 1000).astype(np.int64))
     assert 0.5 < ok.mean() < 1.0
     # model.obj is the rendered model exactly
-    from mst.meshtools.io import load_triangles
+    from mst.meshtools.formats import load_triangles
 
     V0, F0 = load_triangles(house)
     V1, F1 = load_triangles(d / "model.obj")
@@ -82,7 +83,7 @@ def test_clicks_consistent_with_gt_pose(orbit_seq: Path, house: Path, tmp_path: 
     uv = cam.project(a[:, :3] @ T[:3, :3].T + T[:3, 3])
     np.testing.assert_allclose(uv, a[:, 3:], atol=1e-3)
     # clicks are model corners (vertices of the house)
-    from mst.meshtools.io import load_triangles
+    from mst.meshtools.formats import load_triangles
 
     V, _ = load_triangles(house)
     assert all(np.min(np.linalg.norm(V - X, axis=1)) < 1e-8 for X in a[:, :3])
@@ -176,7 +177,7 @@ def test_flyover_and_scene_ply(house: Path, tmp_path: Path):
     import open3d as o3d
 
     m = o3d.io.read_triangle_mesh(str(out / "scene.ply"))
-    from mst.meshtools.io import load_triangles
+    from mst.meshtools.formats import load_triangles
 
     V, F = load_triangles(house)
     assert len(m.triangles) == len(F) + 2
@@ -231,6 +232,20 @@ def test_cli_writes_sequence_and_json(mst, house: Path, tmp_path: Path):
     while cap.read()[0]:
         n += 1
     assert n == 2
+
+
+def test_pure_core_renders_the_written_frames(house: Path, orbit_seq: Path):
+    """plan_sequence + render_frame (arrays, no files) give the frames and poses the runner wrote."""
+    from mst.pipeline.synth import load_model_triangles, plan_sequence, render_frame
+
+    cfg = SynthConfig(frames=4, depth_noise="kinect", click_noise=0.0, **SMALL)
+    V, F = load_model_triangles(house)
+    plan = plan_sequence("orbit", cfg, V, F)
+    _, T_gt = read_tum(orbit_seq / "gt.txt")
+    assert np.abs(plan.T_model_cam - T_gt).max() < 1e-8  # gt.txt: 9 decimals
+    fr = render_frame(plan, cfg, 2)
+    assert np.array_equal(fr.bgr, cv2.imread(str(orbit_seq / "rgb" / "000002.png")))
+    assert np.array_equal(fr.depth, np.load(orbit_seq / "depth" / "000002.npy"))
 
 
 def test_cli_config_file_sets_a_setting(mst, house: Path, tmp_path: Path):

@@ -15,7 +15,7 @@ import csv
 import numpy as np
 import pytest
 
-from mst.eval.bench_slam import SAMPLE_MODEL
+from mst.eval.bench.slam import SAMPLE_MODEL
 
 
 def _synth(tmp_path_factory, scenario, frames, width=320, height=240):
@@ -30,15 +30,16 @@ def _synth(tmp_path_factory, scenario, frames, width=320, height=240):
 
 
 def _track(seq, mode, out):
-    from mst.core.poses import pose_error, read_tum
-    from mst.pipeline.tracker import run_track
+    from mst.core.poses import pose_error
+    from mst.core.trajectory import read_tum
+    from mst.pipeline.tracking import TrackConfig, run_track
 
-    s = run_track(seq / "rgb", seq / "model.obj", seq / "camera.json", seq / "cMo" / "000000.txt", out, slam=mode, fps=30.0)
+    s = run_track(seq / "rgb", seq / "model.obj", seq / "camera.json", seq / "cMo" / "000000.txt", out, TrackConfig(aid=mode), fps=30.0)
     st = np.array([r["status"] for r in csv.DictReader(open(out.with_suffix(".csv")))])
     tg, Pg = read_tum(seq / "gt.txt")
     t, P = read_tum(out)
     idx = np.rint(t * 30).astype(int)
-    from mst.meshtools.io import load_triangles
+    from mst.meshtools.formats import load_triangles
 
     V = np.asarray(load_triangles(seq / "model.obj")[0])
     c = 0.5 * (V.min(0) + V.max(0))
@@ -97,7 +98,7 @@ def test_occluder_bridged_by_the_default(tmp_path_factory, tmp_path):
 
 @pytest.mark.slow
 def test_blackout_relocalised_and_blur_bridged(tmp_path_factory, tmp_path):
-    from mst.pipeline.relocalise import RelocConfig
+    from mst.pipeline.tracking.relocalise import RelocConfig
 
     seq = _synth(tmp_path_factory, "blackout", 60)
     s, st, rel, deg, truth = _track(seq, "auto", tmp_path / "t.txt")

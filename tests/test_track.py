@@ -11,7 +11,8 @@ import pytest
 from synth_helpers import look_at, orbit_poses, render_views
 
 from mst.core.camera import Camera, write_camera
-from mst.core.poses import inv_T, pose_error, read_tum, write_pose_file
+from mst.core.poses import inv_T, pose_error
+from mst.core.trajectory import read_tum, write_pose_file
 from mst.pipeline.init_pose import project
 
 
@@ -55,16 +56,16 @@ def test_teabox_last_frame_edges_supported(teabox_run):
     """The tracked box's visible edges lie on strong image gradients in the last frame."""
     import cv2
 
+    from mst.meshtools.formats import load_tracking_model
     from mst.pipeline.frames import open_frames
-    from mst.pipeline.tracker import load_polygon_model
-    from mst.pipeline.visibility import ModelGeometry, visible_samples
+    from mst.pipeline.tracking.visibility import ModelGeometry, visible_samples
 
     t, d, out, s = teabox_run
     _, T_model_cam = read_tum(out)
     T = inv_T(T_model_cam[-1])
     gray = cv2.cvtColor([f for _, _, f in open_frames(t / "teabox.mp4", "38:39")][0], cv2.COLOR_BGR2GRAY)
     K = np.array([[839.2147, 0, 325.66776], [0, 839.44555, 243.69727], [0, 0, 1]])
-    S = visible_samples(ModelGeometry.from_model(load_polygon_model(t / "teabox.cao")), T, K, 640, 480, 4, 0.1, 100, 70, 80)
+    S = visible_samples(ModelGeometry.from_model(load_tracking_model(t / "teabox.cao")), T, K, 640, 480, 4, 0.1, 100, 70, 80)
     gx = cv2.Sobel(gray.astype(np.float32), cv2.CV_32F, 1, 0)
     gy = cv2.Sobel(gray.astype(np.float32), cv2.CV_32F, 0, 1)
     ix, iy = np.rint(S.uv[:, 0]).astype(int), np.rint(S.uv[:, 1]).astype(int)
@@ -81,7 +82,7 @@ def test_teabox_last_frame_edges_supported(teabox_run):
 def _write_sequence(d: Path, model, cam: Camera, poses, click_ids, click_noise_px: float, seed: int = 0):
     import cv2
 
-    from mst.meshtools.io import save_model
+    from mst.meshtools.formats import save_model
 
     d.mkdir()
     (d / "rgb").mkdir()
@@ -208,8 +209,8 @@ def test_synth_orbit_accuracy(tmp_path, mst):
     lines run parallel to the wall bottoms 1-2 px away, about 0.3-0.4 %.)
     """
     synth = pytest.importorskip("mst.pipeline.synth")
+    from mst.meshtools.formats import save_model
     from mst.meshtools.generate import l_shape_model
-    from mst.meshtools.io import save_model
 
     save_model(tmp_path / "l.obj", l_shape_model())
     d = tmp_path / "seq"
@@ -231,7 +232,7 @@ def test_synth_orbit_accuracy(tmp_path, mst):
 def test_slam_aid_hook_contract(shared_data, tmp_path, monkeypatch):
     """The tracker calls the aid as in the cross-helper contract and writes its poses/statuses."""
     from mst.pipeline import slam as slam_mod
-    from mst.pipeline.tracker import run_track
+    from mst.pipeline.tracking import TrackConfig, run_track
 
     calls = []
 
@@ -249,8 +250,10 @@ def test_slam_aid_hook_contract(shared_data, tmp_path, monkeypatch):
 
     made = {}
 
-    def fake_make_aid(mode, camera, config, depth_dir, depth_camera, T_depth_color):
-        made.update(mode=mode, w=camera.width, cfg=isinstance(config, dict), depth_dir=depth_dir)
+    def fake_make_aid(mode, camera, config, depth_dir, depth_camera, T_depth_color, depth=None):
+        # the aid gets the track's slam and depth sections
+        made.update(mode=mode, w=camera.width, cfg=isinstance(config, slam_mod.SlamConfig), depth_dir=depth_dir,
+                    depth=depth.scale)
         return FakeAid()
 
     monkeypatch.setattr(slam_mod, "make_aid", fake_make_aid)
@@ -261,9 +264,9 @@ def test_slam_aid_hook_contract(shared_data, tmp_path, monkeypatch):
     X, uv = read_clicks(t / "teabox.clicks", t / "teabox.init")
     write_pose_file(tmp_path / "p0.txt", init_from_clicks(X, uv, read_camera(t / "teabox.xml").K).T_cam_model)
     out = tmp_path / "traj.txt"
-    s = run_track(t / "teabox.mp4", t / "teabox.cao", t / "teabox.xml", tmp_path / "p0.txt", out, frames="0:6", slam="auto")
+    s = run_track(t / "teabox.mp4", t / "teabox.cao", t / "teabox.xml", tmp_path / "p0.txt", out, TrackConfig(aid="auto"), frames="0:6")
     # auto without --depth = the mono aid on standby (edges + KLT until the edges weaken)
-    assert made == {"mode": "standby", "w": 640, "cfg": True, "depth_dir": None}
+    assert made == {"mode": "standby", "w": 640, "cfg": True, "depth_dir": None, "depth": 1000.0}
     assert s["tracked"] == 6 and s["slam"] == 1 and s["aid"] == "mono-standby" and s["config"]["use_klt"]
     ups = [c for c in calls if c[0] == "update"]
     assert [c[1] for c in ups] == list(range(6)) and all(c[2] == (6, 6) and c[3] and c[4] > 0 and c[5] for c in ups)

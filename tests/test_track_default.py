@@ -12,7 +12,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mst.core.poses import inv_T, read_tum, write_pose_file
+from mst.core.poses import inv_T
+from mst.core.trajectory import read_tum, write_pose_file
 
 
 @pytest.fixture(scope="module")
@@ -40,19 +41,20 @@ def teabox_frames(shared_data, tmp_path_factory):
 def _forward_backward(t, d, n, slam, name):
     """Per-frame forward/backward corner distance (px) and the two summaries."""
     from mst.core.camera import read_camera
-    from mst.pipeline.settings import read_tracker_xml
-    from mst.pipeline.tracker import load_polygon_model, run_track
+    from mst.meshtools.formats import load_tracking_model
+    from mst.pipeline.tracking import run_track
+    from mst.pipeline.tracking.config import read_tracker_xml
 
     cfg = read_tracker_xml(t / "teabox.xml")  # what `mst track` reads from the camera file
-    kw = dict(slam=slam)
-    s_f = run_track(d / "fwd", t / "teabox.cao", t / "teabox.xml", d / "p0.txt", d / f"{name}_f.txt", cfg, **kw)
+    cfg = cfg.replace(aid=slam)
+    s_f = run_track(d / "fwd", t / "teabox.cao", t / "teabox.xml", d / "p0.txt", d / f"{name}_f.txt", cfg)
     tf, Pf = read_tum(d / f"{name}_f.txt")
     write_pose_file(d / f"{name}_last.txt", inv_T(Pf[-1]))
-    s_b = run_track(d / "bwd", t / "teabox.cao", t / "teabox.xml", d / f"{name}_last.txt", d / f"{name}_b.txt", cfg, **kw)
+    s_b = run_track(d / "bwd", t / "teabox.cao", t / "teabox.xml", d / f"{name}_last.txt", d / f"{name}_b.txt", cfg)
     tb, Pb = read_tum(d / f"{name}_b.txt")
     assert len(tf) == len(tb) == n  # every frame tracked both ways
     K = read_camera(t / "teabox.xml").K
-    V = np.asarray(load_polygon_model(t / "teabox.cao").vertices, float)
+    V = np.asarray(load_tracking_model(t / "teabox.cao").vertices, float)
 
     def corners(T_model_cam):
         T = inv_T(T_model_cam)

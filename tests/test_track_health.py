@@ -26,7 +26,7 @@ def _score(tracker, monitor, gray, T):
 
 
 def _calibrate(tracker, grays, poses):
-    from mst.pipeline.tracker import HealthMonitor
+    from mst.pipeline.tracking import HealthMonitor
 
     mon = HealthMonitor(len(tracker.geom.edges), len(tracker.surf_X))
     for g, T in zip(grays, poses):
@@ -83,8 +83,8 @@ def _perturb(T, V, K, kind, arg):
 @pytest.fixture(scope="module")
 def box_scene():
     from mst.meshtools.generate import box_model
-    from mst.pipeline.settings import TrackerConfig
-    from mst.pipeline.tracker import EdgeTracker
+    from mst.pipeline.tracking import EdgeTracker
+    from mst.pipeline.tracking.config import TrackConfig
 
     m = box_model((10.0, 6.0, 4.0))
     cam = Camera(300, 300, 159.5, 119.5, 320, 240)
@@ -94,7 +94,7 @@ def box_scene():
         a = np.radians(-50 + 1.5 * k)
         poses.append(look_at(c + [18 * np.cos(a), 18 * np.sin(a), 7.0], c))
     imgs = render_textured(m, cam, poses)
-    tr = EdgeTracker(m, cam, TrackerConfig())
+    tr = EdgeTracker(m, cam, TrackConfig())
     mon = _calibrate(tr, imgs[:12], poses[:12])
     return m, cam, tr, mon, imgs[13], poses[13]
 
@@ -155,10 +155,12 @@ def test_synthetic_pose_on_mirror_image_rejected(box_scene, axis):
 @pytest.fixture(scope="module")
 def teabox_scene(shared_data, tmp_path_factory):
     from mst.core.camera import read_camera
-    from mst.core.poses import inv_T, read_tum, write_pose_file
+    from mst.core.poses import inv_T
+    from mst.core.trajectory import read_tum, write_pose_file
+    from mst.meshtools.formats import load_tracking_model
     from mst.pipeline.init_pose import init_from_clicks, read_clicks
-    from mst.pipeline.settings import read_tracker_xml
-    from mst.pipeline.tracker import EdgeTracker, load_polygon_model, run_track
+    from mst.pipeline.tracking import EdgeTracker, run_track
+    from mst.pipeline.tracking.config import read_tracker_xml
 
     t = shared_data / "visp-teabox"
     d = tmp_path_factory.mktemp("teabox_health")
@@ -166,7 +168,8 @@ def teabox_scene(shared_data, tmp_path_factory):
     X, uv = read_clicks(t / "teabox.clicks", t / "teabox.init")
     write_pose_file(d / "p0.txt", init_from_clicks(X, uv, cam.K).T_cam_model)
     cfg = read_tracker_xml(t / "teabox.xml")
-    run_track(t / "teabox.mp4", t / "teabox.cao", t / "teabox.xml", d / "p0.txt", d / "traj.txt", cfg, slam="auto", frames="0:32")
+    run_track(t / "teabox.mp4", t / "teabox.cao", t / "teabox.xml", d / "p0.txt", d / "traj.txt", cfg.replace(aid="auto"),
+              frames="0:32")
     ts, P = read_tum(d / "traj.txt")
     assert len(ts) == 32
     cap = cv2.VideoCapture(str(t / "teabox.mp4"))
@@ -174,7 +177,7 @@ def teabox_scene(shared_data, tmp_path_factory):
     for _ in range(32):
         ok, f = cap.read()
         grays.append(cv2.cvtColor(f, cv2.COLOR_BGR2GRAY))
-    model = load_polygon_model(t / "teabox.cao")
+    model = load_tracking_model(t / "teabox.cao")
     tr = EdgeTracker(model, cam, cfg)
     poses = [inv_T(p) for p in P]
     mon = _calibrate(tr, grays[:30], poses[:30])

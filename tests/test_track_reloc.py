@@ -18,8 +18,9 @@ import pytest
 from synth_helpers import look_at, render_textured
 
 from mst.core.camera import Camera, write_camera
-from mst.core.poses import inv_T, pose_error, read_tum, write_pose_file
-from mst.pipeline.relocalise import RelocConfig
+from mst.core.poses import inv_T, pose_error
+from mst.core.trajectory import read_tum, write_pose_file
+from mst.pipeline.tracking.relocalise import RelocConfig
 
 
 def _statuses(out):
@@ -29,8 +30,8 @@ def _statuses(out):
 @pytest.fixture(scope="module")
 def covered_box(tmp_path_factory):
     """Textured box orbit (10 frames), 3 black frames, then the camera 5 m to the side (~80 px jump)."""
+    from mst.meshtools.formats import save_model
     from mst.meshtools.generate import box_model
-    from mst.meshtools.io import save_model
 
     d = tmp_path_factory.mktemp("reloc_box")
     (d / "rgb").mkdir()
@@ -58,15 +59,15 @@ def covered_box(tmp_path_factory):
 
 @pytest.mark.parametrize("slam", ["auto", "off"])
 def test_synthetic_reacquired_after_covered_camera(covered_box, tmp_path, slam):
-    from mst.pipeline.tracker import run_track
+    from mst.pipeline.tracking import TrackConfig, run_track
 
     d, poses = covered_box
     back = 13
     out0 = tmp_path / "noreloc.txt"
-    run_track(d / "rgb", d / "model.obj", d / "camera.json", d / "p0.txt", out0, slam=slam, relocalise=False)
+    run_track(d / "rgb", d / "model.obj", d / "camera.json", d / "p0.txt", out0, TrackConfig(aid=slam, relocalise=False))
     assert all(s == "lost" for s in _statuses(out0)[back:])  # beyond the edge tracker's own recovery
     out = tmp_path / "reloc.txt"
-    s = run_track(d / "rgb", d / "model.obj", d / "camera.json", d / "p0.txt", out, slam=slam)
+    s = run_track(d / "rgb", d / "model.obj", d / "camera.json", d / "p0.txt", out, TrackConfig(aid=slam))
     st = _statuses(out)
     assert st[:10] == ["model"] * 10 and st[10:back] == ["lost"] * 3
     first = st.index("relocalised")
@@ -82,9 +83,10 @@ def test_synthetic_reacquired_after_covered_camera(covered_box, tmp_path, slam):
 def test_teabox_reacquired_after_jump(shared_data, tmp_path):
     """Real video: frames 0-38, 4 black frames, then frames 0-11 again (the camera 'jumps back')."""
     from mst.core.camera import read_camera
+    from mst.meshtools.formats import load_tracking_model
     from mst.pipeline.init_pose import init_from_clicks, read_clicks
-    from mst.pipeline.settings import read_tracker_xml
-    from mst.pipeline.tracker import load_polygon_model, run_track
+    from mst.pipeline.tracking import run_track
+    from mst.pipeline.tracking.config import read_tracker_xml
 
     t = shared_data / "visp-teabox"
     from mst.pipeline.frames import open_frames
@@ -99,7 +101,7 @@ def test_teabox_reacquired_after_jump(shared_data, tmp_path):
     write_pose_file(tmp_path / "p0.txt", init_from_clicks(X, uv, cam.K).T_cam_model)
     cfg = read_tracker_xml(t / "teabox.xml")
     out = tmp_path / "traj.txt"
-    s = run_track(tmp_path / "rgb", t / "teabox.cao", t / "teabox.xml", tmp_path / "p0.txt", out, cfg)
+    s = run_track(tmp_path / "rgb", t / "teabox.cao", t / "teabox.xml", tmp_path / "p0.txt", out, cfg.replace(aid="off"))
     st = _statuses(out)
     n, back = len(frames), len(frames) + 4
     assert st[:n] == ["model"] * n and st[n:back] == ["lost"] * 4
@@ -110,7 +112,7 @@ def test_teabox_reacquired_after_jump(shared_data, tmp_path):
     # (the pixel size; forward-backward consistency on this video is 0.2-0.3 px)
     ts, P = read_tum(out)
     by_t = {int(round(k)): inv_T(p) for k, p in zip(ts, P)}
-    K, V = cam.K, np.asarray(load_polygon_model(t / "teabox.cao").vertices, float)
+    K, V = cam.K, np.asarray(load_tracking_model(t / "teabox.cao").vertices, float)
 
     def corners(T):
         Xc = V @ T[:3, :3].T + T[:3, 3]

@@ -25,7 +25,7 @@ def _cli(*args) -> None:
 
 
 def _ate(traj, gt):
-    from mst.core.poses import read_tum
+    from mst.core.trajectory import read_tum
 
     tg, Tg = read_tum(gt)
     te, Te = read_tum(traj)
@@ -49,17 +49,17 @@ def flyover(request, shared_data, tmp_path_factory):
     _cli("convert-model", seq / "model.obj", "-o", d / "m.wrl", "-q")
     _cli("init", "--model", d / "m.wrl", "--camera", seq / "camera.json", "--clicks", seq / "clicks.txt",
          "-o", d / "p0.txt", "-q")
-    from mst.pipeline.tracker import run_track
+    from mst.pipeline.tracking import TrackConfig, run_track
 
     runs = {}
     for slam in ("auto", "off"):  # the default mode (edges + KLT, mono aid on standby) and edges only
         out = d / f"traj_{slam}.txt"
-        s = run_track(seq / "rgb", d / "m.wrl", seq / "camera.json", d / "p0.txt", out, fps=30, slam=slam)
+        s = run_track(seq / "rgb", d / "m.wrl", seq / "camera.json", d / "p0.txt", out, TrackConfig(aid=slam), fps=30)
         ate, Tg = _ate(out, seq / "gt.txt")
         cov = list(csv.DictReader(open(out.with_suffix(".cov.csv"))))
         sig = np.array([[float(r[f"std_{a}_m"]) for a in "xyz"] for r in cov if r["status"] == "model"])
         runs[slam] = (s, ate, sig)
-    from mst.meshtools.io import load_model
+    from mst.meshtools.formats import load_model
 
     V = np.asarray(load_model(d / "m.wrl").vertices)
     dist = float(np.median(np.linalg.norm(Tg[:, :3, 3] - V.mean(axis=0), axis=1)))  # camera to the block centre
@@ -117,20 +117,34 @@ def _box_scene(tmp_path, z_m: float, size_m: float = 10.0, frames: int = 2, far:
 
 
 def _track_error(tmp_path, fr, obj, cam, pose, settings=None) -> str:
-    from mst.pipeline.settings import TrackerConfig, read_tracker_xml
-    from mst.pipeline.tracker import run_track
+    from mst.pipeline.tracking import TrackConfig, run_track
+    from mst.pipeline.tracking.config import read_tracker_xml
 
-    cfg = read_tracker_xml(settings) if settings else TrackerConfig()
+    cfg = (read_tracker_xml(settings) if settings else TrackConfig()).replace(aid="off")
     out = tmp_path / "traj.txt"
     with pytest.raises(InputError) as e:
-        run_track(fr, obj, cam, pose, out, cfg, slam="off")
+        run_track(fr, obj, cam, pose, out, cfg)
     assert not out.exists() and not out.with_suffix(".csv").exists()
     return str(e.value)
 
 
-def test_message_beyond_far_plane_names_the_settings_file(tmp_path):
-    msg = _track_error(tmp_path, *_box_scene(tmp_path, 200.0, far=100.0))
-    assert msg.startswith(str(tmp_path / "settings.xml")) and "beyond the far clipping plane" in msg
+def test_message_beyond_far_plane_names_the_setting(tmp_path, capsys):
+    from mst.cli.main import main
+    from mst.errors import ConfigError
+
+    fr, obj, cam, pose, settings = _box_scene(tmp_path, 200.0, far=100.0)
+    # the library blames the field ...
+    with pytest.raises(ConfigError) as e:
+        _track_error(tmp_path, fr, obj, cam, pose, settings)
+    assert e.value.field == "edges.far_clip_m" and "beyond the far clipping plane" in e.value.problem
+    # ... and the command the settings file and its ViSP tag
+    out = tmp_path / "traj.txt"
+    with pytest.raises(SystemExit) as ex:
+        main(["track", str(fr), "--model", str(obj), "--camera", str(cam), "--init", str(pose), "-o", str(out),
+              "--settings", str(settings), "--slam", "off", "-q"])
+    assert ex.value.code == 1 and not out.exists()
+    msg = capsys.readouterr().err.strip()
+    assert msg.startswith(f"mst track: error: {settings}: ") and "beyond the far clipping plane" in msg
     assert "far plane 100 m" in msg and "<far_clipping>" in msg
 
 
@@ -157,11 +171,11 @@ def test_reason_behind_the_camera_at_a_later_pose(tmp_path):
     import cv2
 
     from mst.core.camera import read_camera
-    from mst.pipeline.settings import TrackerConfig
-    from mst.pipeline.tracker import EdgeTracker, load_polygon_model
+    from mst.meshtools.formats import load_tracking_model
+    from mst.pipeline.tracking import EdgeTracker, TrackConfig
 
     fr, obj, cam, pose, _ = _box_scene(tmp_path, 50.0)
-    tr = EdgeTracker(load_polygon_model(obj), read_camera(cam), TrackerConfig())
+    tr = EdgeTracker(load_tracking_model(obj), read_camera(cam), TrackConfig())
     gray = cv2.imread(str(fr / "000000.png"), cv2.IMREAD_GRAYSCALE)
     T = np.loadtxt(pose)
     tr.near(T)  # near plane fixed at the first pose

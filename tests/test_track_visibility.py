@@ -6,7 +6,7 @@ import numpy as np
 from synth_helpers import look_at
 
 from mst.core.camera import Camera
-from mst.pipeline.visibility import ModelGeometry, visible_samples
+from mst.pipeline.tracking.visibility import ModelGeometry, visible_samples
 
 
 def _check_against_raycast(model, cam, T, min_agree=0.97):
@@ -56,19 +56,21 @@ def test_near_plane_clipping_parts_behind_camera():
 
 
 def test_settings_from_visp_xml(shared_data):
-    from mst.pipeline.settings import read_tracker_xml
+    from mst.pipeline.tracking.config import read_tracker_xml
 
     c = read_tracker_xml(shared_data / "visp-teabox/teabox.xml")
-    assert (c.mask_size, c.n_masks, c.search_range, c.edge_threshold, c.mu1, c.mu2, c.sample_step) == (5, 180, 8, 20, 0.5, 0.5, 4)
-    assert (c.angle_appear, c.angle_disappear, c.near_clip, c.far_clip) == (70, 80, 0.1, 100)
-    assert (c.klt_max_features, c.klt_window, c.klt_quality, c.klt_min_distance, c.klt_pyramid) == (300, 5, 0.015, 8, 3)
+    e, k = c.edges, c.klt
+    assert (e.mask_px, e.n_masks, e.search_range_px, e.edge_threshold, e.mu1, e.mu2, e.sample_step_px) == (5, 180, 8, 20, 0.5, 0.5, 4)
+    assert (e.angle_appear_deg, e.angle_disappear_deg, e.near_clip_m, e.far_clip_m) == (70, 80, 0.1, 100)
+    # ViSP's <window_size> 5 is a half window: an 11 px LK window
+    assert (k.max_features, k.window_px, k.quality, k.min_distance_px, k.pyramid_levels) == (300, 11, 0.015, 8, 3)
 
 
 def test_settings_bad_xml(tmp_path):
     import pytest
 
     from mst import InputError
-    from mst.pipeline.settings import read_tracker_xml
+    from mst.pipeline.tracking.config import read_tracker_xml
 
     p = tmp_path / "s.xml"
     p.write_text("<conf><ecm><range><tracking>eight</tracking></range></ecm></conf>")

@@ -52,8 +52,8 @@ def test_inverse_depth_buffer_matches_ray_cast(courtyard, azimuth_deg):
     cast only on pixels next to an outline of the ray-cast image (3x3 neighbourhood), exact to
     float32 rounding elsewhere."""
     from mst.core.poses import inv_T, look_at
-    from mst.meshtools.io import load_model
-    from mst.pipeline.visibility import ModelGeometry, face_visibility, inverse_depth_buffer
+    from mst.meshtools.formats import load_model
+    from mst.pipeline.tracking.visibility import ModelGeometry, face_visibility, inverse_depth_buffer
 
     geom = ModelGeometry.from_model(load_model(courtyard))
     c = geom.vertices.mean(axis=0)
@@ -85,9 +85,9 @@ def test_frustum_cull_changes_no_sample(courtyard, azimuth_deg):
     import dataclasses
 
     from mst.core.poses import inv_T, look_at
-    from mst.meshtools.io import load_model
+    from mst.meshtools.formats import load_model
     from mst.meshtools.model import PolygonModel
-    from mst.pipeline.visibility import ModelGeometry, visible_samples
+    from mst.pipeline.tracking.visibility import ModelGeometry, visible_samples
 
     m = load_model(courtyard)
     V = np.asarray(m.vertices)

@@ -52,7 +52,7 @@ def run_c2m(cloud_path: str | os.PathLike, mesh_path: str | os.PathLike, config:
 def load_mesh_triangles(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
     """Triangles of a mesh or polygon model file (OBJ PLY STL OFF WRL CAO CityJSON, polygons
     triangulated): ``(V (n, 3) float64 metres, F (m, 3) int64)``."""
-    from mst.meshtools.io import load_triangles
+    from mst.meshtools.formats import load_triangles
 
     return load_triangles(require_file(path, "mesh file"))
 

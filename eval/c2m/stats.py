@@ -22,29 +22,20 @@ class Moments:
         self.min, self.max = np.inf, -np.inf
 
     def add(self, x: np.ndarray, extremes: bool = True) -> None:
+        """Merge the values ``x`` (their min/max too with ``extremes``)."""
         k = len(x)
         if not k:
             return
         x = np.asarray(x, np.float64)
-        mu = float(x.sum()) / k
-        sq = float(np.dot(x, x))
-        m2 = max(sq - k * mu * mu, 0.0)  # chunk M2; merged exactly below (Chan et al.)
-        delta = mu - self.mean
-        tot = self.n + k
-        self.mean += delta * k / tot
-        self.m2 += m2 + delta * delta * self.n * k / tot
-        self.n = tot
-        self.sumsq += sq
-        if extremes:
-            self.min = min(self.min, float(x.min()))
-            self.max = max(self.max, float(x.max()))
+        lo, hi = (float(x.min()), float(x.max())) if extremes else (np.inf, -np.inf)
+        self.add_sums(k, float(x.sum()), float(np.dot(x, x)), lo, hi)
 
     def add_sums(self, k: int, s1: float, s2: float, lo: float = np.inf, hi: float = -np.inf) -> None:
         """Merge a block given its count, sum and sum of squares (and optional min/max)."""
         if not k:
             return
         mu = s1 / k
-        m2 = max(s2 - k * mu * mu, 0.0)
+        m2 = max(s2 - k * mu * mu, 0.0)  # the block's M2; merged exactly below (Chan et al.)
         delta = mu - self.mean
         tot = self.n + k
         self.mean += delta * k / tot

@@ -124,7 +124,6 @@ def _load_model(p: Path, suf: str) -> PolygonModel:
     return m
 
 
-
 def load_tracking_model(path: str | os.PathLike) -> PolygonModel:
     """Read a polygon model with :func:`load_model` and check that it can be tracked.
 
@@ -148,6 +147,7 @@ def load_tracking_model(path: str | os.PathLike) -> PolygonModel:
     if ext <= 0.0 or sv.size < 2 or sv[1] <= 1e-9 * max(sv[0], 1e-300):
         raise InputError(p, "model is degenerate: its vertices lie at one point or on one line")
     return model
+
 
 def load_triangles(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
     """Read any supported model as a triangle mesh.

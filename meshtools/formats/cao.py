@@ -186,6 +186,24 @@ def read_cao(p: Path, _stack: tuple[Path, ...] = ()) -> PolygonModel:
     if "\x00" in text:
         raise InputError(p, "not a text .cao file (NUL bytes)")
     c = _CaoCursor(text, p)
+    version = _cao_version(c, p)
+    parts = _cao_loads(c, p, (*_stack, me))
+    V = _cao_points(c, version)
+    L = _cao_lines(c, p, len(V))
+    faces, names, used_lines, extra_lines = _cao_faces(c, p, L, len(V))
+    cyl, circ = _cao_cylinders_circles(c, p, len(V))
+    # anything after the circles is ignored, as ViSP does (cube.cao carries its .init there)
+    free_lines = np.concatenate([L[~used_lines], np.array(extra_lines, np.int64).reshape(-1, 2)])
+    own = PolygonModel(V, faces, names=names, lines=free_lines, cylinders=cyl, circles=circ)
+    if not np.isfinite(V).all():
+        own.check_finite(str(p))
+    if not parts:
+        return own
+    return merge_models([*parts, own])
+
+
+def _cao_version(c: _CaoCursor, p: Path) -> int:
+    """The ``V1``/``V2`` header (1 when absent)."""
     version = 1
     if c.peek_char() in ("V", "v"):
         lno = c.ln + 1
@@ -195,6 +213,11 @@ def read_cao(p: Path, _stack: tuple[Path, ...] = ()) -> PolygonModel:
         version = int(mv.group(1))
         if version not in (0, 1, 2):
             raise InputError(p, f"unsupported .cao version V{version} (V1 or V2)")
+    return version
+
+
+def _cao_loads(c: _CaoCursor, p: Path, stack: tuple[Path, ...]) -> list[PolygonModel]:
+    """The ``load("sub.cao", t=[..], tu=[..])`` lines: the sub-models, mapped into this file's frame."""
     parts: list[PolygonModel] = []
     while c.peek_char() in ("l", "L"):
         lno = c.ln + 1
@@ -211,11 +234,15 @@ def read_cao(p: Path, _stack: tuple[Path, ...] = ()) -> PolygonModel:
         sub = sub if sub.is_absolute() else p.parent / sub
         if not sub.is_file():
             raise InputError(p, f"line {lno}: load(): {m.group(1)} not found (looked at {sub})")
-        sm = read_cao(sub, (*_stack, me))
+        sm = read_cao(sub, stack)
         R = _theta_u_matrix(vec.get("tu", np.zeros(3)))
         sm.vertices = sm.vertices @ R.T + vec.get("t", np.zeros(3))
         parts.append(sm)
+    return parts
 
+
+def _cao_points(c: _CaoCursor, version: int) -> np.ndarray:
+    """The points section: (n, 3) (V2: each point's two image coordinates are read and ignored)."""
     n = c.count("points")
     V = np.empty((n, 3))
     for i in range(n):
@@ -224,6 +251,11 @@ def read_cao(p: Path, _stack: tuple[Path, ...] = ()) -> PolygonModel:
             c.int("the point's image row (V2)", True)
             c.int("the point's image column (V2)", True)
         c.rest()
+    return V
+
+
+def _cao_lines(c: _CaoCursor, p: Path, n: int) -> np.ndarray:
+    """The lines section: (n_l, 2) point indices."""
     n_l = c.count("lines")
     L = np.empty((n_l, 2), np.int64)
     for i in range(n_l):
@@ -231,6 +263,12 @@ def read_cao(p: Path, _stack: tuple[Path, ...] = ()) -> PolygonModel:
         if L[i].min() < 0 or L[i].max() >= n:
             raise InputError(p, f"line {c.ln + 1}: line {i} point index out of range (0..{n - 1})")
         c.params()
+    return L
+
+
+def _cao_faces(c: _CaoCursor, p: Path, L: np.ndarray, n: int):
+    """Faces from lines, then faces from points: ``(faces, names, lines used by a face, 2-point faces)``."""
+    n_l = len(L)
     faces: list[np.ndarray] = []
     names: list[str | None] = []
     used_lines = np.zeros(n_l, bool)
@@ -255,6 +293,11 @@ def read_cao(p: Path, _stack: tuple[Path, ...] = ()) -> PolygonModel:
             continue
         faces.append(np.array(idx, np.int64))
         names.append(par.get("name") or None)
+    return faces, names, used_lines, extra_lines
+
+
+def _cao_cylinders_circles(c: _CaoCursor, p: Path, n: int) -> tuple[list[dict], list[dict]]:
+    """The optional cylinders and circles sections (absent in old files)."""
     cyl: list[dict] = []
     circ: list[dict] = []
     if not c.at_end():
@@ -275,14 +318,7 @@ def read_cao(p: Path, _stack: tuple[Path, ...] = ()) -> PolygonModel:
             ids = [c.index("circle point index", n) for _ in range(3)]
             circ.append({"radius": r, "center": ids[0], "p1": ids[1], "p2": ids[2],
                          "name": c.params().get("name") or None})
-    # anything after the circles is ignored, as ViSP does (cube.cao carries its .init there)
-    free_lines = np.concatenate([L[~used_lines], np.array(extra_lines, np.int64).reshape(-1, 2)])
-    own = PolygonModel(V, faces, names=names, lines=free_lines, cylinders=cyl, circles=circ)
-    if not np.isfinite(V).all():
-        own.check_finite(str(p))
-    if not parts:
-        return own
-    return merge_models([*parts, own])
+    return cyl, circ
 
 
 def _chain_lines(L: np.ndarray, p: Path, i: int) -> np.ndarray:

@@ -127,7 +127,6 @@ def _token(name: str) -> str:
     return re.sub(r"\s+", "_", str(name).strip()) or "_"
 
 
-
 def write_obj_triangles(p: Path, V: np.ndarray, F: np.ndarray) -> None:
     """A triangle mesh as OBJ text: ``v`` lines (shortest round-trip numbers), 1-based ``f`` lines."""
     with open(p, "w", encoding="utf-8", newline="\n") as fh:

@@ -13,7 +13,8 @@ import numpy as np
 
 from mst import InputError, atomic_output
 from mst.core.camera import read_camera
-from mst.core.poses import inv_T, read_rigid_transform, read_tum
+from mst.core.poses import inv_T, read_rigid_transform
+from mst.core.trajectory import read_tum
 from mst.pipeline.depth_io import list_depth_frames, list_image_frames, read_depth
 from mst.pipeline.fusion.config import FuseConfig
 from mst.pipeline.fusion.core import Cloud, FuseFrame, FuseStats, fuse_frames

@@ -14,7 +14,7 @@ import math
 import numpy as np
 
 from mst.core.klt import track_forward_backward
-from mst.core.poses import inv_T, pnp_ransac
+from mst.core.poses import inv_T, pnp_ransac, transform_points
 from mst.pipeline.slam.geometry import pose_information
 
 
@@ -30,25 +30,18 @@ class FrontEnd:
         return None if T_prev is None else np.asarray(T_prev, float)
 
     def _project(self, T_cam_model: np.ndarray, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Model points (N,3) -> pixels (N,2) and camera depth (N,)."""
-        Xc = X @ T_cam_model[:3, :3].T + T_cam_model[:3, 3]
+        """Model points (N,3) -> pixels (N,2) (:meth:`Camera.project`, depth clamped at 1e-9) and
+        camera depth (N,)."""
+        Xc = transform_points(T_cam_model, X)
         z = Xc[:, 2]
         zs = np.where(z > 1e-9, z, 1e-9)
-        if self.dist is None:
-            uv = (Xc[:, :2] / zs[:, None]) * [self.K[0, 0], self.K[1, 1]] + [self.K[0, 2], self.K[1, 2]]
-        else:
-            uv = self.cam.project(np.c_[Xc[:, :2], zs])
-        return uv, z
+        return self.cam.project(np.c_[Xc[:, :2], zs]), z
 
     def _normalised(self, uv: np.ndarray) -> np.ndarray:
-        """Pixels (N,2) -> normalised image coordinates (N,2) (distortion removed)."""
-        import cv2
-
+        """Pixels (N,2) -> normalised image coordinates (N,2) (:meth:`Camera.unproject`: distortion removed)."""
         if len(uv) == 0:
             return np.zeros((0, 2))
-        if self.dist is None:
-            return (np.asarray(uv, float) - [self.K[0, 2], self.K[1, 2]]) / [self.K[0, 0], self.K[1, 1]]
-        return cv2.undistortPoints(np.asarray(uv, np.float64).reshape(-1, 1, 2), self.K, self.dist).reshape(-1, 2)
+        return self.cam.unproject(uv)
 
     def _landmark_array(self, tids: np.ndarray) -> np.ndarray:
         nan = np.full(3, np.nan)
@@ -158,11 +151,17 @@ class FrontEnd:
             rest = np.setdiff1d(np.arange(len(c)), sel)
             sel = np.r_[sel, rest[: n_new - len(sel)]]
         sel = np.sort(sel)[:n_new]
-        new = c[sel].astype(np.float32)
-        m = len(new)
-        self.pts = np.r_[self.pts, new].astype(np.float32)
-        self.tid = np.r_[self.tid, np.arange(self._next_tid, self._next_tid + m)]
+        self._add_tracks(c[sel].astype(np.float32), 0.0, T)
+
+    def _add_tracks(self, uv: np.ndarray, tri_deg: float, T: np.ndarray) -> np.ndarray:
+        """Start tracks at pixels ``uv`` (M, 2) seen under pose ``T`` (their first view), with the
+        triangulation parallax ``tri_deg`` (0: none yet); returns their new ids."""
+        m = len(uv)
+        tids = np.arange(self._next_tid, self._next_tid + m)
         self._next_tid += m
-        self.first_xn = np.r_[self.first_xn, self._normalised(new)]
-        self.tri_deg = np.r_[self.tri_deg, np.zeros(m)]
+        self.pts = np.r_[self.pts, uv.astype(np.float32)].astype(np.float32)
+        self.tid = np.r_[self.tid, tids]
+        self.first_xn = np.r_[self.first_xn, self._normalised(uv)]
+        self.tri_deg = np.r_[self.tri_deg, np.full(m, tri_deg)]
         self.first_P = np.r_[self.first_P, np.broadcast_to(T[:3], (m, 3, 4))]
+        return tids

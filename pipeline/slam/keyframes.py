@@ -13,7 +13,7 @@ import math
 
 import numpy as np
 
-from mst.core.poses import inv_T, pnp_ransac, se3_log
+from mst.core.poses import inv_T, pnp_ransac, se3_log, transform_points
 from mst.pipeline.slam.state import STATUS_MODEL, Keyframe
 
 
@@ -75,7 +75,7 @@ class KeyframeMap:
             D = self._depth_frame(k) if self.mode == "rgbd" else None
             if D is not None:
                 Xc = self._depth_at(D, uv)
-                Xk = Xc @ inv_T(T)[:3, :3].T + inv_T(T)[:3, 3]
+                Xk = transform_points(inv_T(T), Xc)
             else:
                 Xk = np.full((len(uv), 3), np.nan)
                 has = np.flatnonzero(np.isfinite(X[:, 0]))
@@ -145,17 +145,9 @@ class KeyframeMap:
             T = np.eye(4)
             T[:3, :3], T[:3, 3] = cv2.Rodrigues(rvec)[0], tvec.ravel()
             # restart the tracks from the inlier matches (new landmark ids, positions from the keyframe)
-            m_ = len(inl)
-            new_t = np.arange(self._next_tid, self._next_tid + m_)
-            self._next_tid += m_
-            for t, x in zip(new_t, X[inl]):
+            for t, x in zip(self._add_tracks(uv[inl], 90.0, T), X[inl]):
                 self.lm[int(t)] = x
                 self.lm_model[int(t)] = False
-            self.pts = np.r_[self.pts, uv[inl].astype(np.float32)].astype(np.float32)
-            self.tid = np.r_[self.tid, new_t]
-            self.first_xn = np.r_[self.first_xn, self._normalised(uv[inl])]
-            self.tri_deg = np.r_[self.tri_deg, np.full(m_, 90.0)]
-            self.first_P = np.r_[self.first_P, np.broadcast_to(T[:3], (m_, 3, 4))]
             self.stats["relocalisations"] += 1
             return T
         return None

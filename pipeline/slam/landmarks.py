@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from mst.core.poses import inv_T
+from mst.core.poses import inv_T, transform_points
 from mst.pipeline.depth_io import read_depth
 from mst.pipeline.slam.geometry import triangulate_two_view
 
@@ -60,7 +60,7 @@ class Landmarks:
         if not ok.any():
             return
         T_model_cam = inv_T(T)
-        X_model = X_cam[ok] @ T_model_cam[:3, :3].T + T_model_cam[:3, 3]
+        X_model = transform_points(T_model_cam, X_cam[ok])
         for t, x in zip(self.tid[idx[ok]], X_model):
             self.lm[int(t)] = x
             self.lm_model[int(t)] = model_pose
@@ -143,7 +143,7 @@ class Landmarks:
         X = triangulate_two_view(P1, T[:3], x1, x2)
         # checks: finite, in front of both cameras, reprojection in both views
         X1c = np.einsum("nij,nj->ni", P1[:, :, :3], X) + P1[:, :, 3]
-        X2c = X @ T[:3, :3].T + T[:3, 3]
+        X2c = transform_points(T, X)
         f = self.K[0, 0]
         with np.errstate(invalid="ignore", divide="ignore"):
             e1 = np.linalg.norm(X1c[:, :2] / X1c[:, 2:3] - x1, axis=1) * f

@@ -199,8 +199,8 @@ def synthesize_dynamic(scenario: str, model_path: str | os.PathLike, out_dir: st
     import cv2
 
     from mst.core.camera import write_camera
-    from mst.core.poses import format_tum, write_pose_file
-    from mst.meshtools.io import save_triangles
+    from mst.core.trajectory import format_tum, write_pose_file
+    from mst.meshtools.formats import save_triangles
     from mst.pipeline.synth.scene import load_model_triangles, model_corners
     from mst.pipeline.synth.writers import _commit_out_dir, _prepare_out_dir
 

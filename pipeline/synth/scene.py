@@ -18,8 +18,8 @@ from mst.pipeline.synth.scenarios import R_canon_from_up, _resolve, focus_point
 
 
 def load_model_triangles(path: Path) -> tuple[np.ndarray, np.ndarray]:
-    """The model as triangles (``mst.meshtools.io.load_triangles``), checked for emptiness and NaN."""
-    from mst.meshtools.io import load_triangles
+    """The model as triangles (``mst.meshtools.formats.load_triangles``), checked for emptiness and NaN."""
+    from mst.meshtools.formats import load_triangles
 
     V, F = load_triangles(path)
     V = np.asarray(V, np.float64)

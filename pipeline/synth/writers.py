@@ -15,27 +15,20 @@ import numpy as np
 
 from mst import InputError, __version__
 from mst.core.camera import write_camera
-from mst.core.poses import format_tum
+from mst.core.ply import write_ply
+from mst.core.trajectory import format_tum
 
 #: the scene.json layout this mst writes and reads (a file of another version is refused, never guessed)
 SCENE_VERSION = 1
 
 
 def write_ply_mesh(path: Path, V: np.ndarray, F: np.ndarray, labels: np.ndarray) -> None:
-    """Binary little-endian PLY: double vertices, int triangles, uchar face ``label``."""
-    V = np.asarray(V, "<f8")
-    F = np.asarray(F, "<i4")
-    head = ("ply\nformat binary_little_endian 1.0\ncomment mst synth scene: labels 0 model 1 floor 2 wall 3 ceiling\n"
-            f"element vertex {len(V)}\nproperty double x\nproperty double y\nproperty double z\n"
-            f"element face {len(F)}\nproperty list uchar int vertex_indices\nproperty uchar label\nend_header\n")
-    rec = np.zeros(len(F), dtype=[("n", "u1"), ("i", "<i4", (3,)), ("label", "u1")])
-    rec["n"] = 3
-    rec["i"] = F
-    rec["label"] = np.asarray(labels, np.uint8)
-    with open(path, "wb") as f:
-        f.write(head.encode("ascii"))
-        f.write(V.tobytes())
-        f.write(rec.tobytes())
+    """Binary little-endian PLY (:func:`mst.core.ply.write_ply`): double vertices, int triangles,
+    uchar face ``label``."""
+    V = np.asarray(V, np.float64)
+    write_ply(path, {"x": V[:, 0], "y": V[:, 1], "z": V[:, 2]}, F,
+              face_properties={"label": np.asarray(labels, np.uint8)},
+              comments=["mst synth scene: labels 0 model 1 floor 2 wall 3 ceiling"])
 
 
 def _sha256(path: Path) -> str:
@@ -102,7 +95,7 @@ def write_frame(tmp: Path, frame, T_cam_model: np.ndarray, writer, with_depth: b
 def write_metadata(tmp: Path, plan, cfg, scenario: str, V: np.ndarray, F: np.ndarray, rows: list,
                    model_source: str) -> None:
     """gt.txt, camera.json, clicks.txt, model.obj, scene.ply, frames.csv and scene.json of a sequence."""
-    from mst.meshtools.io import save_triangles
+    from mst.meshtools.formats import save_triangles
 
     fps = float(cfg.fps)
     frames = len(plan.T_model_cam)

@@ -14,6 +14,10 @@ pixels read.
 Units: pixels for positions and offsets; masks are normalised so that a step edge of contrast
 ``c`` gray levels convolves to ``+-c`` (so the threshold is in gray levels, ViSP's normalised
 threshold).
+
+Length: :func:`search_edges` is one numeric pass over all samples, longer than 80 lines by design: it was moved, not
+rewritten, when the tracking package was formed (issue #10), so that the order of its floating-point
+operations, and the outputs, stay bit-identical.
 """
 
 from __future__ import annotations

@@ -18,12 +18,12 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 SHARED = ROOT.parent / "shared" / "data"
 
 
 def _time_tracker(model, cam, cfg, grays, T0, repeats: int = 2) -> dict:
-    from mst.pipeline.tracker import EdgeTracker
+    from mst.pipeline.tracking import EdgeTracker
 
     wall, cpu, lost = [], [], 0
     for _ in range(repeats):
@@ -48,7 +48,7 @@ def _time_tracker(model, cam, cfg, grays, T0, repeats: int = 2) -> dict:
 def _rows(name: str, model, cam, cfg, grays, T0) -> list[dict]:
     out = []
     for klt, target in ((False, 5.0), (True, 10.0)):
-        r = _time_tracker(model, cam, cfg.updated(use_klt=klt), grays, T0)
+        r = _time_tracker(model, cam, cfg.replace(use_klt=klt), grays, T0)
         r["bench"] = f"track {name} {'edges+klt' if klt else 'edges'} 640x480"
         r["target"] = f"median <= {target:g} ms (CPU time)"
         r["ok"] = bool(r["cpu_median_ms"] <= target and r["lost"] == 0)
@@ -63,8 +63,9 @@ def _visp_anchor_rows(tb: Path, workdir: Path) -> list[dict]:
     import os
     import subprocess
 
-    from mst.core.poses import inv_T, pose_error, read_tum
-    from mst.eval.bench import mst_cmd
+    from mst.core.poses import inv_T, pose_error
+    from mst.core.trajectory import read_tum
+    from mst.eval.bench.harness import mst_cmd
 
     exe = Path(os.environ.get("VISP_ANCHOR", "/tmp/visp_build/visp_mbt_anchor"))
     if not exe.is_file():
@@ -95,11 +96,11 @@ def _default_mode_rows(tb: Path, workdir: Path, grays: list, model, cam, cfg, T0
     calibrated health score) through ``run_track`` on teabox, per-frame time from its summary
     (decoding excluded); and the cost of one relocalisation attempt (keypoints learned at the
     initial pose, matched on a later frame, RANSAC PnP), the work done per attempt while lost."""
-    from mst.pipeline.relocalise import Relocaliser
-    from mst.pipeline.tracker import EdgeTracker, run_track
+    from mst.pipeline.tracking import EdgeTracker, run_track
+    from mst.pipeline.tracking.relocalise import Relocaliser
 
     s = run_track(tb / "teabox.mp4", tb / "teabox.cao", tb / "teabox.xml", workdir / "pose0.txt",
-                  workdir / "traj_default.txt", cfg)
+                  workdir / "traj_default.txt", cfg.replace(aid="off"))  # run_track's former default aid
     rows = [{"bench": "track teabox default mode (edges+KLT, aid on standby, health score) 640x480",
              "median_ms": s["median_ms"], "p95_ms": s["p95_ms"], "lost": s["lost"], "aid_wakes": s.get("aid_wakes"),
              "target": "median <= 5 ms (wall)", "ok": bool(s["median_ms"] <= 5.0 and s["lost"] == 0)}]
@@ -119,10 +120,10 @@ def run(workdir: Path) -> list[dict]:
     import cv2
 
     from mst.core.camera import Camera, read_camera
-    from mst.eval.bench import mst_cmd, timed_command
+    from mst.eval.bench.harness import mst_cmd, timed_command
+    from mst.meshtools.formats import load_tracking_model
     from mst.pipeline.init_pose import init_from_clicks, read_clicks
-    from mst.pipeline.settings import TrackerConfig, read_tracker_xml
-    from mst.pipeline.tracker import load_polygon_model
+    from mst.pipeline.tracking.config import TrackConfig, read_tracker_xml
 
     workdir = Path(workdir)
     workdir.mkdir(parents=True, exist_ok=True)
@@ -133,7 +134,7 @@ def run(workdir: Path) -> list[dict]:
         cfg = read_tracker_xml(tb / "teabox.xml")
         X, uv = read_clicks(tb / "teabox.clicks", tb / "teabox.init")
         T0 = init_from_clicks(X, uv, cam.K).T_cam_model
-        model = load_polygon_model(tb / "teabox.cao")
+        model = load_tracking_model(tb / "teabox.cao")
         cap = cv2.VideoCapture(str(tb / "teabox.mp4"))
         grays = []
         while True:
@@ -142,7 +143,7 @@ def run(workdir: Path) -> list[dict]:
                 break
             grays.append(cv2.cvtColor(img, cv2.COLOR_BGR2GRAY))
         rows += _rows("teabox", model, cam, cfg, grays, T0)
-        from mst.core.poses import write_pose_file
+        from mst.core.trajectory import write_pose_file
 
         write_pose_file(workdir / "pose0.txt", T0)
         r = timed_command(mst_cmd("track", tb / "teabox.mp4", "--model", tb / "teabox.cao", "--camera", tb / "teabox.xml",
@@ -164,7 +165,7 @@ def run(workdir: Path) -> list[dict]:
     cam = Camera(600, 600, 319.5, 239.5, 640, 480)
     poses = orbit_poses(m.vertices.mean(0), 22.0, 8.0, 40, 1.0)
     grays = [cv2.cvtColor(im, cv2.COLOR_BGR2GRAY) for im in render_views(m, cam, poses)]
-    rows += _rows("L-building orbit", m, cam, TrackerConfig(), grays, poses[0])
+    rows += _rows("L-building orbit", m, cam, TrackConfig(), grays, poses[0])
     return rows
 
 

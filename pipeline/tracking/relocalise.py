@@ -12,7 +12,7 @@ of them agree, as ViSP's object-detection tutorial (FAST + ORB, ratio 0.8, 200 i
 consensus) and ORB-SLAM2's relocalisation (at least 15 matches to try, 50 inliers to accept; here
 ``min_inliers`` 25 at 640x480 because the object covers a part of the frame only). The caller then
 refines the pose with the edge tracker and accepts it only through the calibrated health test
-(:class:`mst.pipeline.tracker.HealthMonitor`): a wrong PnP pose is never output.
+(:class:`mst.pipeline.tracking.HealthMonitor`): a wrong PnP pose is never output.
 
 Frames: ``T_cam_model`` (model -> camera); pixels; metres. Memory and matching cost: at most
 ``max_keyframes`` keyframes of at most ``kf_features`` descriptors (32 bytes) and model points
@@ -29,34 +29,35 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from mst.core.config import Config, param
 from mst.core.poses import inv_T, se3_log
 
 
 @dataclass
-class RelocConfig:
+class RelocConfig(Config):
     """Settings of the relocaliser (pixels, degrees)."""
 
-    n_features: int = 1000         #: ORB features per image (learning: on the model only)
-    ratio: float = 0.8             #: Lowe ratio of the best to the second best descriptor distance
-    max_hamming: int = 64          #: descriptor distance bound (of 256 bits)
-    min_matches: int = 15          #: fewer ratio-test matches: no PnP
-    ransac_iters: int = 200
-    reproj_px: float = 4.0         #: RANSAC inlier bound
-    min_inliers: int = 25
-    min_consensus: float = 0.2     #: inliers / matches
-    max_keyframes: int = 12        #: appearance keyframes kept (oldest dropped)
-    kf_features: int = 500         #: strongest keypoints stored per keyframe (bounds the matching cost)
-    kf_per_attempt: int = 4        #: keyframes matched per attempt (the newest + a round-robin share)
-    kf_min_frames: int = 5         #: frames between learned keyframes, at least
-    kf_min_angle_deg: float = 10.0 #: learn a view only when it differs this much from every stored one
-    min_keypoints: int = 20        #: a view with fewer keypoints on the model is not stored
-    every: int = 2                 #: while lost, try every n-th frame (bounded cost)
+    n_features: int = param(1000, min=1, max=100_000, help="ORB features per image (learning: on the model only)")
+    ratio: float = param(0.8, min=0, max=1, min_open=True, help="Lowe ratio of the best to the second best descriptor distance")
+    max_hamming: int = param(64, min=0, max=256, help="descriptor distance bound (of 256 bits)")
+    min_matches: int = param(15, min=4, max=100_000, help="fewer ratio-test matches: no PnP")
+    ransac_iters: int = param(200, min=1, max=1_000_000, help="RANSAC PnP iterations")
+    reproj_px: float = param(4.0, min=0, min_open=True, help="RANSAC inlier bound, px")
+    min_inliers: int = param(25, min=4, max=100_000, help="PnP inliers needed")
+    min_consensus: float = param(0.2, min=0, max=1, help="inliers / matches needed")
+    max_keyframes: int = param(12, min=1, max=10_000, help="appearance keyframes kept (oldest dropped)")
+    kf_features: int = param(500, min=1, max=100_000, help="strongest keypoints stored per keyframe (bounds the matching cost)")
+    kf_per_attempt: int = param(4, min=1, max=10_000, help="keyframes matched per attempt (the newest + a round-robin share)")
+    kf_min_frames: int = param(5, min=0, max=1_000_000, help="frames between learned keyframes, at least")
+    kf_min_angle_deg: float = param(10.0, min=0, max=180, help="learn a view only when it differs this much from every stored one, deg")
+    min_keypoints: int = param(20, min=0, max=100_000, help="a view with fewer keypoints on the model is not stored")
+    every: int = param(2, min=1, max=1_000_000, help="while lost, try every n-th frame (bounded cost)")
 
 
 class Relocaliser:
     """Appearance database of the tracked object and the lost-pose search (see module docstring).
 
-    ``tracker``: the :class:`mst.pipeline.tracker.EdgeTracker` (its model geometry, ``K`` and
+    ``tracker``: the :class:`mst.pipeline.tracking.EdgeTracker` (its model geometry, ``K`` and
     clipping distances are used).
     """
 
@@ -87,12 +88,12 @@ class Relocaliser:
         how many were stored (0: too few, nothing stored)."""
         import cv2
 
-        from mst.pipeline.visibility import face_visibility, inverse_depth_buffer
+        from mst.pipeline.tracking.visibility import face_visibility, inverse_depth_buffer
 
         t0 = time.perf_counter()
         tr, H, W = self.tr, gray.shape[0], gray.shape[1]
         c = tr.cfg
-        fv = face_visibility(tr.geom, T_cam_model, None, c.angle_appear, c.angle_disappear)
+        fv = face_visibility(tr.geom, T_cam_model, None, c.angle_appear_deg, c.angle_disappear_deg)
         iz, _ = inverse_depth_buffer(tr.geom, T_cam_model, tr.K, W, H, fv, tr.near(T_cam_model), 1.0)
         mask = cv2.erode((iz > 0).astype(np.uint8) * 255, np.ones((7, 7), np.uint8))  # off the outline
         kps, desc = self._orb.detectAndCompute(gray, mask)

@@ -76,7 +76,7 @@ def sample_surface(V: np.ndarray, F: np.ndarray, n: int, sigma: float, outliers:
 
 def _ensure(workdir: Path) -> dict[str, tuple[Path, Path]]:
     from mst.eval.cloud_io import PlyChunkWriter
-    from mst.meshtools.io import save_triangles
+    from mst.meshtools.formats import save_triangles
 
     workdir.mkdir(parents=True, exist_ok=True)
     cases = {}
@@ -106,7 +106,7 @@ def _ensure(workdir: Path) -> dict[str, tuple[Path, Path]]:
 
 def run(workdir: Path) -> list[dict]:
     """Time every case; returns the bench rows (see module docstring)."""
-    from mst.eval.bench import mst_cmd, timed_command
+    from mst.eval.bench.harness import mst_cmd, timed_command
 
     rows = []
     cases = _ensure(Path(workdir))

@@ -17,14 +17,14 @@ import json
 import time
 from pathlib import Path
 
-from mst.eval.bench import mst_cmd, timed_command
+from mst.eval.bench.harness import mst_cmd, timed_command
 
 
 def run(workdir: Path) -> list[dict]:
     import numpy as np
 
     from mst.meshtools import generate
-    from mst.meshtools.io import save_triangles
+    from mst.meshtools.formats import save_triangles
 
     workdir = Path(workdir)
     workdir.mkdir(parents=True, exist_ok=True)
@@ -71,7 +71,7 @@ def run(workdir: Path) -> list[dict]:
                  "peak_rss_mib": round(r["peak_rss_mib"], 1), "obj_mib": round(obj.stat().st_size / 2**20, 1),
                  "polygons_out": s["polygons_out"]})
 
-    shared = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "cityjson"
+    shared = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "cityjson"
     if shared.is_dir():
         for p in sorted(shared.glob("*.json")):
             r = timed_command(mst_cmd("convert-model", p, "-o", workdir / f"{p.stem}.wrl", "--json", "-q",

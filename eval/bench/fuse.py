@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mst.eval.bench import mst_cmd, timed_command
+from mst.eval.bench.harness import mst_cmd, timed_command
 
 W, H, N_BASE = 640, 480, 24
 
@@ -68,7 +68,7 @@ def make_inputs(work: Path) -> tuple[Path, Path, np.ndarray]:
 
 def make_sequence(work: Path, base: Path, poses: np.ndarray, n: int) -> tuple[Path, Path]:
     """``n`` frames as symbolic links to the base frames + the matching trajectory (t = index)."""
-    from mst.core.poses import write_tum
+    from mst.core.trajectory import write_tum
 
     d = work / f"seq{n}"
     d.mkdir(parents=True, exist_ok=True)

@@ -1,6 +1,6 @@
 """``make bench``: run every stage benchmark, print a table, write a JSON report.
 
-Each benchmark module ``mst.eval.bench_<stage>`` exposes ``run(workdir: Path) -> list[dict]``;
+Each benchmark module ``mst.eval.bench.<stage>`` exposes ``run(workdir: Path) -> list[dict]``;
 every dict has ``bench`` (a name), and metric keys (``*_s`` seconds, ``*_ms``, ``*_mib``, ``fps``,
 ``target`` text and ``ok`` bool where a target exists). Whole commands are timed as subprocesses
 (``peak_rss_mib`` from ``resource.getrusage(RUSAGE_CHILDREN)`` of a fresh child).
@@ -65,7 +65,7 @@ def main(argv: list[str] | None = None) -> int:
         work.mkdir(parents=True, exist_ok=True)
         for stage in a.only or STAGES:
             try:
-                mod = importlib.import_module(f"mst.eval.bench_{stage}")
+                mod = importlib.import_module(f"mst.eval.bench.{stage}")
             except ModuleNotFoundError:
                 print(f"[bench] {stage}: no benchmark module", file=sys.stderr)
                 continue

@@ -15,6 +15,14 @@ Perturbation convention (shared with the SLAM aid): ``T_cam_model_new = se3_exp(
 with ``xi = (v, w)``, v in metres and w in radians, in the camera frame. ``W = J^T diag(w) J``
 (pixels^-2 per unit twist, i.e. the information matrix for 1 px residual noise) and the covariance
 ``sigma^2 W^-1`` with ``sigma`` the weighted residual RMS (pixels) are returned in that order.
+
+The solver does not raise to mean "no pose": :attr:`VVSResult.status` (:class:`mst.errors.SolveStatus`)
+says ``TOO_FEW`` (fewer than 6 residuals), ``DIVERGED`` (a non-finite pose or information matrix),
+``DEGENERATE`` (a finite pose whose information matrix cannot be inverted: no covariance) or ``OK``.
+
+Length: :func:`solve_pose` is one numeric pass over all samples, longer than 80 lines by design: it was moved, not
+rewritten, when the tracking package was formed (issue #10), so that the order of its floating-point
+operations, and the outputs, stay bit-identical.
 """
 
 from __future__ import annotations
@@ -25,6 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from mst.core.poses import se3_exp as _se3_exp_batch
+from mst.errors import SolveStatus
 
 
 def se3_exp(xi: np.ndarray) -> np.ndarray:
@@ -59,7 +68,8 @@ SPREAD_K = 4.0  # heteroscedastic edge weight: w / (1 + SPREAD_K * var_edge / si
 @dataclass
 class VVSResult:
     """T_cam_model (4,4); W (6,6) J^T W J; cov (6,6) twist covariance; weights (N,) edge weights;
-    residual (N,) px; inlier (N,) bool; sigma_px robust scale; rms_px weighted RMS; iters."""
+    residual (N,) px; inlier (N,) bool; sigma_px robust scale; rms_px weighted RMS; iters; klt_inlier
+    (M,) bool or None; status (see the module docstring; without a pose ``T_cam_model`` is the start)."""
 
     T_cam_model: np.ndarray
     W: np.ndarray
@@ -71,6 +81,18 @@ class VVSResult:
     rms_px: float
     iters: int
     klt_inlier: np.ndarray | None = None
+    status: SolveStatus = SolveStatus.OK
+
+    @property
+    def has_pose(self) -> bool:
+        """A finite pose and information matrix (``OK`` or ``DEGENERATE``)."""
+        return self.status in (SolveStatus.OK, SolveStatus.DEGENERATE)
+
+
+def _no_pose(T0: np.ndarray, n: int, status: SolveStatus, min_mad_px: float) -> VVSResult:
+    """The result of a solve that found no pose: the start pose, no information, no inliers."""
+    return VVSResult(T0.copy(), np.zeros((6, 6)), np.full((6, 6), np.inf), np.zeros(n), np.full(n, np.nan),
+                     np.zeros(n, bool), min_mad_px, float("nan"), 0, None, status)
 
 
 def _median(a: np.ndarray) -> float:
@@ -136,7 +158,7 @@ def solve_pose(T0: np.ndarray, K: np.ndarray, X_model: np.ndarray, edge: np.ndar
     Gauss-Newton step; a step that raises the weighted cost (evaluated at the next iteration
     with the previous weights) is undone and the damping raised. Iterations stop when a step
     moves image points by less than ``stop_px`` pixels. Samples without any candidate are
-    ignored (weight 0). Raises ``ValueError`` when fewer than 6 residuals are available.
+    ignored (weight 0). Fewer than 6 residuals: status ``TOO_FEW`` (no pose), see :class:`VVSResult`.
     """
     fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
     has = np.isfinite(cand_uv[..., 0]).any(axis=1)
@@ -146,7 +168,7 @@ def solve_pose(T0: np.ndarray, K: np.ndarray, X_model: np.ndarray, edge: np.ndar
     cu, cv = cand[..., 0], cand[..., 1]
     nk = 0 if klt_X_model is None else len(klt_X_model)
     if len(X) + 2 * nk < 6:
-        raise ValueError("fewer than 6 residuals")
+        return _no_pose(T0, len(X_model), SolveStatus.TOO_FEW, min_mad_px)
     AB = np.concatenate([A_model, B_model])
     nE = len(A_model)
     T = T0.copy()
@@ -202,7 +224,10 @@ def solve_pose(T0: np.ndarray, K: np.ndarray, X_model: np.ndarray, edge: np.ndar
                 # undo: retry from the previous linearisation with more damping
                 mu *= 10.0
                 T_prev, _, _, _, _, Hp, gp = prev
-                xi = -np.linalg.solve(Hp + mu * np.diag(np.diag(Hp) + 1e-9), gp)
+                try:
+                    xi = -np.linalg.solve(Hp + mu * np.diag(np.diag(Hp) + 1e-9), gp)
+                except np.linalg.LinAlgError:  # the damped system of an accepted step: not finite
+                    return _no_pose(T0, len(X_model), SolveStatus.DIVERGED, min_mad_px)
                 T = se3_exp(xi) @ T_prev
                 continue
             mu = max(mu / 10.0, 1e-7)
@@ -250,14 +275,18 @@ def solve_pose(T0: np.ndarray, K: np.ndarray, X_model: np.ndarray, edge: np.ndar
     if nk:
         klt_in = (wk[:nk] > 0.5 * klt_weight) & (wk[nk:] > 0.5 * klt_weight)
     rms = float(np.sqrt(ssr / max(sw, 1e-9)))
+    status = SolveStatus.OK
     try:
         cov = rms**2 * np.linalg.inv(H)
     except np.linalg.LinAlgError:
         cov = np.full((6, 6), np.inf)
+        status = SolveStatus.DEGENERATE
+    if not np.isfinite(T).all() or not np.isfinite(H).all():
+        status = SolveStatus.DIVERGED
     W_full = np.zeros(len(X_model))
     W_full[has] = w
     Wt_full = np.zeros(len(X_model))
     Wt_full[has] = w_tukey
     R_full = np.full(len(X_model), np.nan)
     R_full[has] = r
-    return VVSResult(T, H, cov, W_full, R_full, Wt_full > 0.5, sigma, rms, it, klt_in)
+    return VVSResult(T, H, cov, W_full, R_full, Wt_full > 0.5, sigma, rms, it, klt_in, status)

@@ -32,6 +32,10 @@ m``, gave 10 % larger errors on the box TIN orbit), and at the render pose the f
 Cost: one ray per low-resolution pixel of the window holding the mesh's projected bounding box
 (:func:`mesh_roi`) plus ``15 refine_rounds`` rays per kept edgelet; all steps are array operations (no
 Python loop per pixel or per edgelet).
+
+Length: :func:`extract_edgelets` is one numeric pass over all samples, longer than 80 lines by design: it was moved, not
+rewritten, when the tracking package was formed (issue #10), so that the order of its floating-point
+operations, and the outputs, stay bit-identical.
 """
 
 from __future__ import annotations

@@ -1,10 +1,10 @@
 """The UAV paper's table against navigation logs: dX dY dZ d-yaw (mean, std) for vision, GPS/AHRS and fused.
 
 Every column is a camera trajectory ``T_model_cam`` compared with one reference (``mst eval traj
-EST REF --nav nav.csv``): poses associated by nearest timestamp within ``t_max_diff`` seconds, no
+EST REF --nav nav.csv``): poses associated by nearest timestamp within ``t_max_diff_s`` seconds, no
 alignment (all are in the model frame: the GPS/AHRS log is mapped into it with the calibration of
 ``mst nav fuse --json``). dX dY dZ: estimate - reference along the model axes [m]; d-yaw: heading of
-the optical axis (:func:`mst.eval.traj.camera_yaw_deg`), estimate - reference - the column's yaw
+the optical axis (:func:`mst.eval.traj.metrics.camera_yaw_deg`), estimate - reference - the column's yaw
 offset, wrapped [deg]. The GPS/AHRS column is the platform attitude turned by the estimated mount;
 without a calibration file the model frame is taken as the world frame, the lever arm as zero and
 the mount as unknown: then the column's constant yaw offset (the mount yaw) is removed as the
@@ -13,6 +13,7 @@ circular mean of its d-yaw and reported, as in the paper.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 from dataclasses import dataclass, field
@@ -21,28 +22,61 @@ from pathlib import Path
 import numpy as np
 
 from mst import InputError
-from mst.core.poses import read_tum
+from mst.core.trajectory import read_tum
+from mst.eval.traj.metrics import camera_yaw_deg, wrap_deg
 from mst.pipeline.navlog import R_MOUNT_CAM, NavLog, interpolate_poses, read_navlog
+
+
+@dataclass(frozen=True)
+class MeanStd:
+    """Mean and (population) standard deviation of one difference (m or deg)."""
+
+    mean: float
+    std: float
+
+    def to_json(self) -> dict:
+        return {"mean": self.mean, "std": self.std}
+
+
+@dataclass(frozen=True)
+class NavColumn:
+    """One column of the table: dX dY dZ (m) and d-yaw (deg) of an estimate against the reference,
+    the yaw offset removed (deg), the ATE rmse (m), matched poses and gaps (reference poses without one)."""
+
+    dX: MeanStd
+    dY: MeanStd
+    dZ: MeanStd
+    dyaw: MeanStd
+    yaw_offset_deg: float
+    ate_rmse_m: float
+    matched: int
+    gaps: int
+
+    def to_json(self) -> dict:
+        return {"dX": self.dX.to_json(), "dY": self.dY.to_json(), "dZ": self.dZ.to_json(),
+                "dyaw": self.dyaw.to_json(), "yaw_offset_deg": self.yaw_offset_deg, "ate_rmse_m": self.ate_rmse_m,
+                "matched": self.matched, "gaps": self.gaps}
 
 
 @dataclass
 class NavTable:
-    """Per column: {dX, dY, dZ: {mean, std} m, dyaw: {mean, std} deg, yaw_offset_deg, ate_rmse_m, matched, gaps}."""
+    """The columns (name -> :class:`NavColumn`, in insertion order) against one reference."""
 
     reference: str
-    columns: dict[str, dict] = field(default_factory=dict)
+    columns: dict[str, NavColumn] = field(default_factory=dict)
 
     def to_json(self) -> dict:
-        return {"reference": self.reference, "columns": self.columns}
+        return {"reference": self.reference, "columns": {k: c.to_json() for k, c in self.columns.items()}}
 
     def rows(self) -> list[list[str]]:
         """Table rows: quantity, then 'mean +- std' per column."""
         out = []
+        cols = list(self.columns.values())
         for key, lab in (("dX", "dX [m]"), ("dY", "dY [m]"), ("dZ", "dZ [m]"), ("dyaw", "d-yaw [deg]")):
-            out.append([lab] + [f"{c[key]['mean']:+.3f} ± {c[key]['std']:.3f}" if c.get(key) else "-" for c in self.columns.values()])
-        out.append(["yaw offset removed [deg]"] + [f"{c['yaw_offset_deg']:.2f}" for c in self.columns.values()])
-        out.append(["ATE rmse [m]"] + [f"{c['ate_rmse_m']:.3f}" for c in self.columns.values()])
-        out.append(["matched / gaps"] + [f"{c['matched']} / {c['gaps']}" for c in self.columns.values()])
+            out.append([lab] + [f"{getattr(c, key).mean:+.3f} ± {getattr(c, key).std:.3f}" for c in cols])
+        out.append(["yaw offset removed [deg]"] + [f"{c.yaw_offset_deg:.2f}" for c in cols])
+        out.append(["ATE rmse [m]"] + [f"{c.ate_rmse_m:.3f}" for c in cols])
+        out.append(["matched / gaps"] + [f"{c.matched} / {c.gaps}" for c in cols])
         return out
 
 
@@ -63,16 +97,15 @@ def nav_camera_poses(nav: NavLog, T_world_model: np.ndarray | None = None, R_bod
 
 
 def column_stats(t_ref: np.ndarray, T_ref: np.ndarray, t_est: np.ndarray, T_est: np.ndarray, t_max_diff: float,
-                 remove_yaw_offset: bool = False, yaw_offset_deg: float = 0.0) -> dict:
+                 remove_yaw_offset: bool = False, yaw_offset_deg: float = 0.0) -> NavColumn:
     """dX dY dZ d-yaw statistics of one estimate against the reference (module docstring)."""
-    from mst.eval.traj import camera_yaw_deg, wrap_deg
 
     j = np.clip(np.searchsorted(t_est, t_ref), 1, len(t_est) - 1) if len(t_est) > 1 else np.zeros(len(t_ref), int)
     if len(t_est) > 1:
         j = np.where(np.abs(t_est[j - 1] - t_ref) <= np.abs(t_est[j] - t_ref), j - 1, j)
     ok = np.abs(t_est[j] - t_ref) <= t_max_diff
     if not ok.any():
-        raise InputError(None, "no poses within --t-max-diff of the reference's timestamps")
+        raise InputError(None, f"no poses within t_max_diff_s ({t_max_diff:g} s) of the reference's timestamps")
     Te, Tr = T_est[j[ok]], T_ref[ok]
     d = Te[:, :3, 3] - Tr[:, :3, 3]
     dyaw = wrap_deg(camera_yaw_deg(Te) - camera_yaw_deg(Tr))
@@ -80,11 +113,10 @@ def column_stats(t_ref: np.ndarray, T_ref: np.ndarray, t_est: np.ndarray, T_est:
     if remove_yaw_offset:
         off = float(np.degrees(np.arctan2(np.sin(np.radians(dyaw)).mean(), np.cos(np.radians(dyaw)).mean())))
     dyaw = wrap_deg(dyaw - off)
-    st = {k: {"mean": float(d[:, i].mean()), "std": float(d[:, i].std())} for i, k in enumerate(("dX", "dY", "dZ"))}
-    st["dyaw"] = {"mean": float(dyaw.mean()), "std": float(dyaw.std())}
-    st.update(yaw_offset_deg=off, ate_rmse_m=float(np.sqrt(np.mean(np.sum(d**2, axis=1)))), matched=int(ok.sum()),
-              gaps=int((~ok).sum()))
-    return st
+    ms = [MeanStd(float(d[:, i].mean()), float(d[:, i].std())) for i in range(3)]
+    return NavColumn(dX=ms[0], dY=ms[1], dZ=ms[2], dyaw=MeanStd(float(dyaw.mean()), float(dyaw.std())),
+                     yaw_offset_deg=off, ate_rmse_m=float(np.sqrt(np.mean(np.sum(d**2, axis=1)))),
+                     matched=int(ok.sum()), gaps=int((~ok).sum()))
 
 
 def nav_table(t_ref, T_ref, columns: list[tuple[str, np.ndarray, np.ndarray, bool]], t_max_diff: float = 0.01,
@@ -134,7 +166,6 @@ def nav_table_from_files(estimate: str | os.PathLike, reference: str | os.PathLi
         raise InputError(nav_path, "no GPS fix inside the reference's time range")
     T_ri = interpolate_poses(t_ref, T_ref, t_n[inside])
     st = column_stats(t_n[inside], T_ri, t_n[inside], T_n[inside], 1e-9, remove_yaw_offset=not known)
-    st["gaps"] = int((~inside).sum())
-    tab.columns["GPS/AHRS"] = st
+    tab.columns["GPS/AHRS"] = dataclasses.replace(st, gaps=int((~inside).sum()))
     tab.columns[Path(estimate).stem] = column_stats(t_ref, T_ref, *read_tum(estimate), t_max_diff)
     return tab

@@ -25,9 +25,9 @@ from pathlib import Path
 
 import numpy as np
 
-from mst.eval.bench import mst_cmd, timed_command
+from mst.eval.bench.harness import mst_cmd, timed_command
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 SAMPLE = ROOT / "samples" / "building_tin.obj"
 
 

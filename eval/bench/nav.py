@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mst.eval.bench import mst_cmd, timed_command
+from mst.eval.bench.harness import mst_cmd, timed_command
 
 
 def _flight(duration_s: float, fps: float):
@@ -28,7 +28,8 @@ def _flight(duration_s: float, fps: float):
 
 
 def run(workdir: Path) -> list[dict]:
-    from mst.core.poses import so3_exp, write_tum
+    from mst.core.poses import so3_exp
+    from mst.core.trajectory import write_tum
     from mst.pipeline.navlog import NavSimConfig, simulate_nav, write_sim_outputs
 
     workdir.mkdir(parents=True, exist_ok=True)

@@ -1,8 +1,8 @@
-"""Render-based edges ("dynamic edgelets") for :class:`mst.pipeline.tracker.EdgeTracker`: any triangle mesh is a model.
+"""Render-based edges ("dynamic edgelets") for :class:`mst.pipeline.tracking.EdgeTracker`: any triangle mesh is a model.
 
 :class:`RenderEdgeProvider` replaces the polygon-edge samples of the tracker
-(``EdgeTracker.sample_provider``): for a pose it returns a :class:`mst.pipeline.visibility.Samples`
-built from the edgelets of a render (:func:`mst.pipeline.edgelets.extract_edgelets`): each edgelet is
+(``EdgeTracker.sample_provider``): for a pose it returns a :class:`mst.pipeline.tracking.visibility.Samples`
+built from the edgelets of a render (:func:`mst.pipeline.tracking.edgelets.extract_edgelets`): each edgelet is
 its own short model "edge" ``X +- h t`` (h = 2 % of its depth), so the moving-edge search along the
 2D normal and the robust VVS (point-to-line distance, Tukey IRLS) run unchanged; hidden-line
 removal, near-plane clipping and face visibility come from the render.
@@ -31,6 +31,7 @@ triangle meshes with many faces (> ``MANY_FACES``) or curved parts.
 
 from __future__ import annotations
 
+import logging
 import math
 import time
 from pathlib import Path
@@ -38,6 +39,9 @@ from pathlib import Path
 import numpy as np
 
 from mst import InputError
+from mst.errors import ConfigError
+
+log = logging.getLogger(__name__)
 
 #: a triangle-only model with more faces than this is tracked with render-based edges under --edges auto
 MANY_FACES = 1000
@@ -99,11 +103,11 @@ def curved_fraction(V: np.ndarray, F: np.ndarray, flat_deg: float = 1.0, crease_
 
 
 def choose_edges(model, model_path, mode: str) -> str:
-    """``'polygon'`` or ``'render'`` for ``--edges mode`` (auto|polygon|render); see the module doc."""
+    """``'polygon'`` or ``'render'`` for the edge source ``mode`` (auto|polygon|render); see the module doc."""
     if mode in ("polygon", "render"):
         return mode
     if mode != "auto":
-        raise InputError(None, f"unknown --edges mode {mode!r} (auto, polygon, render)")
+        raise ConfigError("edge_source", f"must be one of auto, polygon, render, got {mode!r}")
     if Path(model_path).suffix.lower() in POLYGON_SUFFIXES:
         return "polygon"
     faces = model.faces
@@ -119,7 +123,7 @@ class RenderEdgeProvider:
     """Edge samples from renders of a triangle mesh (see the module doc).
 
     ``V`` (N,3) m, ``F`` (M,3) model frame; ``camera`` the full-resolution camera (K, width, height).
-    ``samples(T_cam_model, K, W, H)`` -> :class:`mst.pipeline.visibility.Samples` for the image of
+    ``samples(T_cam_model, K, W, H)`` -> :class:`mst.pipeline.tracking.visibility.Samples` for the image of
     intrinsics ``K`` (the tracker's pyramid levels pass scaled ones); statistics: ``n_renders``,
     ``render_ms`` (total extraction time).
     """
@@ -174,7 +178,7 @@ class RenderEdgeProvider:
 
     def render(self, T_cam_model: np.ndarray):
         """Extract (and cache) the edgelets at this pose."""
-        from mst.pipeline.edgelets import extract_edgelets
+        from mst.pipeline.tracking.edgelets import extract_edgelets
 
         t0 = time.perf_counter()
         self.cache = extract_edgelets(self.renderer, T_cam_model, self.K, self.W, self.H, scale=self.scale,
@@ -187,8 +191,8 @@ class RenderEdgeProvider:
     # ------------------------------------------------------------------ the tracker's sample source
     def samples(self, T_cam_model: np.ndarray, K: np.ndarray, width: int, height: int):
         """Samples of the (cached or new) edgelets projected with ``K`` at ``T_cam_model`` (image W x H)."""
-        from mst.pipeline.edgelets import project_lines
-        from mst.pipeline.visibility import Samples
+        from mst.pipeline.tracking.edgelets import project_lines
+        from mst.pipeline.tracking.visibility import Samples
 
         T = np.asarray(T_cam_model, np.float64)
         if self.stale(T):
@@ -212,8 +216,7 @@ class RenderEdgeProvider:
         return Samples(uv, nrm, X, np.arange(len(X)), A, B, edge_uv, np.zeros(0, bool))
 
 
-def attach_render_edges(tracker, model, model_path, mode: str, T0: np.ndarray | None = None,
-                        notes: list[str] | None = None) -> str:
+def attach_render_edges(tracker, model, model_path, mode: str, T0: np.ndarray | None = None) -> str:
     """Resolve ``--edges mode``; for ``render`` give ``tracker`` a :class:`RenderEdgeProvider` and two edge
     passes per frame. Returns the mode used. Raises :class:`mst.InputError` for meshes it cannot use."""
     used = choose_edges(model, model_path, mode)
@@ -230,11 +233,10 @@ def attach_render_edges(tracker, model, model_path, mode: str, T0: np.ndarray | 
     cfg = tracker.cfg
     curved = curved_fraction(V, F) > CURVED_SHARE
     # the tracker's near plane: the configured one, else relative to the scene depth at the first pose
-    near_m = tracker.near(T0) if T0 is not None else (cfg.near_clip if cfg.near_clip is not None else 1e-3)
+    near_m = tracker.near(T0) if T0 is not None else (cfg.near_clip_m if cfg.near_clip_m is not None else 1e-3)
     tracker.sample_provider = RenderEdgeProvider(V, F, tracker.cam, crease_deg=40.0, near_m=near_m,
-                                                 border_px=cfg.mask_size // 2 + 1)
-    tracker.cfg = cfg.updated(passes=max(cfg.passes, 2))  # the second pass samples the contour near the frame's pose
-    if notes is not None:
-        notes.append(f"render-based edges ({len(F)} triangles, {'curved' if curved else 'polyhedral'}): edgelets "
-                     f"from CPU renders at 1/{round(1 / tracker.sample_provider.scale)} resolution")
+                                                 border_px=cfg.mask_px // 2 + 1)
+    tracker.cfg = cfg.replace(passes=max(cfg.passes, 2))  # the second pass samples the contour near the frame's pose
+    log.info(f"render-based edges ({len(F)} triangles, {'curved' if curved else 'polyhedral'}): edgelets "
+             f"from CPU renders at 1/{round(1 / tracker.sample_provider.scale)} resolution")
     return used

@@ -26,14 +26,14 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 SAMPLE_MODEL = ROOT / "samples" / "building_tin.obj"
 
 
 # ---------------------------------------------------------------------------- evaluation helpers
 def model_centre(seq: Path) -> np.ndarray:
     """Centre (metres, model frame) of the bounding box of ``seq/model.obj``."""
-    from mst.meshtools.io import load_triangles
+    from mst.meshtools.formats import load_triangles
 
     V, _ = load_triangles(seq / "model.obj")
     return 0.5 * (V.min(0) + V.max(0))
@@ -51,7 +51,8 @@ def trajectory_errors(seq: Path, traj: Path) -> dict:
     Returns ``status`` (N,) str, ``rel`` (N,) position error / camera-model distance (NaN where lost),
     ``deg`` (N,) rotation error in degrees, ``ms`` (N,) per-frame time of the tracking loop.
     """
-    from mst.core.poses import pose_error, read_tum
+    from mst.core.poses import pose_error
+    from mst.core.trajectory import read_tum
 
     _, T_gt = read_tum(seq / "gt.txt")
     with open(Path(traj).with_suffix(".csv")) as f:
@@ -108,7 +109,7 @@ def _synth(work: Path, name: str, scenario: str, **kw) -> Path:
 
 
 def _track(seq: Path, mode: str, out: Path, frames: Path | None = None, depth: Path | None = None) -> dict:
-    from mst.eval.bench import mst_cmd, timed_command
+    from mst.eval.bench.harness import mst_cmd, timed_command
 
     args = [frames or seq / "rgb", "--model", seq / "model.obj", "--camera", seq / "camera.json",
             "--init", seq / "cMo" / "000000.txt", "-o", out, "--slam", mode, "--fps", "30", "-q"]
@@ -182,7 +183,8 @@ def run(workdir: Path) -> list[dict]:
 
 def trajectory_errors_long(seq: Path, traj: Path, n: int) -> dict:
     """:func:`trajectory_errors` for a ping-pong frame list of ``seq`` (frame k shows frame order[k])."""
-    from mst.core.poses import pose_error, read_tum
+    from mst.core.poses import pose_error
+    from mst.core.trajectory import read_tum
 
     _, T_gt = read_tum(seq / "gt.txt")
     m = len(T_gt)
@@ -201,7 +203,7 @@ def trajectory_errors_long(seq: Path, traj: Path, n: int) -> dict:
     return {"status": status, "rel": rel, "ms": ms}
 
 
-if __name__ == "__main__":  # python -m mst.eval.bench_slam [workdir]
+if __name__ == "__main__":  # python -m mst.eval.bench.slam [workdir]
     import json
     import sys
     import tempfile

@@ -17,7 +17,7 @@ from mst import InputError
 
 
 def draw_overlay(bgr: np.ndarray, fr, status: str) -> np.ndarray:
-    """Draw a :class:`mst.pipeline.tracker.FrameResult` ``fr`` (pixels) on a copy of ``bgr``."""
+    """Draw a :class:`mst.pipeline.tracking.FrameResult` ``fr`` (pixels) on a copy of ``bgr``."""
     import cv2
 
     out = bgr.copy()

@@ -1,0 +1,129 @@
+"""Runners of ``mst nav simulate`` and ``mst nav fuse``: read the files, call the cores
+(:func:`~mst.pipeline.navlog.simulate_nav`, :func:`~mst.pipeline.navfusion.fuse_navigation`),
+write the outputs atomically, return the summary; the pose-covariance side files (``.cov.csv``)."""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+
+from mst import InputError, atomic_outputs
+from mst.pipeline.navfusion import FusionConfig, fuse_navigation
+from mst.pipeline.navlog import NavSimConfig
+
+COV_COLS = [f"c{i}{j}" for i in range(6) for j in range(6)]
+
+
+def cov_path_for(traj_path: str | os.PathLike) -> Path:
+    """``traj.txt`` -> ``traj.cov.csv``."""
+    p = Path(traj_path)
+    return p.with_name(p.stem + ".cov.csv")
+
+
+def format_cov_csv(t: np.ndarray, cov: np.ndarray, source: np.ndarray | None = None) -> str:
+    """CSV text: ``t[,source],c00..c55`` (row-major 6x6, convention in the module docstring)."""
+    out = io.StringIO()
+    out.write("# pose covariance: (x y z [m, model frame], rx ry rz [rad, model-frame perturbation R = exp(r) R_est])\n")
+    out.write(",".join(["t"] + (["source"] if source is not None else []) + COV_COLS) + "\n")
+    flat = cov.reshape(len(t), 36)
+    for i, ti in enumerate(t):
+        out.write(f"{ti:.6f}," + (f"{source[i]}," if source is not None else "") + ",".join(f"{v:.6e}" for v in flat[i]) + "\n")
+    return out.getvalue()
+
+
+def read_cov_csv(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
+    """Read a covariance side file: (t (N,), cov (N, 6, 6)); checks symmetry and positive diagonals."""
+    p = Path(path)
+    if not p.is_file():
+        raise InputError(p, "covariance file does not exist")
+    rows = [r for r in csv.reader(io.StringIO(p.read_text())) if r and not r[0].lstrip().startswith("#")]
+    if len(rows) < 2:
+        raise InputError(p, "covariance file needs a header row and rows")
+    hdr = [h.strip() for h in rows[0]]
+    miss = [c for c in ["t"] + COV_COLS if c not in hdr]
+    if miss:
+        raise InputError(p, f"missing column(s) {', '.join(miss[:4])}{' ...' if len(miss) > 4 else ''}")
+    idx = [hdr.index(c) for c in ["t"] + COV_COLS]
+    try:
+        a = np.array([[float(r[i]) for i in idx] for r in rows[1:]])
+    except (ValueError, IndexError):
+        raise InputError(p, "not a number or a short row") from None
+    if not np.isfinite(a).all():
+        raise InputError(p, "covariance holds NaN or infinite values")
+    C = a[:, 1:].reshape(-1, 6, 6)
+    if np.abs(C - np.swapaxes(C, 1, 2)).max() > 1e-9 * max(1.0, np.abs(C).max()) or (np.einsum("nii->ni", C) <= 0).any():
+        raise InputError(p, "covariances must be symmetric with positive diagonals")
+    return a[:, 0], C
+
+
+def simulate_nav_files(gt_path, out_path, cfg: NavSimConfig) -> dict:
+    """Read a TUM ground truth, simulate, write ``out_path`` and ``<stem>.truth.json`` atomically."""
+    from mst.core.trajectory import read_tum
+    from mst.pipeline.navlog import simulate_nav, write_sim_outputs
+
+    t, T = read_tum(gt_path)
+    res = simulate_nav(t, T, cfg)
+    out = Path(out_path)
+    truth = out.with_name(out.stem + ".truth.json")
+    with atomic_outputs(out, truth) as (tmp, tmp_truth):
+        write_sim_outputs(res, tmp, tmp_truth)
+    return {"nav": str(out), "truth": str(truth), **res.to_json()}
+
+
+def _vision_covariances(traj_path, t_v: np.ndarray, cov_path, cfg: FusionConfig) -> np.ndarray:
+    """The vision poses' covariances: the side file (given, or ``<stem>.cov.csv`` when present), else
+    ``cfg.vision_sigma_*`` (x9 for the SLAM frames of ``mst track``'s per-frame CSV beside it)."""
+    cp = Path(cov_path) if cov_path else cov_path_for(traj_path)
+    if cov_path or cp.is_file():
+        t_c, C = read_cov_csv(cp)
+        m = {round(x, 6): i for i, x in enumerate(t_c)}
+        idx = [m.get(round(x, 6)) for x in t_v]
+        if any(i is None for i in idx):
+            raise InputError(cp, f"{sum(i is None for i in idx)} trajectory poses have no covariance row (times differ)")
+        return C[idx]
+    s2 = np.array([cfg.vision_sigma_m**2] * 3 + [np.radians(cfg.vision_sigma_deg) ** 2] * 3)
+    cov = np.tile(np.diag(s2), (len(t_v), 1, 1))
+    status_csv = Path(traj_path).with_suffix(".csv")
+    if status_csv.is_file():  # mst track's per-frame status: SLAM-only frames are less certain
+        with open(status_csv, newline="") as f:
+            try:
+                st = {round(float(r["time"]), 6): r.get("status") for r in csv.DictReader(f) if r.get("time")}
+            except (ValueError, KeyError):
+                st = {}  # not mst track's per-frame CSV: no statuses
+        slam = np.array([st.get(round(x, 6)) == "slam" for x in t_v])
+        cov[slam] *= 9.0
+    return cov
+
+
+def fuse_nav_files(traj_path: str | os.PathLike, nav_path: str | os.PathLike, out: str | os.PathLike,
+                   cfg: FusionConfig, *, cov_path=None, offset=None, mount_path=None, m2w_path=None,
+                   write_json: bool = False) -> tuple[dict, object]:
+    """Fuse the trajectory file with the log; write ``out`` (TUM), ``<stem>.cov.csv`` and, with
+    ``write_json``, ``<stem>.json`` (the summary) atomically. Returns ``(summary, FusionResult)``."""
+    from mst.core.poses import read_rigid_transform
+    from mst.core.trajectory import format_tum, read_tum
+    from mst.pipeline.navlog import read_mount_rotation, read_navlog
+
+    t_v, T_v = read_tum(traj_path)
+    nav = read_navlog(nav_path, offset=offset)
+    cov = _vision_covariances(traj_path, t_v, cov_path, cfg)
+    res = fuse_navigation(t_v, T_v, cov, nav, cfg, nav_name=nav_path,
+                          R_body_cam=read_mount_rotation(mount_path) if mount_path else None,
+                          T_world_model=read_rigid_transform(m2w_path, "model-to-world file") if m2w_path else None)
+    out = Path(out)
+    cov_out = cov_path_for(out)
+    json_out = out.with_suffix(".json") if write_json else None
+    summary = {"traj": str(out), "cov": str(cov_out), "vision": str(traj_path), "nav": str(nav_path), **res.to_json(),
+               "config": cfg.to_dict()}
+    with atomic_outputs(out, cov_out, json_out) as (tmp, tmp_cov, tmp_json):
+        tmp.write_text(f"# mst nav fuse ({cfg.mode}): TUM camera pose in the model frame, every frame; covariance in {cov_out.name}\n"
+                       + format_tum(res.t, res.T_model_cam))
+        tmp_cov.write_text(format_cov_csv(res.t, res.cov, np.where(res.has_vision, "vision", "nav")))
+        if tmp_json is not None:
+            tmp_json.write_text(json.dumps(summary, indent=2) + "\n")
+    return summary, res

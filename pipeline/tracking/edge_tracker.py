@@ -1,0 +1,440 @@
+"""One frame of ViSP-style model-based edge tracking (``vpMbEdgeTracker``): :class:`EdgeTracker`.
+
+Per frame: project the model with the start pose, keep visible edges
+(:mod:`mst.pipeline.tracking.visibility`), search moving edges along their normals
+(:mod:`mst.pipeline.tracking.moving_edges`), then robust VVS (:mod:`mst.pipeline.tracking.vvs`);
+optional KLT points inside visible faces (:func:`mst.core.klt.track_forward_backward`) join the
+same optimisation. Absolute health tests (mean angle between the image gradient and the model
+edge normal at the samples, ViSP's projection error; inlier ratio; sample count) and the image
+evidence of the final pose (:mod:`mst.pipeline.tracking.health`) go back in a
+:class:`FrameResult`. Sequence-level decisions (re-acquisition, the SLAM aid) are the session's
+(:mod:`mst.pipeline.tracking.session`).
+
+Frames: ``T_cam_model`` (ViSP cMo). Pixels, metres. Over 500 lines: one class whose methods share
+the per-frame state (reference image, pose, faces, KLT points); the numeric kernels it calls live in
+their own modules.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from mst.errors import SolveStatus
+from mst.pipeline.tracking.config import TrackConfig, lod_thresholds, scene_near_m
+from mst.pipeline.tracking.health import ORIENT_TOL_DEG, PoseEvidence, image_noise_sigma, sobel_at
+
+
+@dataclass
+class FrameResult:
+    """Tracking result for one frame (pose ``T_cam_model``; statistics in pixels and degrees)."""
+
+    T_cam_model: np.ndarray | None
+    healthy: bool
+    n_samples: int
+    n_inliers: int
+    residual_px: float
+    proj_error_deg: float
+    W: np.ndarray | None
+    cov: np.ndarray | None
+    uv: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    inlier: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
+    edge_uv: np.ndarray = field(default_factory=lambda: np.zeros((0, 2, 2)))
+    klt_uv: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    reason: str = ""
+    support: float = 0.0
+    evidence: PoseEvidence | None = None  #: the image evidence at the final pose
+    klt_agree: float | None = None        #: share of the KLT points that are robust inliers
+    n_klt: int = 0
+    score: float = float("nan")           #: calibrated health score (HealthMonitor), 1 typical, <= 0 rejected
+    features: dict | None = None          #: the health monitor's signal values of this frame
+
+
+def _surface_points(model, n_points: int = 400, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Fixed random points on the model's faces (area-uniform): (M,3) model frame m, (M,) face index."""
+    try:
+        V, F, fid = model.triangulate(return_index=True)
+    except (AttributeError, ValueError, TypeError):
+        return np.zeros((0, 3)), np.zeros(0, np.int64)
+    V, F, fid = np.asarray(V, float), np.asarray(F, np.int64).reshape(-1, 3), np.asarray(fid, np.int64)
+    if not len(F):
+        return np.zeros((0, 3)), np.zeros(0, np.int64)
+    A = 0.5 * np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1)
+    if A.sum() <= 0:
+        return np.zeros((0, 3)), np.zeros(0, np.int64)
+    rng = np.random.default_rng(seed)
+    t = rng.choice(len(F), n_points, p=A / A.sum())
+    r1, r2 = rng.random(n_points), rng.random(n_points)
+    flip = r1 + r2 > 1
+    r1, r2 = np.where(flip, 1 - r1, r1), np.where(flip, 1 - r2, r2)
+    X = V[F[t, 0]] + r1[:, None] * (V[F[t, 1]] - V[F[t, 0]]) + r2[:, None] * (V[F[t, 2]] - V[F[t, 0]])
+    return X, fid[t]
+
+
+class EdgeTracker:
+    """ViSP-style edge (+ optional KLT) tracker for one model and camera.
+
+    ``track(gray, T_cam_model_init)`` refines the pose on a new 8-bit gray frame; the previous
+    frame and pose (kept internally) give each sample's reference contrast and polarity.
+    """
+
+    def __init__(self, model, camera, config: TrackConfig | None = None):
+        from mst.pipeline.tracking.visibility import ModelGeometry
+
+        config = config or TrackConfig()
+        cfg = config.edges
+        self.geom = ModelGeometry.from_model(model)
+        self.cam = camera
+        self.K = camera.K
+        self.cfg = cfg  #: the edges section (moving edges, faces, LOD, VVS, health)
+        self.klt_cfg = config.klt
+        self.use_klt = bool(config.use_klt)
+        self.prev_img: np.ndarray | None = None
+        self.prev_T: np.ndarray | None = None
+        self.prev_faces: np.ndarray | None = None
+        self.klt_pts: np.ndarray | None = None  # (M,2) px in prev frame
+        self.klt_X: np.ndarray | None = None  # (M,3) model frame
+        self.prev_gray: np.ndarray | None = None
+        self._klt_next: tuple[np.ndarray, np.ndarray] | None = None  # the last fit's KLT inliers (model points, px)
+        self._klt_age = 0  # frames since the KLT corners were detected
+        self._klt_n0 = 0  # corners at the last detection
+        self.klt_gate: tuple[np.ndarray, float] | None = None  #: texture gate of the last detection (g_min, noise sigma)
+        self._fail = ""  # why the last edge pass found no pose
+        self.near_m: float | None = cfg.near_clip_m  # None: set from the scene depth at the first pose
+        self.lod = lod_thresholds(cfg)
+        self.health_score = config.health_score  #: compute the image evidence of each final pose (HealthMonitor)
+        self.surf_X, self.surf_face = _surface_points(model)  # (M,3) model frame, (M,) face index
+        self.sample_provider = None  # render-based edgelets (mst.pipeline.tracking.render_edges) instead of polygon edges
+
+    # -------------------------------------------------------------- helpers
+    def near(self, T_cam_model: np.ndarray) -> float:
+        """Near clipping distance (m): the configured one, else :func:`scene_near_m` at the first
+        pose seen (fixed from then on)."""
+        if self.near_m is None:
+            self.near_m = scene_near_m(self.geom.vertices, T_cam_model)
+        return self.near_m
+
+    def _samples(self, T, K, W, H):
+        from mst.pipeline.tracking.visibility import visible_samples
+
+        if self.sample_provider is not None:
+            return self.sample_provider.samples(T, K, W, H)
+        c = self.cfg
+        lod_line, lod_face = self.lod
+        s = K[0, 0] / self.K[0, 0]  # coarse pyramid levels: the thresholds scale with the image
+        return visible_samples(self.geom, T, K, W, H, c.sample_step_px, self.near(T), c.far_clip_m, c.angle_appear_deg,
+                               c.angle_disappear_deg, self.prev_faces, border_px=c.mask_px // 2 + 1,
+                               hidden_lines=c.hidden_lines, zbuffer_scale=c.zbuffer_scale, max_samples=c.max_samples,
+                               lod_min_line_px=lod_line * s, lod_min_face_px2=lod_face * s * s)
+
+    def explain(self, S) -> str:
+        """Why the samples ``S`` of a pose are too few (see :func:`visibility.explain_no_samples`)."""
+        from mst.pipeline.tracking.visibility import explain_no_samples
+
+        return explain_no_samples(S.stats, self.near_m or 0.0, self.cfg.far_clip_m, self.lod)
+
+    def _edge_pass(self, img, K, T, search_range, ref_img, ref_T, klt=None, min_mad_px=None):
+        from mst.pipeline.tracking.moving_edges import canonical_normals, reference_contrast, search_edges
+        from mst.pipeline.tracking.vvs import solve_pose
+
+        c = self.cfg
+        H, W = img.shape
+        S = self._samples(T, K, W, H)
+        if len(S) < 6:
+            self._fail = self.explain(S)
+            return None, S, None, None
+        normal, midx = canonical_normals(S.normal, c.n_masks)
+        ref = None
+        if ref_img is not None:
+            Xc = S.X_model @ ref_T[:3, :3].T + ref_T[:3, 3]
+            z = np.maximum(Xc[:, 2], 1e-9)
+            uvp = np.stack([K[0, 0] * Xc[:, 0] / z + K[0, 2], K[1, 1] * Xc[:, 1] / z + K[1, 2]], 1)
+            ref = reference_contrast(ref_img, uvp, normal, midx, c.mask_px, c.n_masks)
+        m = search_edges(img, S.uv, normal, ref, search_range=int(search_range), threshold=c.edge_threshold,
+                         mu1=c.mu1, mu2=c.mu2, size=c.mask_px, n_masks=c.n_masks, n_candidates=c.n_candidates,
+                         mask_idx=midx, edge=S.edge)
+        cand = m.candidates_uv(S.uv)
+        kx, ku = (None, None) if klt is None else klt
+        res = solve_pose(T, K, S.X_model, S.edge, S.A_model, S.B_model, cand, iters=c.vvs_iters, lm_mu=c.lm_mu,
+                         min_mad_px=c.min_mad_px if min_mad_px is None else min_mad_px, tukey_c=c.tukey_c, klt_X_model=kx,
+                         klt_uv=ku, klt_weight=c.klt_weight)
+        if res.status is SolveStatus.TOO_FEW:
+            n_m = int(np.isfinite(cand[..., 0]).any(axis=1).sum())
+            self._fail = (f"pose solver failed: only {n_m} of {len(S)} edge samples found a moving edge within "
+                          f"{int(search_range)} px (need 6; no image edge near the projected model)")
+            return None, S, m, None
+        if (min_mad_px is None and c.fine_mad_px < c.min_mad_px and res.sigma_px <= c.min_mad_px
+                and np.isfinite(res.T_cam_model).all()):
+            # the floor binds (the fit's own robust scale is below it): a fine stage from the
+            # converged pose, same matches, a tighter floor. The coarse floor must admit the whole
+            # inter-frame motion at the start (with the fine one from the start a translating
+            # camera's samples were all rejected and it stood still). Real video (MAD above the
+            # floor) skips it
+            fine = solve_pose(res.T_cam_model, K, S.X_model, S.edge, S.A_model, S.B_model, cand, iters=c.vvs_iters,
+                              lm_mu=c.lm_mu, min_mad_px=c.fine_mad_px, tukey_c=c.tukey_c, klt_X_model=kx,
+                              klt_uv=ku, klt_weight=c.klt_weight)
+            if fine.has_pose:
+                res = fine
+        if not res.has_pose:
+            self._fail = "pose solver failed: the optimisation diverged (non-finite pose)"
+            return None, S, m, None
+        return res, S, m, cand
+
+    # -------------------------------------------------------------- KLT (ViSP hybrid tracker)
+    def _klt_points(self, gray, T):
+        """Detect KLT corners inside visible faces; their model points from the face plane."""
+        import cv2
+
+        kc = self.klt_cfg
+        H, W = gray.shape
+        fv = self.prev_faces if self.prev_faces is not None else np.ones(len(self.geom.faces), bool)
+        from mst.pipeline.tracking.visibility import inverse_depth_buffer
+
+        best, _ = inverse_depth_buffer(self.geom, T, self.K, W, H, fv, self.near(T), 1.0)  # 1/z of the front surface
+        mask = (best > 0).astype(np.uint8) * 255
+        mask = cv2.erode(mask, np.ones((2 * kc.border_px + 1,) * 2, np.uint8))
+        ys, xs = np.nonzero(mask[::8, ::8])
+        if not len(xs):
+            return None, None
+        x0, x1 = max(0, xs.min() * 8 - 8), min(W, xs.max() * 8 + 9)
+        y0, y1 = max(0, ys.min() * 8 - 8), min(H, ys.max() * 8 + 9)
+        pts = cv2.goodFeaturesToTrack(gray[y0:y1, x0:x1], kc.max_features, kc.quality, kc.min_distance_px,
+                                      mask=np.ascontiguousarray(mask[y0:y1, x0:x1]), blockSize=kc.block_px,
+                                      useHarrisDetector=False, k=kc.harris_k)
+        if pts is None:
+            return None, None
+        pts = pts.reshape(-1, 2)
+        # texture gate: goodFeaturesToTrack's quality is relative to the strongest corner, so on a
+        # textureless face it returns noise. Keep a corner only when the weakest-direction RMS
+        # gradient over the KLT window clearly exceeds what the image noise alone gives there
+        # (Sobel derivative of noise sigma: std 0.43 sigma per axis; 3x that)
+        roi = gray[y0:y1, x0:x1]
+        win = kc.window_px
+        lam = cv2.cornerMinEigenVal(roi, win, 3)  # = 4 lambda_g / 255^2 (OpenCV's 8-bit scaling)
+        ij = np.clip(np.rint(pts).astype(int), 0, [roi.shape[1] - 1, roi.shape[0] - 1])
+        g_min = 127.5 * np.sqrt(np.maximum(lam[ij[:, 1], ij[:, 0]], 0))  # gray levels / px
+        sigma = image_noise_sigma(roi)
+        self.klt_gate = (g_min, sigma)
+        pts = pts[g_min >= 3.0 * 0.43 * sigma]
+        if not len(pts):
+            return None, None
+        pts = pts + [x0, y0]
+        pts = pts.astype(np.float64)
+        ix, iy = np.rint(pts[:, 0]).astype(int), np.rint(pts[:, 1]).astype(int)
+        iz = best[iy, ix].astype(np.float64)
+        ok = iz > 0
+        pts, iz = pts[ok], iz[ok]
+        xn = (pts - self.K[:2, 2]) / np.array([self.K[0, 0], self.K[1, 1]])
+        Xc = np.column_stack([xn, np.ones(len(xn))]) / iz[:, None]
+        X_model = (Xc - T[:3, 3]) @ T[:3, :3]
+        return pts, X_model
+
+    def _klt_track(self, gray):
+        from mst.core.klt import track_forward_backward
+
+        if self.klt_pts is None or len(self.klt_pts) < 4 or self.prev_gray is None:
+            return None
+        # forward-backward check: drops unstable tracks (noise, occlusion boundaries)
+        p1, ok, _ = track_forward_backward(self.prev_gray, gray, self.klt_pts, self.klt_cfg)
+        if ok.sum() < 4:
+            return None
+        return self.klt_X[ok], p1[ok].astype(np.float64)
+
+    def discard_klt_matches(self) -> None:
+        """Forget the KLT inliers of the last :meth:`track` call (its fit was not the one kept)."""
+        self._klt_next = None
+
+    # -------------------------------------------------------------- image evidence of a pose
+    def evidence(self, gray: np.ndarray, T_cam_model: np.ndarray, S=None) -> PoseEvidence:
+        """What ``gray`` (H, W) uint8 says about the pose ``T_cam_model``, without moving it.
+
+        At the visible samples of the pose: the Sobel gradient at -1, 0, +1 px along the projected
+        model normal (the strongest kept: its polarity, and whether it is at least the moving-edge
+        contrast and within ``ORIENT_TOL_DEG`` of the normal), and the nearest moving edge within the
+        search range (ViSP's oriented masks, no contrast reference).
+        """
+        from mst.pipeline.tracking.moving_edges import canonical_normals, search_edges
+
+        c = self.cfg
+        H, W = gray.shape
+        if S is None:
+            S = self._samples(T_cam_model, self.K, W, H)
+        if len(S) == 0 or S.model_edge is None:
+            z = np.zeros(0)
+            return PoseEvidence(z.astype(np.int64), z.astype(np.int8), z.astype(bool), z)
+        Xc = S.X_model @ T_cam_model[:3, :3].T + T_cam_model[:3, 3]
+        z = np.maximum(Xc[:, 2], 1e-9)
+        uv = np.stack([self.K[0, 0] * Xc[:, 0] / z + self.K[0, 2], self.K[1, 1] * Xc[:, 1] / z + self.K[1, 2]], 1)
+        Ae = S.A_model @ T_cam_model[:3, :3].T + T_cam_model[:3, 3]
+        Be = S.B_model @ T_cam_model[:3, :3].T + T_cam_model[:3, 3]
+        f = np.array([self.K[0, 0], self.K[1, 1]])
+        d = (Be[:, :2] / Be[:, 2:3] - Ae[:, :2] / Ae[:, 2:3]) * f
+        d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
+        n = np.stack([-d[:, 1], d[:, 0]], 1)[S.edge]  # fixed by the model edge's direction A -> B
+        g = np.stack([sobel_at(gray, uv + k * n) for k in (-1.0, 0.0, 1.0)])  # (3, N, 2)
+        proj = (g * n[None]).sum(2)
+        j = np.argmax(np.abs(proj), axis=0)
+        ii = np.arange(len(uv))
+        pb, gb = proj[j, ii], g[j, ii]
+        strong = np.abs(pb) >= 2.0 * c.edge_threshold
+        oriented = np.abs(pb) >= np.cos(np.radians(ORIENT_TOL_DEG)) * np.linalg.norm(gb, axis=1)
+        sign = np.where(strong, np.sign(pb), 0).astype(np.int8)
+        # the moving-edge search (the costly part) on every 2nd sample beyond 200: a share and a
+        # median over >= 100 samples, well within their binomial / quantisation floors
+        sel = slice(None, None, 2) if len(uv) > 200 else slice(None)
+        normal, midx = canonical_normals(n[sel], c.n_masks)
+        m = search_edges(gray, uv[sel], normal, None, search_range=int(c.search_range_px), threshold=c.edge_threshold,
+                         mu1=c.mu1, mu2=c.mu2, size=c.mask_px, n_masks=c.n_masks, n_candidates=c.n_candidates,
+                         mask_idx=midx, edge=S.edge[sel])
+        off = np.abs(m.offset)
+        n_me = len(uv[sel])
+        off = np.where(np.isfinite(off), off, np.inf).min(1) if off.ndim == 2 and off.shape[1] else np.full(n_me, np.inf)
+        off = np.where(np.isfinite(off), off, np.nan)
+        ti, tv = self._surface_values(gray, T_cam_model, S.face_visible)
+        return PoseEvidence(S.model_edge[S.edge], sign, oriented & strong, off, ti, tv)
+
+    def _surface_values(self, gray, T, face_visible):
+        """Indices of the surface points seen at pose T (front faces, inside the image, not hidden)
+        and the image's 3x3 mean gray level there."""
+        if not len(self.surf_X) or face_visible is None:
+            return np.zeros(0, np.int64), np.zeros(0)
+        H, W = gray.shape
+        idx = np.flatnonzero(face_visible[self.surf_face])
+        Xc = self.surf_X[idx] @ T[:3, :3].T + T[:3, 3]
+        ok = Xc[:, 2] > self.near(T)
+        idx, Xc = idx[ok], Xc[ok]
+        uv = Xc[:, :2] / Xc[:, 2:3] * [self.K[0, 0], self.K[1, 1]] + self.K[:2, 2]
+        ix, iy = np.rint(uv[:, 0]).astype(np.int64), np.rint(uv[:, 1]).astype(np.int64)
+        ok = (ix >= 1) & (iy >= 1) & (ix < W - 1) & (iy < H - 1)
+        idx, ix, iy, iz = idx[ok], ix[ok], iy[ok], 1.0 / Xc[ok, 2]
+        if not self.geom.convex and len(idx):
+            from mst.pipeline.tracking.visibility import inverse_depth_buffer
+
+            buf, sc = inverse_depth_buffer(self.geom, T, self.K, W, H, face_visible, self.near(T), 0.5)
+            bx = np.clip(np.round((ix + 0.5) * sc - 0.5).astype(np.int64), 0, buf.shape[1] - 1)
+            by = np.clip(np.round((iy + 0.5) * sc - 0.5).astype(np.int64), 0, buf.shape[0] - 1)
+            vis = iz >= buf[by, bx] * (1.0 - 1e-2)
+            idx, ix, iy = idx[vis], ix[vis], iy[vis]
+        f = gray.ravel().astype(np.float32)
+        b = iy * W + ix
+        val = sum(f[b + dy * W + dx] for dy in (-1, 0, 1) for dx in (-1, 0, 1)) / 9.0
+        return idx, val.astype(np.float64)
+
+    # -------------------------------------------------------------- main entry
+    def track(self, gray: np.ndarray, T_init: np.ndarray, recover: bool = False, first: bool = False) -> FrameResult:
+        """Refine ``T_init`` (T_cam_model) on ``gray`` (H, W) uint8; update the internal reference."""
+        import cv2
+
+        c = self.cfg
+        img = gray  # uint8: the moving-edge gathers convert only the pixels they read
+        H, W = img.shape
+        T = T_init.copy()
+        ref_img = None if (first or recover or self.prev_img is None) else self.prev_img
+        ref_T = self.prev_T
+        R = c.search_range_px * (c.recover_range_factor if recover else 1.0)
+        klt = self._klt_track(gray) if self.use_klt and not (first or recover) else None
+        # coarse-to-fine: a half-resolution pass first (always after a loss)
+        levels = max(c.pyramid_levels, 2 if recover else 1)
+        for lev in range(levels - 1, 0, -1):
+            s = 0.5**lev
+            small = img
+            for _ in range(lev):
+                small = cv2.pyrDown(small)
+            Ks = self.K.copy()
+            Ks[:2] *= s
+            Ks[0, 2] = (self.K[0, 2] + 0.5) * s - 0.5
+            Ks[1, 2] = (self.K[1, 2] + 0.5) * s - 0.5
+            ref_small = None
+            res, *_ = self._edge_pass(small, Ks, T, R, ref_small, ref_T, min_mad_px=max(c.min_mad_px, R / 3.0))
+            if res is not None and np.isfinite(res.T_cam_model).all():
+                T = res.T_cam_model
+        # first frame / after a loss: several passes, tolerant (wide robust scale) first, then tighter
+        passes = 3 if (first or recover) else c.passes
+        res = S = S_p = None
+        self._fail = "too few visible edge samples"
+        for ps in range(passes):
+            rng = R if ps == 0 else max(3, int(round(R / 2 ** ps)))
+            mad = max(c.min_mad_px, rng / 3.0) if (first or recover) and ps < passes - 1 else None
+            if (first or recover) and ps > 0:
+                ref_img, ref_T = img, T  # later passes: contrast/polarity reference from this frame at the refined pose
+            res_p, S_p, _, _ = self._edge_pass(img, self.K, T, rng, ref_img, ref_T, klt if ps == passes - 1 else None,
+                                               min_mad_px=mad)
+            if res_p is None:
+                break
+            res, S = res_p, S_p
+            T = res.T_cam_model
+        if res is None:
+            return FrameResult(None, False, 0 if S_p is None else len(S_p), 0, float("nan"), 90.0, None, None,
+                               reason=self._fail)
+        healthy, reason, uv, support, proj_err = self._absolute_health(img, S, T, res, recover)
+        n_s, n_in = len(S), int(res.inlier.sum())
+        if klt is not None and res.klt_inlier is not None:
+            self._klt_next = (klt[0][res.klt_inlier], klt[1][res.klt_inlier])
+        out = FrameResult(T, healthy, n_s, n_in, res.rms_px, proj_err, res.W, res.cov, uv, res.inlier,
+                          S.edge_uv[np.unique(S.edge)], np.zeros((0, 2)) if klt is None else klt[1], reason, support)
+        if self.health_score:
+            out.evidence = self.evidence(img, T, S)  # the last pass's samples, re-projected at T
+        if klt is not None and res.klt_inlier is not None:
+            out.klt_agree, out.n_klt = float(np.mean(res.klt_inlier)), int(len(res.klt_inlier))
+        return out
+
+    def _absolute_health(self, img, S, T, res, recover: bool):
+        """The absolute health tests of a solved pose: projection error (gradient vs model normal)
+        at the final pose, gradient support, inlier ratio, sample count, model in front. Returns
+        ``(healthy, reason, uv (N, 2) the samples at T, support, projection error deg)``."""
+        c = self.cfg
+        Xc = S.X_model @ T[:3, :3].T + T[:3, 3]
+        ok_z = Xc[:, 2] > self.near(T) * 0.5
+        z = np.where(ok_z, Xc[:, 2], 1.0)
+        uv = np.stack([self.K[0, 0] * Xc[:, 0] / z + self.K[0, 2], self.K[1, 1] * Xc[:, 1] / z + self.K[1, 2]], 1)
+        Ae = S.A_model @ T[:3, :3].T + T[:3, 3]
+        Be = S.B_model @ T[:3, :3].T + T[:3, 3]
+        pa = Ae[:, :2] / Ae[:, 2:3] * [self.K[0, 0], self.K[1, 1]] + self.K[:2, 2]
+        pb = Be[:, :2] / Be[:, 2:3] * [self.K[0, 0], self.K[1, 1]] + self.K[:2, 2]
+        d = pb - pa
+        d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
+        n = np.stack([-d[:, 1], d[:, 0]], 1)[S.edge]
+        g = sobel_at(img, uv)
+        gn = np.linalg.norm(g, axis=1)
+        cosang = np.abs((g * n).sum(1)) / np.maximum(gn, 1e-9)
+        ang = np.degrees(np.arccos(np.clip(cosang, 0, 1)))
+        strong = gn >= 2.0 * c.edge_threshold  # Sobel of a step of `threshold` gray levels is 4x it
+        support = float(strong.mean()) if len(strong) else 0.0
+        proj_err = float(ang[strong].mean()) if strong.sum() >= 3 else 90.0
+        n_s = len(S)
+        n_in = int(res.inlier.sum())
+        ratio = n_in / max(n_s, 1)
+        # a recovery (after a loss) must be convincing: stricter projection error and inlier ratio
+        max_pe = c.max_proj_error_deg * (0.6 if recover else 1.0)
+        min_ratio = max(c.min_inlier_ratio, 0.5) if recover else c.min_inlier_ratio
+        healthy = bool(n_s >= c.min_samples and ratio >= min_ratio and proj_err <= max_pe
+                       and support >= c.min_support and np.isfinite(T).all() and ok_z.all())
+        reason = "" if healthy else ("the solved pose puts the model behind the camera" if not ok_z.all()
+                                     else self.explain(S) if n_s < c.min_samples else f"inliers {ratio:.0%}"
+                                     if ratio < min_ratio else f"gradient support {support:.0%}"
+                                     if support < c.min_support else f"projection error {proj_err:.1f} deg")
+        return healthy, reason, uv, support, proj_err
+
+    def accept(self, gray: np.ndarray, T_cam_model: np.ndarray) -> None:
+        """Make ``(gray, T_cam_model)`` the reference for the next frame (a good pose)."""
+        from mst.pipeline.tracking.visibility import face_visibility
+
+        c = self.cfg
+        self.prev_img = gray
+        self.prev_T = T_cam_model.copy()
+        self.prev_faces = face_visibility(self.geom, T_cam_model, self.prev_faces, c.angle_appear_deg, c.angle_disappear_deg)
+        if self.use_klt:
+            nxt = self._klt_next
+            self._klt_next = None
+            self._klt_age += 1
+            enough = nxt is not None and len(nxt[0]) >= max(20, 0.6 * self._klt_n0)
+            # re-detect when too few points survive (at most every 5 frames: textureless scenes) or every 30
+            if nxt is not None and len(nxt[0]) >= 4 and (enough or self._klt_age < 5) and self._klt_age < 30:
+                self.klt_X, self.klt_pts = nxt  # keep tracking the surviving points (ViSP keeps its KLT set)
+            else:
+                pts, X = self._klt_points(gray, T_cam_model)
+                self.klt_pts, self.klt_X = pts, X
+                self._klt_n0 = 0 if pts is None else len(pts)
+                self._klt_age = 0
+            self.prev_gray = gray

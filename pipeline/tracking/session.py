@@ -1,0 +1,300 @@
+"""A tracking session over a sequence: :class:`TrackingSession` ``step(index, time_s, gray) -> FrameRecord``.
+
+The session holds the one-frame tracker (:class:`~mst.pipeline.tracking.edge_tracker.EdgeTracker`),
+the optional SLAM aid (:mod:`mst.pipeline.slam`) and relocaliser, and a :class:`TrackingPolicy`: the
+sequence-level decisions and their state (where a frame starts, re-acquisition after a SLAM-only
+stretch or a loss, the running gradient-support mean, the calibrated health score, when to
+relocalise, what the next frame starts from). The policy is testable on its own: it takes frame
+results and statuses, never touches images.
+
+Frames: ``T_cam_model`` (ViSP cMo). Pixels, milliseconds.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from mst.core.poses import inv_T
+from mst.pipeline.tracking.edge_tracker import EdgeTracker, FrameResult
+from mst.pipeline.tracking.health import HealthMonitor
+
+#: on re-acquisition (the model back after a SLAM-only stretch) an edge pose is healthy only when its
+#: gradient support is at least this fraction of its running mean over the model frames (measured
+#: on the synthetic corridor at 640x480: correct poses 0.90-0.96 against a usual 0.93, poses locked
+#: onto floor/texture edges 0.52-0.66; the real teabox: 0.66-0.73)
+REACQUIRE_SUPPORT_RATIO = 0.8
+
+#: statuses of a frame's output pose
+OUTPUT_STATUSES = ("model", "slam", "relocalised", "lost")
+
+
+@dataclass
+class FrameRecord:
+    """What a session made of one frame.
+
+    ``status``: ``model`` (the edge pose), ``slam`` (the aid's pose), ``relocalised``, ``lost``;
+    ``T_cam_model``: the output pose (None when lost); ``result``: the edge tracker's result that
+    was used (its pose, samples, health); ``aid_state``: ``''`` (no aid), ``standby``, ``on`` or
+    ``static-world-broken``; ``ms``: the frame's tracking time.
+    """
+
+    index: int
+    time_s: float
+    status: str
+    T_cam_model: np.ndarray | None
+    result: FrameResult
+    aid_state: str
+    ms: float
+
+    @property
+    def reason(self) -> str:
+        """Why the edge pose was not used (empty when it was)."""
+        return "" if self.status in ("model", "relocalised") else (self.result.reason or "edge pose not used")
+
+    def csv_row(self) -> list:
+        """The ``traj.csv`` row (see :data:`mst.pipeline.tracking.runner.CSV_HEADER`)."""
+        fr = self.result
+        return [self.index, f"{self.time_s:.6f}", self.status, fr.n_samples, fr.n_inliers,
+                f"{fr.residual_px:.4f}" if np.isfinite(fr.residual_px) else "nan",
+                f"{fr.proj_error_deg:.3f}", f"{self.ms:.3f}",
+                f"{fr.score:.3f}" if np.isfinite(fr.score) else "nan", self.aid_state, self.reason]
+
+    def to_json(self) -> dict:
+        fr = self.result
+        return {"frame": self.index, "time_s": self.time_s, "status": self.status, "samples": fr.n_samples,
+                "inliers": fr.n_inliers, "residual_px": fr.residual_px, "health_deg": fr.proj_error_deg,
+                "score": fr.score, "aid": self.aid_state, "reason": self.reason, "ms": self.ms,
+                "T_cam_model": None if self.T_cam_model is None else self.T_cam_model.tolist()}
+
+
+class TrackingPolicy:
+    """The sequence-level tracking decisions and their state (no images: frame results in, decisions out).
+
+    State: the last output pose ``T_prev`` (and the one before, ``T_prev2``, for the constant-velocity
+    prediction), ``lost_streak`` (frames lost in a row), ``first`` (no frame done yet),
+    ``prev_status``, ``support_ref`` (running mean of the gradient support of model frames),
+    ``T_hint`` (a healthy edge pose the aid refused: where the next frame starts), the health
+    monitor (``monitor``, None without the health score) and its reject count.
+    """
+
+    def __init__(self, T0: np.ndarray, search_range_px: float, constant_velocity: bool = False,
+                 monitor: HealthMonitor | None = None):
+        self.T_prev = T0
+        self.T_prev2: np.ndarray | None = None
+        self.T_hint: np.ndarray | None = None
+        self.lost_streak = 0
+        self.first = True
+        self.first_reason = ""
+        self.prev_status = "model"
+        self.support_ref: float | None = None
+        self.search_range_px = search_range_px
+        self.constant_velocity = constant_velocity
+        self.monitor = monitor
+        self.n_score_rejects = 0
+
+    # -------------------------------------------------------------- before the edge tracker
+    def start_pose(self, T_pred: np.ndarray | None, aided: bool, shift_px) -> np.ndarray:
+        """The pose a frame starts from: the aid's prediction ``T_pred``, else constant velocity (when
+        on), else a hint, else the last pose. ``shift_px(T)``: the image motion (px) from ``T_prev`` to T."""
+        if T_pred is None and self.constant_velocity and self.T_prev2 is not None and self.lost_streak == 0:
+            T_pred = (self.T_prev @ inv_T(self.T_prev2)) @ self.T_prev  # constant velocity (camera-frame motion)
+        T_start = T_pred if T_pred is not None else (self.T_hint if self.T_hint is not None else self.T_prev)
+        self.T_hint = None
+        if (aided and T_pred is not None and self.prev_status == "model" and self.lost_streak == 0
+                and not self.first and shift_px(T_pred) < 0.5 * self.search_range_px):
+            # slow motion: the edges' own last pose is inside the search range already; the
+            # SLAM pose (its map triangulated from earlier edge poses) would only pass its
+            # error on along the edges' weakly observed direction (250 m flyover: 2.5-3.9 m
+            # predictions, the edges followed). The aid predicts where the motion is large
+            T_start = self.T_prev
+        return T_start
+
+    def reacquiring(self, aided: bool) -> bool:
+        """Re-acquisition: the model comes back after a SLAM-only stretch. The SLAM prediction has
+        drifted (mono: ~1 deg = several pixels), the previous image holds no model edges to take
+        contrasts from: a widened coarse-to-fine search too, and the pose must look like a full fit
+        (gradient support near its usual value), since a pose locked onto floor/texture edges
+        passes the absolute tests."""
+        return aided and self.prev_status == "slam" and self.lost_streak == 0 and not self.first
+
+    @property
+    def recover(self) -> bool:
+        """The edge tracker's recovery mode (widened, coarse-to-fine search): after a loss."""
+        return self.lost_streak > 0
+
+    def should_relocalise(self, fr: FrameResult, every: int) -> bool:
+        """Lost and this frame's edge pose unhealthy: a relocalisation attempt every ``every`` frames."""
+        return self.lost_streak > 0 and not fr.healthy and (self.lost_streak - 1) % every == 0
+
+    # -------------------------------------------------------------- judging an edge pose
+    def judge(self, fr: FrameResult, first_frame: bool) -> FrameResult:
+        """The calibrated health score on top of the tracker's absolute tests (``fr`` updated)."""
+        if self.monitor is None or fr.evidence is None:
+            return fr
+        fr.features = self.monitor.features(fr.evidence, fr.klt_agree, fr.n_klt)
+        fr.score, worst = self.monitor.score(fr.features)
+        if fr.healthy and not first_frame and fr.score <= 0:
+            fr.healthy = False
+            fr.reason = f"health score {fr.score:.2f} ({worst})"
+            self.n_score_rejects += 1
+        return fr
+
+    def gate_recovery(self, fr: FrameResult, reacq: bool) -> bool:
+        """Whether the frame's edge pose counts as healthy. After a re-acquisition or a loss (edges
+        only, or the aid lost too), a pose found by the widened search on its first frame back has
+        too little history for the health score (few edges in view: wide binomial floors) and can
+        lock onto texture edges: its gradient support must be near its usual value."""
+        healthy = fr.healthy
+        recovering = reacq or self.lost_streak > 0
+        if healthy and recovering and self.support_ref is not None and fr.support < REACQUIRE_SUPPORT_RATIO * self.support_ref:
+            healthy = False
+            fr.reason = f"gradient support {fr.support:.0%} (usual {self.support_ref:.0%})"
+        return healthy
+
+    # -------------------------------------------------------------- after the output decision
+    def update_support(self, status: str, recovering: bool, support: float) -> None:
+        """The running mean of the gradient support over model frames (not recovering ones)."""
+        if status == "model" and not recovering:
+            self.support_ref = support if self.support_ref is None else 0.9 * self.support_ref + 0.1 * support
+
+    def learn(self, fr: FrameResult, status: str, healthy: bool) -> None:
+        """An accepted model frame teaches the health monitor."""
+        if self.monitor is not None and status in ("model", "relocalised") and healthy and fr.evidence is not None:
+            self.monitor.learn(fr.evidence, fr.features)
+
+    def should_learn_appearance(self, fr: FrameResult, status: str, healthy: bool) -> bool:
+        """A model frame confident enough to teach the relocaliser (the first, or a score >= 0.5)."""
+        return status == "model" and healthy and (self.first or fr.score >= 0.5)
+
+    def accepted(self, T_out: np.ndarray) -> None:
+        """An output pose: the next frame starts from it."""
+        self.T_prev2 = self.T_prev if self.lost_streak == 0 and not self.first else None
+        self.T_prev = T_out
+        self.lost_streak = 0
+
+    def lost(self, fr: FrameResult) -> None:
+        """No output pose; a healthy edge pose the aid refused (it contradicts the map) is not output,
+        but it says where the object is: the next frame starts there."""
+        self.lost_streak += 1
+        if fr.healthy and fr.T_cam_model is not None:
+            self.T_hint = fr.T_cam_model
+
+    def frame_done(self, fr: FrameResult) -> None:
+        if self.first:
+            self.first_reason = fr.reason
+        self.first = False
+
+
+def _shift_px(tracker: EdgeTracker, T_a: np.ndarray, T_b: np.ndarray) -> float:
+    """Largest image displacement (px) between two poses of up to ~200 model vertices in front of
+    both cameras (all of them when fewer)."""
+    V = tracker.geom.vertices
+    V = V[:: max(1, len(V) // 200)]
+    K = tracker.K
+    uv = []
+    for T in (T_a, T_b):
+        Xc = V @ T[:3, :3].T + T[:3, 3]
+        uv.append(Xc)
+    ok = (uv[0][:, 2] > 0) & (uv[1][:, 2] > 0)
+    if not ok.any():
+        return float("inf")
+    p = [X[ok, :2] / X[ok, 2:3] * [K[0, 0], K[1, 1]] for X in uv]
+    return float(np.linalg.norm(p[0] - p[1], axis=1).max())
+
+
+def _standby(aid) -> bool | None:
+    """The default aid's standby flag (None: an always-on aid, which has none)."""
+    return getattr(aid, "standby", None)
+
+
+class TrackingSession:
+    """Tracks a sequence frame by frame: ``step(index, time_s, gray) -> FrameRecord``.
+
+    ``tracker``: the one-frame :class:`EdgeTracker` (its model, camera, edges and KLT settings);
+    ``aid``: a SLAM aid from :func:`mst.pipeline.slam.make_aid` or None; ``reloc``: a
+    :class:`~mst.pipeline.tracking.relocalise.Relocaliser` or None; ``policy``: the
+    :class:`TrackingPolicy` (its state starts at the initial pose).
+    """
+
+    def __init__(self, tracker: EdgeTracker, policy: TrackingPolicy, aid=None, reloc=None):
+        self.tracker, self.policy, self.aid, self.reloc = tracker, policy, aid, reloc
+
+    def _edge_pose(self, idx: int, gray: np.ndarray, T_start: np.ndarray, reacq: bool) -> tuple[FrameResult, bool]:
+        """The frame's edge pose from ``T_start``, then the rescues: the standby aid's prediction,
+        the widened search on re-acquisition, relocalisation while lost. ``(result, relocalised)``."""
+        tr, p, aid, reloc = self.tracker, self.policy, self.aid, self.reloc
+        fr = p.judge(tr.track(gray, T_start, recover=p.recover, first=p.first), p.first)
+        if aid is not None and _standby(aid) and not p.first and aid.needs_wake(fr.healthy, fr.W):
+            # the default aid wakes on a weak or unhealthy edge pose: its prediction may
+            # rescue this frame (fast motion), else the edge pose goes to its gate as usual
+            T_wake = aid.wake(idx, gray, p.T_prev)
+            if T_wake is not None and not fr.healthy:
+                fr_s = p.judge(tr.track(gray, T_wake, recover=p.recover), False)
+                if fr_s.healthy:
+                    fr = fr_s
+        if reacq:
+            # also the widened search; keep the better fit (healthy, then gradient support)
+            fr_w = p.judge(tr.track(gray, T_start, recover=True), False)
+            if (fr_w.healthy, fr_w.support) > (fr.healthy, fr.support):
+                fr = fr_w
+                tr.discard_klt_matches()  # the KLT inliers were those of the discarded fit
+        relocalised = False
+        if reloc is not None and p.should_relocalise(fr, reloc.cfg.every):
+            # lost: search the learned keypoints, refine with the edges, accept only if healthy
+            T_r = reloc.relocalise(gray)
+            if T_r is not None:
+                fr_r = p.judge(tr.track(gray, T_r, first=True), False)  # no contrast reference, no coarse pass
+                if fr_r.healthy:
+                    fr, relocalised = fr_r, True
+                    tr.discard_klt_matches()
+        return fr, relocalised
+
+    def step(self, idx: int, time_s: float, gray: np.ndarray) -> FrameRecord:
+        """Track one 8-bit gray frame (H, W); the frame's record (its output pose and status)."""
+        t0 = time.perf_counter()
+        tr, p, aid, reloc = self.tracker, self.policy, self.aid, self.reloc
+        T_pred = aid.predict(idx, gray, p.T_prev) if aid is not None else None
+        T_start = p.start_pose(T_pred, aid is not None, lambda T: _shift_px(tr, T, p.T_prev))
+        reacq = p.reacquiring(aid is not None)
+        fr, relocalised = self._edge_pose(idx, gray, T_start, reacq)
+        healthy = p.gate_recovery(fr, reacq)
+        recovering = reacq or p.lost_streak > 0
+        if aid is not None:
+            # an edge pose refused only by the health score still says where the image
+            # puts the object: the aid outputs no map pose that contradicts it
+            weak = (fr.T_cam_model if not healthy and fr.T_cam_model is not None
+                    and (fr.reason or "").startswith("health score") else None)
+            T_out, status = aid.update(idx, gray, fr.T_cam_model, fr.W, healthy, weak_edge_pose=weak)
+        else:
+            T_out, status = (fr.T_cam_model, "model") if healthy else (None, "lost")
+        p.update_support(status, recovering, fr.support)
+        if relocalised and status == "model":
+            status = "relocalised"
+            if aid is not None and _standby(aid) is False:
+                aid.close()  # the default's map belongs to the lost stretch: back to standby
+        p.prev_status = status
+        p.learn(fr, status, healthy)
+        if reloc is not None and p.should_learn_appearance(fr, status, healthy) and reloc.should_learn(idx, fr.T_cam_model):
+            reloc.learn(idx, gray, fr.T_cam_model)
+        if T_out is not None and status != "lost":
+            tr.accept(gray, T_out)
+            p.accepted(T_out)
+        else:
+            p.lost(fr)
+            T_out, status = None, "lost"
+        p.frame_done(fr)
+        ms = (time.perf_counter() - t0) * 1000.0
+        return FrameRecord(idx, time_s, status, T_out, fr, self._aid_state(idx), ms)
+
+    def _aid_state(self, idx: int) -> str:
+        aid = self.aid
+        if aid is None:
+            return ""
+        state = "standby" if _standby(aid) else "on"
+        fired = getattr(aid, "static_world_fired", None)
+        if fired and fired[-1] == idx:
+            state = "static-world-broken"  # the map's world moved against the object here
+        return state
