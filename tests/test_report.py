@@ -25,7 +25,8 @@ def run_dir(tmp_path_factory) -> Path:
     import cv2
 
     from mst.core.camera import Camera, write_camera
-    from mst.core.poses import look_at, write_tum
+    from mst.core.poses import look_at
+    from mst.core.trajectory import write_tum
     from mst.eval.cloud_io import write_cloud
 
     d = tmp_path_factory.mktemp("run")
@@ -104,6 +105,8 @@ def test_batch_folder_report_and_bad_run_dir(run_dir, tmp_path):
                 str(run_dir / "camera.json"), "--init", "p.txt", "-o", "traj.txt", "--fps", "30"]
         entry = {"status": status, "argv": argv, "error": "mst track: error: p.txt: broken" if status == "failed" else None}
         (batch / name / "batch-state.json").write_text(json.dumps({"version": 1, "stages": {"track": entry}}))
+    for f in ("c2m.json", "cloud.ply", "eval.json"):  # the failed run wrote nothing after its track
+        (batch / "b" / f).unlink()
     html, res = _report(batch, tmp_path / "b.html", "--overlay-frames", "2", "--set", "c2m_max_points=0")
     assert res["batch"] is True and res["runs"] == ["a", "b"] and res["sections"] == ["Batch overview", "a", "b"]
     assert "b: mst track: error: p.txt: broken" in html and "mst track " in html

@@ -143,12 +143,14 @@ def trajectory(run: RunFiles) -> bytes | None:
     from mst.eval.traj import TrajConfig, evaluate_trajectories
 
     align = ev.get("align", "se3")
-    s = evaluate_trajectories(est, ref, TrajConfig(align=align, t_max_diff=ev.get("t_max_diff_s", 0.01)))
-    series = s["series"]
-    gaps = [(g["t_start"], g["t_end"]) for g in s["gaps"]["ranges"]]
-    return _via_file(lambda p: trajectory_figure(p, series["t_ref_all"], series["xyz_ref_all"], series["t"],
-                                                 series["xyz_est"], series["dxyz"], series["dyaw"], gaps,
-                                                 title=f"{est.name} vs {ref.name} (align {align})"))
+    recorded = ev.get("config")  # the effective settings of the run (older summaries: align and tolerance)
+    tc = TrajConfig.from_dict(recorded) if recorded else TrajConfig(align=align, t_max_diff_s=ev.get("t_max_diff_s", 0.01))
+    res = evaluate_trajectories(est, ref, tc)
+    series = res.series
+    gaps = [(g["t_start"], g["t_end"]) for g in res.gaps["ranges"]]
+    return _via_file(lambda p: trajectory_figure(p, series.t_ref_all, series.xyz_ref_all, series.t, series.xyz_est,
+                                                 series.dxyz, series.dyaw, gaps,
+                                                 title=f"{est.name} vs {ref.name} (align {tc.align})"))
 
 
 def read_status(path: Path) -> list[dict[str, str]]:
@@ -202,7 +204,8 @@ def overlay_strip(run: RunFiles, rows: list[dict[str, str]], cfg: ReportConfig) 
     import cv2
 
     from mst.core.camera import read_camera
-    from mst.core.poses import inv_T, read_tum, transform_points
+    from mst.core.poses import inv_T, transform_points
+    from mst.core.trajectory import read_tum
     from mst.pipeline.frames import open_frames
 
     if cfg.overlay_frames == 0 or not rows or run.traj is None or not (run.frames and run.model and run.camera):
