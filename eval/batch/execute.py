@@ -44,8 +44,10 @@ def call_mst(argv: tuple[str, ...]) -> tuple[int, str, str | None]:
             code = e.exit_code
         except click.ClickException as e:
             code, error = 1, f"{prog}: error: {e.format_message()}".replace("\n", " ")
-        except (OSError, ValueError, RuntimeError, ArithmeticError, LookupError, TypeError) as e:
-            # a bug or an unforeseen input problem: reported, the other sequences go on
+        except SystemExit as e:
+            code = e.code if isinstance(e.code, int) else (0 if e.code is None else 1)
+        except Exception as e:
+            # a bug or an unforeseen input problem: reported as one line, the other sequences go on
             code, error = 1, f"{prog}: error: {type(e).__name__}: {e}".replace("\n", " ")
     if code != 0 and error is None:
         error = f"{prog}: error: exit code {code}"
