@@ -13,6 +13,7 @@ from pathlib import Path
 
 import pytest
 from conftest import ROOT, run_mst
+from dask_helpers import fast_local_workers
 
 HOUSE = ROOT / "samples" / "building_tin.obj"
 BOX = """v -1 -0.75 0\nv 1 -0.75 0\nv 1 0.75 0\nv -1 0.75 0\nv -1 -0.75 1.2\nv 1 -0.75 1.2\nv 1 0.75 1.2
@@ -55,21 +56,9 @@ def campaign(tmp_path_factory) -> Path:
     return root
 
 
-#: imported once by the fork server that starts the test's local workers (the stages' libraries)
-PRELOAD = ["mst.cli.main", "mst.eval.batch.execute", "cv2", "numba", "scipy.spatial", "matplotlib.pyplot",
-           "mst.pipeline.tracking.runner", "mst.pipeline.fusion", "mst.eval.c2m", "mst.eval.traj", "mst.eval.plots",
-           "mst.meshtools.convert", "mst.pipeline.init_pose", "mst.pipeline.slam"]
-
-
 def _batch(root: Path, *args) -> tuple[int, dict, str]:
-    """``mst batch`` on the campaign; the local workers are forked from a fork server that has imported
-    the stages' libraries once (a clean single-threaded process), so each run pays for the stages,
-    not for two fresh interpreters' imports."""
-    import dask
-    from distributed.utils import get_mp_context
-
-    with dask.config.set({"distributed.worker.multiprocessing-method": "forkserver"}):
-        get_mp_context().set_forkserver_preload(["distributed", *PRELOAD])
+    """``mst batch`` on the campaign (its local workers from the preloaded fork server)."""
+    with fast_local_workers():
         r = run_mst("batch", root / "batch.yaml", "-o", root / "out", "--json", *(args or ("--workers", "2")),
                     check=False)
     return r.returncode, (json.loads(r.stdout) if r.stdout.strip() else {}), r.stderr
