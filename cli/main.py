@@ -27,6 +27,7 @@ COMMANDS: dict[str, str] = {
     "nav": "nav:nav_group",
     "batch": "batch:batch",
     "report": "report:report",
+    "c2m-tiles": "c2m_tiles:c2m_tiles",
 }
 
 

@@ -66,3 +66,19 @@ def test_tiles_on_two_workers_equal_the_single_process_run(tiles):
         assert (r["points_total"], r["points_valid"]) == (single["points_total"], single["points_valid"])
         assert abs(r["unsigned"]["median"] - single["unsigned"]["median"]) <= r["median_bound_m"] + 1e-12
     assert dist["unsigned"] == local["unsigned"]
+
+
+def test_c2m_tiles_command(tiles):
+    import json
+
+    from conftest import run_mst
+
+    d, paths = tiles
+    with fast_local_workers():
+        r = run_mst("c2m-tiles", d / "box.obj", d / "tile*.laz", "--chunk", "1000", "--thresholds", "0.05,0.2,0.5",
+                    "--workers", "1", "--json", "-q")
+    res = json.loads(r.stdout)
+    assert res["files"] == [str(p) for p in paths] and res["points_valid"] == 25_000
+    assert res["config"]["thresholds_m"] == [0.05, 0.2, 0.5] and res["median"] == "histogram"
+    bad = run_mst("c2m-tiles", d / "box.obj", d / "nope.laz", check=False)
+    assert bad.returncode == 1 and "nope.laz: cloud file does not exist" in bad.stderr

@@ -81,7 +81,7 @@ def connect(cfg: BatchConfig):
     return Client(cluster)
 
 
-def _close(client) -> None:
+def close_client(client) -> None:
     cluster = getattr(client, "cluster", None)
     client.close()
     if cluster is not None:
@@ -169,7 +169,7 @@ def run_batch(manifest: Manifest, out: str | Path, cfg: BatchConfig | None = Non
                     on_result(st, res)
     finally:
         if client is not None:
-            _close(client)
+            close_client(client)
     return _summarise(manifest, out, plan, done, cfg, used, time.perf_counter() - t0)
 
 
