@@ -1,6 +1,7 @@
 """Tiled C2M benchmark (``mst c2m-tiles``): a generated cloud in LAZ tiles of 5M points (default 20M
 points; ``MST_BENCH_TILES_POINTS=100000000`` for the issue's 100M) against the 640-triangle building,
-on a LocalCluster of 1 and of 2 workers: wall time, throughput, the largest process's peak RSS, and
+on a LocalCluster of 1 and of 2 workers (one thread each): wall time of the command, time of the tasks
+(planning to reduced statistics, without the cluster's start) and throughput, the largest process's peak RSS, and
 whether the two runs' statistics are identical (they must be: the reduction order is fixed).
 """
 
@@ -50,9 +51,9 @@ def run(workdir: Path) -> list[dict]:
         s = json.loads(r["stdout"])
         stats[w] = {k: s[k] for k in ("thresholds", "unsigned", "points_valid")}
         rows.append({"bench": f"c2m-tiles: {n / 1e6:g}M points in LAZ tiles vs 640-triangle building, {w} worker(s)",
-                     "wall_s": r["wall_s"], "mpoints_per_s": n / r["wall_s"] / 1e6,
+                     "wall_s": r["wall_s"], "tasks_s": s["elapsed_s"], "mpoints_per_s": n / s["elapsed_s"] / 1e6,
                      "peak_rss_mib": r["peak_rss_mib"], "load_avg": r["load_avg"],
                      "target": "peak RSS per worker <= 1.5 GB", "ok": r["peak_rss_mib"] <= 1536})
-    rows[-1]["speedup_vs_1"] = rows[0]["wall_s"] / rows[1]["wall_s"]
+    rows[-1]["speedup_vs_1"] = rows[0]["tasks_s"] / rows[1]["tasks_s"]  # the tasks, without the cluster's start
     rows[-1]["stats_identical_to_1_worker"] = stats[1] == stats[2]
     return rows

@@ -116,12 +116,27 @@ def _chunk_sums(idx, dv: np.ndarray, thr: np.ndarray) -> tuple[list, list, list,
     return cnt, s1, s2, lo, hi
 
 
+def _worker_threads() -> None:
+    """On a dask worker, the compiled kernels use as many threads as the worker has (its ``nthreads``):
+    workers of one thread each share a machine's cores instead of oversubscribing them."""
+    try:
+        from distributed import get_worker
+
+        n = get_worker().state.nthreads
+    except (ImportError, ValueError, AttributeError):
+        return  # not in a worker: the process's own setting
+    import numba
+
+    numba.set_num_threads(max(1, min(int(n), numba.config.NUMBA_NUM_THREADS)))
+
+
 def range_partials(r: PointRange, mesh: str, cfg_dict: dict) -> dict[str, Any]:
     """The dask task: per chunk of the range ``(n seen, n non-finite, n beyond, cnt, s1, s2, lo, hi)``
     (arrays over the thresholds + overall last) and the range's distance histogram."""
     from mst.eval.c2m.driver import stream_distances
 
     cfg = C2MConfig.from_dict(cfg_dict)
+    _worker_threads()
     idx = _index(mesh, cfg)
     thr = np.asarray(sorted(float(t) for t in cfg.thresholds_m), np.float64)
     edges_hi = HIST_RANGE_X * float(thr[-1])
