@@ -6,6 +6,7 @@ import click
 
 from mst import check_outputs
 from mst.cli.common import (
+    CONFIG_CLASSES,
     FINITE,
     FiniteFloat,
     build_config,
@@ -18,6 +19,8 @@ from mst.cli.common import (
     setup_logging,
     verbosity_options,
 )
+
+CONFIG_CLASSES["mst fuse"] = "mst.pipeline.fusion.config:FuseConfig"  # for --show-config
 
 #: config field -> the option that sets it (a bad value is reported under the option's name)
 FLAGS = {"depth.scale": "--depth-scale", "depth.min_m": "--min-depth", "depth.max_m": "--max-depth",

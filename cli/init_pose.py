@@ -6,6 +6,7 @@ import click
 
 from mst import InputError, check_outputs
 from mst.cli.common import (
+    CONFIG_CLASSES,
     FINITE,
     build_config,
     config_options,
@@ -17,6 +18,8 @@ from mst.cli.common import (
     setup_logging,
     verbosity_options,
 )
+
+CONFIG_CLASSES["mst init"] = "mst.pipeline.init_pose:InitConfig"  # for --show-config
 
 
 @click.command("init")

@@ -5,6 +5,7 @@ from __future__ import annotations
 import click
 
 from mst.cli.common import (
+    CONFIG_CLASSES,
     build_config,
     config_options,
     emit_json,
@@ -14,6 +15,10 @@ from mst.cli.common import (
     setup_logging,
     verbosity_options,
 )
+
+# for --show-config
+CONFIG_CLASSES["mst nav simulate"] = "mst.pipeline.navlog:NavSimConfig"
+CONFIG_CLASSES["mst nav fuse"] = "mst.pipeline.navfusion:FusionConfig"
 
 
 @click.group("nav")

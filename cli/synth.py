@@ -5,6 +5,7 @@ from __future__ import annotations
 import click
 
 from mst.cli.common import (
+    CONFIG_CLASSES,
     FINITE,
     build_config,
     config_options,
@@ -18,6 +19,7 @@ from mst.cli.common import (
 )
 
 SCENARIOS = ("orbit", "corridor", "flyover", "fast", "turntable", "occluder", "blackout")
+CONFIG_CLASSES["mst synth"] = "mst.pipeline.synth.config:SynthConfig"  # for --show-config
 #: SynthConfig fields whose option is not "--" + the field name with dashes
 FLAGS = {"focal_px": "--focal", "rgb_noise": "--noise", "environment": "--no-environment", "aa_samples": "--aa",
          "nthreads": "--threads"}

@@ -238,8 +238,8 @@ class Config:
                 v = v.to_dict()
             elif isinstance(v, tuple):
                 v = list(v)
-            elif isinstance(v, float) and not math.isfinite(v):
-                v = None if math.isnan(v) else v
+            elif isinstance(v, float) and math.isinf(v):
+                v = "inf" if v > 0 else "-inf"  # JSON has no infinity; from_dict reads the text back
             out[f.name] = v
         return out
 

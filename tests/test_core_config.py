@@ -128,3 +128,11 @@ def test_cli_set_values_and_explicit_options_win(tmp_path):
     assert "--far" in e.value.format_message() or e.value.param_hint == "'--far'"
     with pytest.raises(click.BadParameter, match="KEY=VALUE"):
         parse_set_values(["novalue"])
+
+
+def test_infinite_values_survive_the_json_round_trip():
+    """``max_m = inf`` (no far limit) is echoed as "inf" and read back, so --config of it repeats the run."""
+    cfg = Inner(max_m=float("inf"))
+    d = json.loads(json.dumps(cfg.to_dict(), allow_nan=False))
+    assert d["max_m"] == "inf"
+    assert Inner.from_dict(d) == cfg

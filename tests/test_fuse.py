@@ -378,6 +378,8 @@ def test_cli_config_file_sets_a_setting_and_repeats_a_run(seq, tmp_path, mst):
     p = mst(*args, "--config", tmp_path / "bad.yaml", "-o", tmp_path / "bad.ply", check=False)
     assert p.returncode == 1 and "depth.scal: unknown key" in p.stderr and "bad.yaml" in p.stderr
     assert not (tmp_path / "bad.ply").exists()
+    listing = mst("fuse", "--show-config").stdout  # every setting by its dotted name, with its default
+    assert "depth.scale" in listing and "tsdf_voxel_m" in listing
 
 
 def test_real_cube_colour_through_extrinsic(shared_data, tmp_path):
