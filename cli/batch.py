@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import contextlib
+import io
+import warnings
 from pathlib import Path
 
 import click
@@ -22,6 +25,51 @@ from mst.cli.common import (
 
 CONFIG_CLASSES["mst batch"] = "mst.eval.batch.config:BatchConfig"
 FLAGS = {"workers": "--workers", "scheduler": "--scheduler"}
+
+
+def stage_command(stage: str) -> click.Command:
+    """The click command of a batch stage (``eval`` is ``mst eval traj``), loaded lazily."""
+    from mst.cli.main import cli
+    from mst.eval.batch.manifest import STAGE_COMMANDS
+
+    words = STAGE_COMMANDS[stage]
+    cmd = cli.get_command(None, words[0])
+    for w in words[1:]:
+        cmd = cmd.get_command(None, w)
+    return cmd
+
+
+def call_mst(argv: tuple[str, ...]) -> tuple[int, str, str | None]:
+    """Run ``mst ARGV`` in this process: (exit code, stdout, the one-line error or None).
+
+    The error line is the one ``mst`` itself prints (``mst track: error: ...``); tasks run one at a
+    time per worker process (stdout is redirected for the call).
+    """
+    from mst import MstError
+    from mst.cli.main import cli
+
+    prog = "mst " + " ".join(argv[:2] if argv[0] == "eval" else argv[:1])
+    buf = io.StringIO()
+    code, error = 0, None
+    with warnings.catch_warnings(), contextlib.redirect_stdout(buf):
+        warnings.simplefilter("ignore")
+        try:
+            rv = cli.main(args=list(argv), prog_name="mst", standalone_mode=False)
+            code = rv if isinstance(rv, int) else 0
+        except MstError as e:
+            code, error = 1, f"{prog}: error: {e}"
+        except click.exceptions.Exit as e:
+            code = e.exit_code
+        except click.ClickException as e:
+            code, error = 1, f"{prog}: error: {e.format_message()}".replace("\n", " ")
+        except SystemExit as e:
+            code = e.code if isinstance(e.code, int) else (0 if e.code is None else 1)
+        except Exception as e:
+            # a bug or an unforeseen input problem: reported as one line, the other sequences go on
+            code, error = 1, f"{prog}: error: {type(e).__name__}: {e}".replace("\n", " ")
+    if code != 0 and error is None:
+        error = f"{prog}: error: exit code {code}"
+    return code, buf.getvalue(), error
 
 
 class _Progress:
@@ -114,10 +162,10 @@ def batch(manifest, out, workers, scheduler, retry_failed, config_file, set_valu
                        flags=FLAGS)
     if out.exists() and not out.is_dir():
         raise InputError(out, "output folder is a file")
-    m = load_manifest(manifest)
+    m = load_manifest(manifest, stage_command)
     progress = _Progress(quiet)
     try:
-        res = run_batch(m, out, cfg, on_result=progress.result, on_plan=progress.plan)
+        res = run_batch(m, out, call_mst, cfg, on_result=progress.result, on_plan=progress.plan)
     finally:
         progress.stop()
     rows = []

@@ -6,7 +6,7 @@ from __future__ import annotations
 from contextlib import contextmanager
 
 #: imported once by the fork server (missing modules are skipped by multiprocessing)
-PRELOAD = ["distributed", "mst.cli.main", "mst.eval.batch.execute", "cv2", "numba", "scipy.spatial",
+PRELOAD = ["distributed", "mst.cli.main", "mst.cli.batch", "mst.eval.batch.execute", "cv2", "numba", "scipy.spatial",
            "matplotlib.pyplot", "mst.pipeline.tracking.runner", "mst.pipeline.fusion", "mst.eval.c2m",
            "mst.eval.c2m.tiles", "mst.eval.traj", "mst.eval.plots", "mst.meshtools.convert", "mst.pipeline.init_pose",
            "mst.pipeline.slam", "laspy"]

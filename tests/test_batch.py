@@ -164,6 +164,7 @@ def test_unreachable_scheduler_and_a_setting_from_a_config_file(tmp_path, one_se
 def test_csv_manifest_equals_yaml(tmp_path, one_seq):
     import yaml
 
+    from mst.cli.batch import stage_command
     from mst.eval.batch.manifest import load_manifest
 
     (tmp_path / "m.yaml").write_text(yaml.safe_dump({"sequences": [{**one_seq, "fps": 30,
@@ -171,7 +172,7 @@ def test_csv_manifest_equals_yaml(tmp_path, one_seq):
                                                     sort_keys=False))
     (tmp_path / "m.csv").write_text("name,frames,model,camera,clicks,fps,track.range,track.klt\n"
                                     "a,rgb,m.obj,cam.json,clicks.txt,30,8,false\n")
-    a, b = load_manifest(tmp_path / "m.yaml"), load_manifest(tmp_path / "m.csv")
+    a, b = load_manifest(tmp_path / "m.yaml", stage_command), load_manifest(tmp_path / "m.csv", stage_command)
     assert a.sequences == b.sequences
     assert a.sequences[0].options["track"].args == ("--range", "8", "--no-klt")
 

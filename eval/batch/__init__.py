@@ -2,6 +2,6 @@
 
 Holds: config (BatchConfig), manifest (YAML/CSV -> sequences), plan (the stages of each sequence),
 state (content hashes, the per-folder state file), execute (one stage, run on a worker), runner (the graph).
-May import: mst.core, mst.errors, mst (atomic outputs), dask.distributed (lazily); the stages run
-through the ``mst`` click commands (mst.cli, imported lazily inside the tasks only).
+May import: mst.core, mst.errors, mst (atomic outputs), click, dask.distributed (lazily); never mst.cli:
+the command layer passes the functions that check and run the ``mst`` commands (mst.cli.batch).
 """

@@ -1,6 +1,7 @@
 """One stage of a batch, as run inside a dask task: skip it when fresh, else run its ``mst`` command.
 
-The command runs in-process through the click group (``standalone_mode=False``), its ``--json``
+The command runs in-process through the click group (``standalone_mode=False``; the command layer
+gives the function that does it), its ``--json
 summary captured from stdout and kept in the stage's summary file (atomically). The result is a
 plain dict (it travels back to the client): ``status`` (ok, skipped, failed, blocked), the one-line
 ``error``, ``elapsed_s`` and the new state ``entry`` that the client records. A worker never writes
@@ -9,49 +10,15 @@ the state file, and a stage whose predecessor failed is ``blocked`` without runn
 
 from __future__ import annotations
 
-import contextlib
-import io
 import time
-import warnings
+from collections.abc import Callable
 from typing import Any
 
 from mst.eval.batch.plan import Stage
 from mst.eval.batch.state import HashCache, is_fresh, output_hashes, stage_key
 
-
-def call_mst(argv: tuple[str, ...]) -> tuple[int, str, str | None]:
-    """Run ``mst ARGV`` in this process: (exit code, stdout, the one-line error or None).
-
-    The error line is the one ``mst`` itself prints (``mst track: error: ...``); tasks run one at a
-    time per worker process (stdout is redirected for the call).
-    """
-    import click
-
-    from mst import MstError
-    from mst.cli.main import cli
-
-    prog = "mst " + " ".join(argv[:2] if argv[0] == "eval" else argv[:1])
-    buf = io.StringIO()
-    code, error = 0, None
-    with warnings.catch_warnings(), contextlib.redirect_stdout(buf):
-        warnings.simplefilter("ignore")
-        try:
-            rv = cli.main(args=list(argv), prog_name="mst", standalone_mode=False)
-            code = rv if isinstance(rv, int) else 0
-        except MstError as e:
-            code, error = 1, f"{prog}: error: {e}"
-        except click.exceptions.Exit as e:
-            code = e.exit_code
-        except click.ClickException as e:
-            code, error = 1, f"{prog}: error: {e.format_message()}".replace("\n", " ")
-        except SystemExit as e:
-            code = e.code if isinstance(e.code, int) else (0 if e.code is None else 1)
-        except Exception as e:
-            # a bug or an unforeseen input problem: reported as one line, the other sequences go on
-            code, error = 1, f"{prog}: error: {type(e).__name__}: {e}".replace("\n", " ")
-    if code != 0 and error is None:
-        error = f"{prog}: error: exit code {code}"
-    return code, buf.getvalue(), error
+#: argv -> (exit code, stdout, one-line error or None)
+CallMst = Callable[[tuple[str, ...]], tuple[int, str, "str | None"]]
 
 
 def _result(stage: Stage, status: str, **kw: Any) -> dict[str, Any]:
@@ -79,8 +46,11 @@ def known_outcome(stage: Stage, entry: dict | None, retry_failed: bool = False) 
     return None
 
 
-def run_stage(stage: Stage, entry: dict | None, retry_failed: bool, *upstream: dict[str, Any]) -> dict[str, Any]:
-    """The dask task of one stage (``upstream``: the results of the stages it needs)."""
+def run_stage(stage: Stage, entry: dict | None, retry_failed: bool, call: CallMst,
+              *upstream: dict[str, Any]) -> dict[str, Any]:
+    """The dask task of one stage (``upstream``: the results of the stages it needs). ``call(argv)``
+    runs the ``mst`` command in-process: ``(exit code, stdout, the one-line error or None)``; it is
+    the command layer's :func:`mst.cli.batch.call_mst` (this package does not import that layer)."""
     bad = [u for u in upstream if u["status"] in ("failed", "blocked")]
     if bad:
         return _result(stage, "blocked", error=bad[0]["error"], cause=bad[0]["id"])
@@ -89,7 +59,7 @@ def run_stage(stage: Stage, entry: dict | None, retry_failed: bool, *upstream: d
     if known is not None:
         return known
     _, key, used = check_fresh(stage, entry)
-    code, stdout, error = call_mst(stage.argv)
+    code, stdout, error = call(stage.argv)
     elapsed = time.perf_counter() - t0
     if code != 0:
         return _result(stage, "failed", error=error, elapsed_s=elapsed,

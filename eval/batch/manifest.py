@@ -31,7 +31,7 @@ import glob
 import io
 import os
 import re
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -48,6 +48,9 @@ STAGE_COMMANDS: dict[str, tuple[str, ...]] = {
     "eval": ("eval", "traj"),
 }
 STAGES = tuple(STAGE_COMMANDS)
+
+#: stage name -> its click command (given by the command layer)
+CommandOf = Callable[[str], Any]
 
 #: keys of a sequence entry that name input files (relative to the manifest)
 PATH_KEYS = ("frames", "model", "camera", "init", "clicks", "points", "nav", "depth", "gt", "reference")
@@ -107,17 +110,6 @@ class Manifest:
     sequences: list[SequenceSpec]
 
 
-def _command(stage: str):
-    """The click command of ``stage`` (lazily loaded: light imports only)."""
-    from mst.cli.main import cli
-
-    words = STAGE_COMMANDS[stage]
-    cmd = cli.get_command(None, words[0])
-    for w in words[1:]:
-        cmd = cmd.get_command(None, w)
-    return cmd
-
-
 def _long_names(opt) -> list[str]:
     return [o[2:] for o in (*opt.opts, *opt.secondary_opts) if o.startswith("--")]
 
@@ -128,11 +120,12 @@ def _is_path_type(tp) -> bool:
     return isinstance(tp, (click.Path, click.File))
 
 
-def _option_args(stage: str, name: str, value: Any, base: Path, where: str, manifest: Path) -> StageOptions:
+def _option_args(stage: str, name: str, value: Any, base: Path, where: str, manifest: Path,
+                 command_of: CommandOf) -> StageOptions:
     """``--name value`` arguments of ``stage``'s command, checked against the command's options."""
     import click
 
-    cmd = _command(stage)
+    cmd = command_of(stage)
     name = str(name).lstrip("-")
     if name in _ALWAYS or name in RESERVED[stage]:
         raise InputError(manifest, f"{where}: option --{name} of mst {stage} is set by the batch itself")
@@ -185,7 +178,8 @@ def _option_args(stage: str, name: str, value: Any, base: Path, where: str, mani
     return StageOptions(tuple(args), tuple(inputs), tuple(outputs))
 
 
-def _stage_options(options: Any, base: Path, where: str, manifest: Path) -> dict[str, StageOptions]:
+def _stage_options(options: Any, base: Path, where: str, manifest: Path,
+                   command_of: CommandOf) -> dict[str, StageOptions]:
     """``{"track": {"slam": "off"}, "eval.align": "none"}`` -> stage -> :class:`StageOptions`."""
     if options is None:
         return {}
@@ -204,7 +198,7 @@ def _stage_options(options: Any, base: Path, where: str, manifest: Path) -> dict
             raise InputError(manifest, f"{where}: options.{stage} must be a mapping of option -> value")
     out: dict[str, StageOptions] = {}
     for stage, items in per_stage.items():
-        parts = [_option_args(stage, k, v, base, f"{where}: options.{stage}", manifest)
+        parts = [_option_args(stage, k, v, base, f"{where}: options.{stage}", manifest, command_of)
                  for k, v in items.items() if v is not None and v != ""]
         out[stage] = StageOptions(tuple(a for p in parts for a in p.args), tuple(a for p in parts for a in p.inputs),
                                   tuple(a for p in parts for a in p.outputs))
@@ -234,7 +228,7 @@ def _merge(defaults: Mapping[str, Any], entry: Mapping[str, Any]) -> dict[str, A
     return out
 
 
-def _sequence(entry: Mapping[str, Any], index: int, base: Path, manifest: Path) -> SequenceSpec:
+def _sequence(entry: Mapping[str, Any], index: int, base: Path, manifest: Path, command_of: CommandOf) -> SequenceSpec:
     where = f"sequence {index + 1}"
     if not isinstance(entry, Mapping):
         raise InputError(manifest, f"{where}: expected a mapping of keys, got {type(entry).__name__}")
@@ -282,7 +276,7 @@ def _sequence(entry: Mapping[str, Any], index: int, base: Path, manifest: Path) 
             raise InputError(manifest, f"{where}: fps must be > 0, got {fps:g}")
     else:
         fps = None
-    options = _stage_options(d.get("options"), base, where, manifest)
+    options = _stage_options(d.get("options"), base, where, manifest, command_of)
     return SequenceSpec(name=name, fps=fps, options=options, **paths)
 
 
@@ -345,14 +339,18 @@ def _csv_value(v: str) -> Any:
         return v
 
 
-def load_manifest(path: str | os.PathLike) -> Manifest:
-    """Read and check a manifest; raises :class:`InputError` naming the manifest and the problem."""
+def load_manifest(path: str | os.PathLike, command_of: CommandOf) -> Manifest:
+    """Read and check a manifest; raises :class:`InputError` naming the manifest and the problem.
+
+    ``command_of(stage)`` is the click command of a stage (``mst.cli.batch.stage_command``): the
+    options are checked against it (this package does not import the command layer)."""
     p = Path(path)
     defaults, entries = _read_entries(p)
     if not entries:
         raise InputError(p, "no sequences")
     base = p.resolve().parent
-    seqs = [_sequence(_merge(defaults, e) if isinstance(e, Mapping) else e, i, base, p) for i, e in enumerate(entries)]
+    seqs = [_sequence(_merge(defaults, e) if isinstance(e, Mapping) else e, i, base, p, command_of)
+            for i, e in enumerate(entries)]
     seen: dict[str, int] = {}
     for i, s in enumerate(seqs):
         if s.name in seen:

@@ -18,7 +18,7 @@ from typing import Any
 
 from mst.errors import MstError
 from mst.eval.batch.config import BatchConfig
-from mst.eval.batch.execute import _result, known_outcome, run_stage
+from mst.eval.batch.execute import CallMst, _result, known_outcome, run_stage
 from mst.eval.batch.manifest import STAGES, Manifest
 from mst.eval.batch.plan import Stage, build_plan
 from mst.eval.batch.state import load_state, save_state
@@ -111,24 +111,25 @@ def _record(res: dict[str, Any], st: Stage, states: dict[str, dict]) -> None:
         save_state(Path(st.folder), states[st.folder])
 
 
-def _submit(client, plan: list[Stage], done: dict, states: dict, retry_failed: bool) -> dict[str, Any]:
+def _submit(client, plan: list[Stage], done: dict, states: dict, retry_failed: bool, call) -> dict[str, Any]:
     futures: dict[str, Any] = {}
     for st in plan:
         if st.id in done:
             continue
         ups = [futures.get(d, done.get(d)) for d in st.deps]
         entry = states[st.folder]["stages"].get(st.name)
-        futures[st.id] = client.submit(run_stage, st, entry, retry_failed, *ups, key=f"{st.name}:{st.unit}-{time.time_ns()}",
+        futures[st.id] = client.submit(run_stage, st, entry, retry_failed, call, *ups, key=f"{st.name}:{st.unit}-{time.time_ns()}",
                                        pure=False, retries=0)
     return futures
 
 
-def run_batch(manifest: Manifest, out: str | Path, cfg: BatchConfig | None = None,
+def run_batch(manifest: Manifest, out: str | Path, call: CallMst, cfg: BatchConfig | None = None,
               on_result: Callable[[Stage, dict[str, Any]], None] | None = None,
               on_plan: Callable[[list[Stage], dict[str, dict[str, Any]]], None] | None = None) -> BatchResult:
     """Run (or resume) every sequence of ``manifest`` into ``out``; see the module docstring.
 
-    ``on_plan(plan, skipped)`` is called once before any work, ``on_result(stage, result)`` as each
+    ``call`` runs one ``mst`` command line in-process (:data:`~mst.eval.batch.execute.CallMst`; the CLI
+    gives :func:`mst.cli.batch.call_mst`). ``on_plan(plan, skipped)`` is called once before any work, ``on_result(stage, result)`` as each
     stage ends (progress display). A failing stage blocks its sequence only.
     """
     cfg = cfg or BatchConfig()
@@ -154,7 +155,7 @@ def run_batch(manifest: Manifest, out: str | Path, cfg: BatchConfig | None = Non
                 used = "LocalCluster"
             from dask.distributed import as_completed
 
-            futures = _submit(client, plan, done, states, cfg.retry_failed)
+            futures = _submit(client, plan, done, states, cfg.retry_failed, call)
             id_of = {f.key: i for i, f in futures.items()}
             for fut in as_completed(list(futures.values())):
                 st = by_id[id_of[fut.key]]
