@@ -26,6 +26,9 @@ COMMANDS: dict[str, str] = {
     "eval": "eval_cmd:eval_group",
     "nav": "nav:nav_group",
     "refine": "refine:refine",
+    "batch": "batch:batch",
+    "report": "report:report",
+    "c2m-tiles": "c2m_tiles:c2m_tiles",
 }
 
 
