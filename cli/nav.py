@@ -122,7 +122,8 @@ def simulate(gt_path, out, config_file, set_values, as_json, quiet, verbose, **o
 FUSE_FLAGS = {"mode": "--mode", "lever_arm_m": "--lever", "gps_sigma_h_m": "--gps-sigma", "gps_sigma_v_m": "--gps-sigma",
               "ahrs_sigma_deg": "--ahrs-sigma", "vision_sigma_m": "--vision-sigma", "vision_sigma_deg": "--vision-sigma",
               "accel_sigma_mps2": "--accel-sigma", "ang_accel_sigma_dps2": "--ang-accel-sigma",
-              "time_offset_s": "--time-offset", "estimate_time_offset": "--estimate-time-offset"}
+              "time_offset_s": "--time-offset", "estimate_time_offset": "--estimate-time-offset",
+              "estimate_lever_arm": "--estimate-lever-arm"}
 
 
 @nav_group.command("fuse")
@@ -154,12 +155,16 @@ FUSE_FLAGS = {"mode": "--mode", "lever_arm_m": "--lever", "gps_sigma_h_m": "--gp
 @click.option("--estimate-time-offset", is_flag=True, default=None,
               help="Estimate the clock offset (1-D search within --time-offset +- max_time_offset_s, default 1 s; "
                    "its std in --json).")
+@click.option("--estimate-lever-arm", is_flag=True, default=None,
+              help="Estimate the lever arm from the GPS (used when its std is below max_lever_std_m, default 5 cm; "
+                   "--lever is then the start); its std in --json.")
 @config_options()
 @json_option
 @quiet_option
 @verbosity_options
 def fuse(traj_path, nav_path, out, cov_path, mode, offset, lever, mount_path, m2w_path, gps_sigma, ahrs_sigma,
-         vision_sigma, accel_sigma, ang_accel_sigma, time_offset, estimate_time_offset, config_file, set_values, as_json,
+         vision_sigma, accel_sigma, ang_accel_sigma, time_offset, estimate_time_offset, estimate_lever_arm,
+         config_file, set_values, as_json,
          quiet, verbose):
     """Fuse a vision trajectory with a GPS/AHRS log (robust Kalman smoother, calibration estimated).
 
@@ -188,7 +193,7 @@ def fuse(traj_path, nav_path, out, cov_path, mode, offset, lever, mount_path, m2
                "gps_sigma_v_m": _pair(gps_sigma, 1), "ahrs_sigma_deg": ahrs_sigma,
                "vision_sigma_m": _pair(vision_sigma, 0), "vision_sigma_deg": _pair(vision_sigma, 1),
                "accel_sigma_mps2": accel_sigma, "ang_accel_sigma_dps2": ang_accel_sigma, "time_offset_s": time_offset,
-               "estimate_time_offset": estimate_time_offset}
+               "estimate_time_offset": estimate_time_offset, "estimate_lever_arm": estimate_lever_arm}
     cfg = build_config(FusionConfig, config_file=config_file, set_values=set_values, section_name="nav_fuse",
                        options=options, flags=FUSE_FLAGS)
     summary, res = fuse_nav_files(traj_path, nav_path, out, cfg, cov_path=cov_path, offset=offset,
@@ -198,6 +203,10 @@ def fuse(traj_path, nav_path, out, cov_path, mode, offset, lever, mount_path, m2
          f"mount yaw/pitch/roll {c['mount_ypr_deg'][0]:.2f} {c['mount_ypr_deg'][1]:.2f} {c['mount_ypr_deg'][2]:.2f} deg, "
          f"model-to-world yaw {c['world_yaw_deg']:.2f} deg (std {c['world_yaw_std_deg']:.2f}), "
          f"{res.stats['gps_outliers']} GPS outliers -> {out}", quiet)
+    if c["lever_arm_std_m"] is not None:
+        std = ", ".join(f"{v:.3f}" for v in c["lever_arm_std_m"])
+        info(f"lever arm {'estimated' if c['lever_arm_estimated'] else 'NOT observable, kept'}: "
+             f"{' '.join(f'{v:.3f}' for v in c['lever_arm_m'])} m (std {std} m)", quiet)
     if c["time_offset_estimated"]:
         info(f"log clock offset {c['time_offset_s']:+.3f} s (std {c['time_offset_std_s']:.3f} s)", quiet)
     if as_json:

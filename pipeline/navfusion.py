@@ -74,7 +74,12 @@ class FusionConfig(Config):
     vision_sigma_m: float = param(0.05, min=0, min_open=True, help="vision noise when no covariance is given, m")
     vision_sigma_deg: float = param(0.3, min=0, min_open=True, help="vision noise when no covariance is given, deg")
     huber_k: float = param(3.0, min=0, min_open=True, help="Mahalanobis distance where Huber down-weighting starts")
-    lever_arm_m: tuple[float, float, float] = param((0.0, 0.0, 0.0), help="camera in the body frame, m (not estimated)")
+    lever_arm_m: tuple[float, float, float] = param((0.0, 0.0, 0.0), help="camera in the body frame, m (the prior "
+                                                                          "value with estimate_lever_arm)")
+    estimate_lever_arm: bool = param(False, help="estimate the lever arm from the GPS where the attitude changes "
+                                                 "make it observable")
+    max_lever_std_m: float = param(0.05, min=0, min_open=True,
+                                   help="use the estimated lever arm only when its std (each axis) is below this, m")
     max_world_yaw_std_deg: float = param(2.0, min=0, min_open=True,
                                          help="refuse when the fit cannot pin the model-to-world yaw, deg")
     min_pairs: int = param(10, min=1, help="GPS fixes with vision needed for the calibration")
@@ -423,6 +428,20 @@ def fuse_navigation(t_vis: np.ndarray, T_vis: np.ndarray, cov_vis: np.ndarray | 
         nav = _shifted(nav, offset)
     al = _align(t_vis, T_vis, nav, nav_name)
     T_wm, R_bc, yaw_std, mount_std, w_g, w_a = _calibrate(al, cfg, R_body_cam, T_world_model, nav_name)
+    lever_std = None
+    if cfg.estimate_lever_arm:
+        from dataclasses import replace
+
+        from mst.pipeline.navfusion_lever import estimate_lever_arm
+
+        ug = al.pair & al.fix
+        for _ in range(2):  # lever given the calibration, the calibration given the lever
+            lev, lever_std = estimate_lever_arm(al.p_ci[ug], al.R_ci[ug], al.g_w[ug], w_g, T_wm[:3, :3], R_bc,
+                                                _noise(cfg)[1])
+            if lever_std.max() > cfg.max_lever_std_m:
+                break
+            cfg = replace(cfg, lever_arm_m=tuple(float(v) for v in lev))
+            T_wm, R_bc, yaw_std, mount_std, w_g, w_a = _calibrate(al, cfg, R_body_cam, T_world_model, nav_name)
     R_wm, t_wm = T_wm[:3, :3], T_wm[:3, 3]
     R_fused, Pr, wr = _fuse_attitude(al, T_vis, cov_vis, R_wm, R_bc, cfg)
     xp_, Pp_, wp, gi = _fuse_position(al, T_vis, cov_vis, R_fused, R_wm, t_wm, R_bc, cfg)
@@ -444,7 +463,8 @@ def fuse_navigation(t_vis: np.ndarray, T_vis: np.ndarray, cov_vis: np.ndarray | 
         "mount_ypr_deg": mount_ypr_deg_from_R(R_bc).tolist(),
         "mount_std_deg": float(np.degrees(mount_std)),
         "lever_arm_m": lever.tolist(),
-        "lever_arm_estimated": False,
+        "lever_arm_estimated": bool(lever_std is not None and lever_std.max() <= cfg.max_lever_std_m),
+        "lever_arm_std_m": None if lever_std is None else lever_std.tolist(),
         "time_offset_s": float(offset),
         "time_offset_estimated": bool(cfg.estimate_time_offset),
         "time_offset_std_s": float(offset_std),
