@@ -211,3 +211,41 @@ def fuse(traj_path, nav_path, out, cov_path, mode, offset, lever, mount_path, m2
         info(f"log clock offset {c['time_offset_s']:+.3f} s (std {c['time_offset_std_s']:.3f} s)", quiet)
     if as_json:
         emit_json(summary)
+
+
+@nav_group.command("plot")
+@click.option("--fused", "estimate", required=True, type=click.Path(dir_okay=False),
+              help="The fused trajectory (TUM, mst nav fuse), or any estimate.")
+@click.option("--gt", "reference", required=True, type=click.Path(dir_okay=False), help="Reference trajectory (TUM).")
+@click.option("--nav", "nav_path", required=True, type=click.Path(dir_okay=False), help="Navigation log (nav.csv).")
+@click.option("--calib", "calib_path", type=click.Path(dir_okay=False), default=None,
+              help="Calibration JSON of `mst nav fuse --json` (maps the log into the model frame).")
+@click.option("--vision", "vision_path", type=click.Path(dir_okay=False), default=None,
+              help="The vision trajectory (TUM, mst track) for its own series.")
+@click.option("-o", "--output", "out", required=True, type=click.Path(dir_okay=False), help="PNG to write.")
+@click.option("--t-max-diff", type=float, default=0.01, show_default=True,
+              help="Seconds: poses match the reference's within this.")
+@json_option
+@quiet_option
+@verbosity_options
+def plot(estimate, reference, nav_path, calib_path, vision_path, out, t_max_diff, as_json, quiet, verbose):
+    """Plot vision, GPS/AHRS and fused positions over time against a reference, and their yaw
+    differences, with the vision gaps and the GPS dropouts shaded (the UAV paper's figure).
+
+    \b
+    Examples:
+      mst nav plot --fused fused.txt --gt seq/gt.txt --nav seq/nav.csv --calib fused.json --vision traj.txt -o nav.png
+
+    The numbers of the same comparison: `mst eval traj fused.txt gt.txt --nav nav.csv --nav-calib fused.json`.
+    """
+    from mst import atomic_output, check_outputs
+    from mst.eval.traj.navtable import nav_figure, nav_table_from_files
+
+    setup_logging(quiet, verbose, "mst nav plot")
+    check_outputs([out], [estimate, reference, nav_path, calib_path, vision_path])
+    tab = nav_table_from_files(estimate, reference, nav_path, calib_path, vision_path, t_max_diff)
+    with atomic_output(out) as tmp:
+        nav_figure(tmp, tab)
+    info(f"wrote {out} ({', '.join(tab.columns)} against {reference})", quiet)
+    if as_json:
+        emit_json({"output": str(out), **tab.to_json()})
