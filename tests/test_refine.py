@@ -114,6 +114,12 @@ def test_refine_bad_input_one_line_no_output(degraded, tmp_path, mst):
     assert r.returncode == 1 and "point past the last of 90 depth frames" in r.stderr and not out.exists()
     r = mst(*base, "--traj", traj, "--fps", FPS, "--set", "icp_max_rel=[0.1,-1,0.02]", check=False)
     assert r.returncode == 1 and "icp_max_rel" in r.stderr and not out.exists()
+    cam = json.loads((seq / "camera.json").read_text())  # a camera for other images than the depth's
+    cam.update(width=cam["width"] * 2, height=cam["height"] * 2)
+    (tmp_path / "cam2.json").write_text(json.dumps(cam))
+    r = mst("refine", "--model", seq / "model.obj", "--camera", tmp_path / "cam2.json", "--depth", seq / "depth", "-o",
+            out, "--traj", traj, "--fps", FPS, check=False)
+    assert r.returncode == 1 and "registered to the tracked camera" in r.stderr and not out.exists()
 
 
 @pytest.mark.slow

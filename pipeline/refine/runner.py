@@ -108,8 +108,12 @@ def _keyframe_clouds(cfg, files, k_of_pose, cam, sel, rng):
     """-> (keyframe pose indices, their camera-frame samples, their normals)."""
     kf, clouds, normals = [], [], []
     for i in sel:
-        P, N = backproject(read_depth(files[k_of_pose[i]], cfg.depth.scale), cam, cfg.pixel_step, cfg.depth.min_m,
-                           cfg.depth.max_m, cfg.depth.edge_rel or 1e9)
+        f = files[k_of_pose[i]]
+        depth = read_depth(f, cfg.depth.scale)
+        if cam.width and cam.height and depth.shape != (cam.height, cam.width):
+            raise InputError(f, f"depth frame is {depth.shape[1]}x{depth.shape[0]} but the camera is for "
+                                f"{cam.width}x{cam.height} images (the depth must be registered to the tracked camera)")
+        P, N = backproject(depth, cam, cfg.pixel_step, cfg.depth.min_m, cfg.depth.max_m, cfg.depth.edge_rel or 1e9)
         if len(P) < cfg.min_points:
             continue
         if len(P) > MAX_KF_POINTS:
