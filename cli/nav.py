@@ -147,7 +147,8 @@ FUSE_FLAGS = {"mode": "--mode", "lever_arm_m": "--lever", "gps_sigma_h_m": "--gp
 @click.option("--vision-sigma", nargs=2, type=float, default=None, metavar="M DEG",
               help="Vision noise when no covariance file is given (x3 for SLAM frames) [default: 0.05 0.3].")
 @click.option("--accel-sigma", type=float, default=None,
-              help="Motion model: white acceleration, m/s^2/sqrt(Hz) [default: 1].")
+              help="With motion_model=cv (--set motion_model=cv): white acceleration, m/s^2/sqrt(Hz) [default: 1]; "
+                   "the default model is constant acceleration (jerk_sigma_mps3, default 0.5).")
 @click.option("--ang-accel-sigma", type=float, default=None,
               help="Motion model: white angular acceleration, deg/s^2/sqrt(Hz) [default: 2].")
 @click.option("--time-offset", type=float, default=None,
