@@ -12,6 +12,8 @@ to a single-process run over the same files. The median is read from a merged fi
 (``HIST_BINS`` bins over ``[0, HIST_RANGE_X * max(thresholds))``): within half a bin width of the
 exact median (``median_bound_m`` in the result), None when the median lies beyond the histogram.
 Unsigned distances only, grid engine only (the compiled kernels); ``max_dist_m`` applies as usual.
+With an output folder each LAS/LAZ tile is one task that also writes the tile with the distance as
+an extra dimension (``<stem>_c2m.laz``), every original dimension kept.
 """
 
 from __future__ import annotations
@@ -44,15 +46,17 @@ class PointRange:
     whole: bool  #: the whole file (formats without random access)
 
 
-def plan_ranges(paths: list[str | os.PathLike], cfg: C2MConfig, chunks_per_task: int = 4) -> list[PointRange]:
-    """The tasks over ``paths``: LAS/LAZ in ranges of ``chunks_per_task`` chunks, other files whole."""
+def plan_ranges(paths: list[str | os.PathLike], cfg: C2MConfig, chunks_per_task: int = 4,
+                whole_files: bool = False) -> list[PointRange]:
+    """The tasks over ``paths``: LAS/LAZ in ranges of ``chunks_per_task`` chunks, other files (and every
+    file with ``whole_files``) whole."""
     from mst.eval.cloud_io import open_cloud
 
     out = []
     step = cfg.chunk_points * chunks_per_task
     for p in paths:
         n = open_cloud(p).count
-        if Path(p).suffix.lower() in LAS_SUFFIXES:
+        if Path(p).suffix.lower() in LAS_SUFFIXES and not whole_files:
             out += [PointRange(str(p), s, min(step, n - s), False) for s in range(0, n, step)]
         else:
             out.append(PointRange(str(p), 0, n, True))
@@ -130,9 +134,61 @@ def _worker_threads() -> None:
     numba.set_num_threads(max(1, min(int(n), numba.config.NUMBA_NUM_THREADS)))
 
 
-def range_partials(r: PointRange, mesh: str, cfg_dict: dict) -> dict[str, Any]:
+def output_name(path: str | os.PathLike, out_dir: str | os.PathLike) -> Path:
+    """The distance cloud of a tile: ``<out_dir>/<stem>_c2m.<las|laz>`` (a LAS/LAZ tile keeps its format)."""
+    p = Path(path)
+    return Path(out_dir) / f"{p.stem}_c2m{p.suffix.lower()}"
+
+
+class _LasDistanceWriter:
+    """Reads a LAS/LAZ tile's point records chunk by chunk and writes them, every dimension kept, with the
+    extra dimension ``C2M_absolute_distances`` (float64, NaN for invalid or beyond-max-dist points) to
+    ``tmp`` (readable by CloudCompare and PDAL)."""
+
+    def __init__(self, src: str, tmp: Path):
+        import collections
+
+        import laspy
+
+        self.src, self.tmp = src, tmp
+        self.queue: collections.deque = collections.deque()
+        self._reader = laspy.open(src)
+        header = self._reader.header
+        self.header = laspy.LasHeader(point_format=header.point_format.id, version=header.version)
+        self.header.scales, self.header.offsets = header.scales, header.offsets
+        for d in header.point_format.extra_dimensions:
+            self.header.add_extra_dim(laspy.ExtraBytesParams(d.name, d.dtype))
+        self.header.add_extra_dim(laspy.ExtraBytesParams("C2M_absolute_distances", np.float64))
+        self._writer = laspy.open(tmp, mode="w", header=self.header, do_compress=tmp.suffix.lower() == ".laz")
+
+    def chunks(self, size: int):
+        for pts in self._reader.chunk_iterator(size):
+            self.queue.append(pts)
+            yield np.stack([np.asarray(pts.x, np.float64), np.asarray(pts.y, np.float64),
+                            np.asarray(pts.z, np.float64)], axis=1)
+
+    def write(self, fin: np.ndarray, du: np.ndarray) -> None:
+        import laspy
+
+        pts = self.queue.popleft()
+        out = laspy.ScaleAwarePointRecord.zeros(len(pts), header=self.header)
+        for name in pts.array.dtype.names:
+            out.array[name] = pts.array[name]
+        d = np.full(len(pts), np.nan)
+        d[fin] = du
+        out["C2M_absolute_distances"] = d
+        self._writer.write_points(out)
+
+    def close(self) -> None:
+        self._writer.close()
+        self._reader.close()
+
+
+def range_partials(r: PointRange, mesh: str, cfg_dict: dict, out_dir: str | None = None) -> dict[str, Any]:
     """The dask task: per chunk of the range ``(n seen, n non-finite, n beyond, cnt, s1, s2, lo, hi)``
-    (arrays over the thresholds + overall last) and the range's distance histogram."""
+    (arrays over the thresholds + overall last) and the range's distance histogram; with ``out_dir`` (a
+    whole LAS/LAZ tile) also its distance cloud :func:`output_name`, written atomically."""
+    from mst import atomic_output
     from mst.eval.c2m.driver import stream_distances
 
     cfg = C2MConfig.from_dict(cfg_dict)
@@ -150,7 +206,20 @@ def range_partials(r: PointRange, mesh: str, cfg_dict: dict) -> dict[str, Any]:
         b = np.minimum((dv * (HIST_BINS / edges_hi)).astype(np.int64), HIST_BINS)
         hist[:] += np.bincount(b, minlength=HIST_BINS + 1)
 
-    stream_distances(idx, _read(r, cfg.chunk_points), r.count, cfg, on_chunk=on_chunk, cloud=r.path, mesh=mesh)
+    if out_dir is None:
+        stream_distances(idx, _read(r, cfg.chunk_points), r.count, cfg, on_chunk=on_chunk, cloud=r.path, mesh=mesh)
+    else:
+        with atomic_output(output_name(r.path, out_dir)) as tmp:
+            w = _LasDistanceWriter(r.path, Path(tmp))
+            try:
+                def both(xyz, fin, du, ds):
+                    on_chunk(xyz, fin, du, ds)
+                    w.write(fin, du)
+
+                stream_distances(idx, w.chunks(cfg.chunk_points), r.count, cfg, on_chunk=both, cloud=r.path,
+                                 mesh=mesh)
+            finally:
+                w.close()
     return {"range": (r.path, r.start), "chunks": chunks, "hist": hist, "triangles": idx.n_triangles,
             "shift": idx.shift.tolist()}
 
@@ -222,9 +291,10 @@ def reduce_partials(parts: list[dict[str, Any]], files: list[str], mesh: str, cf
 
 
 def c2m_tiles(paths: list[str | os.PathLike], mesh: str | os.PathLike, cfg: C2MConfig | None = None,
-              client=None, chunks_per_task: int = 4) -> TiledC2M:
+              client=None, chunks_per_task: int = 4, out_dir: str | os.PathLike | None = None) -> TiledC2M:
     """C2M statistics of the cloud tiles ``paths`` against ``mesh``: on ``client`` (a dask Client) as one
-    task per point range, or in this process (``client=None``) with the same reduction."""
+    task per point range, or in this process (``client=None``) with the same reduction. With ``out_dir``
+    every tile (LAS/LAZ only) is one task that also writes its distance cloud there."""
     cfg = cfg or C2MConfig()
     if cfg.signed:
         raise ConfigError("signed", "tiled C2M computes unsigned distances only")
@@ -232,11 +302,16 @@ def c2m_tiles(paths: list[str | os.PathLike], mesh: str | os.PathLike, cfg: C2MC
         raise ConfigError("engine", "tiled C2M needs the grid engine (its compiled per-chunk sums)")
     t0 = time.perf_counter()
     files = [str(p) for p in paths]
-    ranges = plan_ranges(files, cfg, chunks_per_task)
+    if out_dir is not None:
+        bad = [f for f in files if Path(f).suffix.lower() not in LAS_SUFFIXES]
+        if bad:
+            raise InputError(bad[0], "distance clouds are written for LAS/LAZ tiles only")
+        out_dir = str(out_dir)
+    ranges = plan_ranges(files, cfg, chunks_per_task, whole_files=out_dir is not None)
     mesh = str(mesh)
     if client is None:
-        parts = [range_partials(r, mesh, cfg.to_dict()) for r in ranges]
+        parts = [range_partials(r, mesh, cfg.to_dict(), out_dir) for r in ranges]
     else:
-        futures = [client.submit(range_partials, r, mesh, cfg.to_dict(), pure=False) for r in ranges]
+        futures = [client.submit(range_partials, r, mesh, cfg.to_dict(), out_dir, pure=False) for r in ranges]
         parts = client.gather(futures)
     return reduce_partials(parts, files, mesh, cfg, t0)
