@@ -52,6 +52,8 @@ def _clouds(specs: tuple[str, ...]) -> list[str]:
               help="Chunks of a LAS/LAZ file per dask task.")
 @click.option("--workers", type=click.IntRange(1), default=2, show_default=True, help="Local worker processes.")
 @click.option("--scheduler", default=None, metavar="ADDRESS", help="An existing dask cluster (tcp://host:8786).")
+@click.option("--exact-median", is_flag=True, help="A second pass over the points for the exact median "
+                                                  "(default: from the histogram, within median_bound_m).")
 @click.option("--output-dir", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Write each LAS/LAZ tile with the distance as the extra dimension C2M_absolute_distances "
                    "to DIR/<stem>_c2m.<las|laz> (one task per tile).")
@@ -59,8 +61,8 @@ def _clouds(specs: tuple[str, ...]) -> list[str]:
 @json_option
 @quiet_option
 @verbosity_options
-def c2m_tiles(mesh, clouds, thresholds, max_dist, chunk, chunks_per_task, workers, scheduler, output_dir, config_file,
-              set_values, as_json, quiet, verbose):
+def c2m_tiles(mesh, clouds, thresholds, max_dist, chunk, chunks_per_task, workers, scheduler, exact_median, output_dir,
+              config_file, set_values, as_json, quiet, verbose):
     """Table 1 and the overall C2M statistics of the cloud tiles CLOUDS against MESH, on dask.
 
     \b
@@ -68,7 +70,8 @@ def c2m_tiles(mesh, clouds, thresholds, max_dist, chunk, chunks_per_task, worker
     per --chunks-per-task chunks), other formats one task per file. The mesh and its index are built
     once per worker; the points are never gathered. Count, mean, std, RMS, min, max and Table 1 are
     bit-identical to `mst c2m` on the same points in the same chunks; the median comes from a merged
-    65536-bin histogram (within median_bound_m, in --json). Unsigned distances, grid engine.
+    65536-bin histogram (within median_bound_m, in --json), or exact with --exact-median (a second
+    pass). Unsigned distances, grid engine.
 
     \b
     Examples:
@@ -96,7 +99,8 @@ def c2m_tiles(mesh, clouds, thresholds, max_dist, chunk, chunks_per_task, worker
         check_outputs([output_name(f, output_dir) for f in files], [mesh, *files])
     client = connect(BatchConfig(workers=workers, scheduler=scheduler))
     try:
-        res = run(files, mesh, cfg, client=client, chunks_per_task=chunks_per_task, out_dir=output_dir)
+        res = run(files, mesh, cfg, client=client, chunks_per_task=chunks_per_task, out_dir=output_dir,
+                  exact_median=exact_median)
     finally:
         close_client(client)
     summary = res.to_json()

@@ -66,6 +66,8 @@ def test_tiles_on_two_workers_equal_the_single_process_run(tiles):
         assert (r["points_total"], r["points_valid"]) == (single["points_total"], single["points_valid"])
         assert abs(r["unsigned"]["median"] - single["unsigned"]["median"]) <= r["median_bound_m"] + 1e-12
     assert dist["unsigned"] == local["unsigned"]
+    exact = c2m_tiles(paths, d / "box.obj", cfg, chunks_per_task=3, exact_median=True).to_json()
+    assert exact["unsigned"] == single["unsigned"] and exact["median"] == "exact (second pass)"
 
 
 def test_c2m_tiles_command(tiles):
