@@ -422,7 +422,11 @@ class EdgeTracker:
         c = self.cfg
         self.prev_img = gray
         self.prev_T = T_cam_model.copy()
-        self.prev_faces = face_visibility(self.geom, T_cam_model, self.prev_faces, c.angle_appear_deg, c.angle_disappear_deg)
+        if self.sample_provider is None or self.use_klt:
+            # render-based edges take visibility from the render: the face set only masks the KLT corners
+            # (a per-face test over a 15k-triangle mesh cost ~8 ms a frame, as much as the rest of the frame)
+            self.prev_faces = face_visibility(self.geom, T_cam_model, self.prev_faces, c.angle_appear_deg,
+                                              c.angle_disappear_deg)
         if self.use_klt:
             nxt = self._klt_next
             self._klt_next = None
