@@ -6,9 +6,10 @@ Both are designed in the canonical frame (z up, metres, seconds) like :mod:`.sce
 * ``uav``: a survey UAV at ``distance`` metres above the ground (default 60; the issue's 30-120 m)
   flies along +x outside the block's south edge (the lowest y of the model near the focus), its
   gimbal looking north at the buildings, pitched ``pitch_deg`` below the horizon (default 45; 30-60).
-  Turns: the camera sways +-12 deg about the view direction, then over 30-42 % of the duration it
-  turns 180 deg to look south, away from the block (open textured ground only: no building in view
-  for 42-58 % of the sequence), and turns back over 58-70 %.
+  Turns: the camera sways +-12 deg about the view direction; the UAV slows to a hover (from 20 %
+  of the duration) and over 25-42 % turns 135 deg on the spot to look south-east, away from the
+  block (open textured ground only: no building in view for about 35-65 % of the sequence), turns
+  back over 58-75 % and flies on (from 80 %) past the buildings it saw before the turn.
 * ``fpv``: a forward-looking FPV camera (pitched ``pitch_deg`` down, default 8) flying along +x at
   ``distance`` metres (default 30; 20-50) south of the buildings' facades, at 60 % of the model's
   height (at least 5 m), yawed 40 deg from the flight direction toward the facades, banking
@@ -30,7 +31,20 @@ UAV_SCENARIOS = ("uav", "fpv")
 DEFAULT_FRAMES_UAV = {"uav": 240, "fpv": 150}
 UAV_DEFAULTS = {"uav": {"distance": 60.0, "pitch_deg": 45.0}, "fpv": {"distance": 30.0, "pitch_deg": 8.0}}
 #: the ``uav`` look-away stretch, fractions of the duration: turn away, away (no building in view), back
-GAP_PHASES = (0.30, 0.42, 0.58, 0.70)
+GAP_PHASES = (0.25, 0.42, 0.58, 0.75)
+#: how far the camera turns away from the block (deg): its 62 deg wide view (at 525 px per 640) then
+#: points 14-76 deg south of the flight line, and every building lies north of it
+AWAY_DEG = 135.0
+
+
+def _along(u: float, p: dict) -> float:
+    """Distance flown (metres) at duration fraction ``u``: ``speed`` except for a hover (speed
+    ramped to 0 over [g0 - 0.05, g0] and back over [g3, g3 + 0.05]) around the look-away turn."""
+    g0, _, _, g3 = p["gap_phases"]
+    uu = np.linspace(0.0, 1.0, 4001)
+    v = 1.0 - np.array([_smoothstep(g0 - 0.05, g0, x) - _smoothstep(g3, g3 + 0.05, x) for x in uu])
+    dist = np.concatenate([[0.0], np.cumsum(0.5 * (v[1:] + v[:-1]) * np.diff(uu))]) * p["speed"] * p["duration"]
+    return float(np.interp(u, uu, dist))
 
 
 def _smoothstep(a: float, b: float, x: float) -> float:
@@ -61,7 +75,7 @@ def resolve_uav(base: str, cfg, lo: np.ndarray, hi: np.ndarray, fc: np.ndarray, 
     height = float(hi[2] - lo[2])
     if base == "uav":
         speed = float(cfg.speed if cfg.speed is not None else max(6.0, D / 6.0))
-        length = speed * duration
+        length = _along(1.0, {"gap_phases": GAP_PHASES, "speed": speed, "duration": duration})
         x0 = fc[0] - 0.5 * length
         eye_z = lo[2] + D
         # the image centre hits the ground/buildings 40 % of the look distance inside the south edge
@@ -90,12 +104,12 @@ def uav_pose(base: str, p: dict, s: float) -> np.ndarray:
     """Camera pose ``T_canon_cam`` of a ``uav``/``fpv`` pass at time ``s`` (seconds)."""
     T = p["duration"]
     u = s / T if T > 0 else 0.0
-    x = p["x_start"] + p["speed"] * s
+    x = p["x_start"] + (_along(u, p) if base == "uav" else p["speed"] * s)
     pitch = math.radians(p["pitch_deg"])
     if base == "uav":
         g0, g1, g2, g3 = p["gap_phases"]
         away = _smoothstep(g0, g1, u) - _smoothstep(g2, g3, u)  # 1: looking south, away from the block
-        yaw = math.pi / 2 + math.radians(12.0) * math.sin(2 * math.pi * s / 5.0) - math.pi * away
+        yaw = math.pi / 2 + math.radians(12.0) * math.sin(2 * math.pi * s / 5.0) - math.radians(AWAY_DEG) * away
         eye = np.array([x, p["eye_y"], p["eye_z"] + 0.01 * p["distance"] * math.sin(2 * math.pi * s / 4.0)])
         roll = 2.0 * math.sin(2 * math.pi * s / 7.0)
     else:
