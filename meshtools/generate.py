@@ -430,7 +430,7 @@ def city_block_model(buildings: int = 64, seed: int = 0, lot_m: float = 30.0, st
     floor, 4 walls, roof) or, with probability ``gabled``, a gabled roof (7 faces: floor, 2 walls,
     2 gable pentagons, 2 roof slopes; ridge along the longer side, 25-50 % of the shorter side
     high). ``ground``: add one ground quad at z = 0 around the block (no hole: the buildings' floors
-    lie on it). Polygon count: 6-7 per building (+1): ``buildings=7500`` gives about 50,000.
+    lie on it). Polygon count: 6-7 per building (+1): ``buildings=7710`` gives about 50,000.
     Deterministic (``seed``). Model frame: x east, y north, z up, metres; outward normals.
     """
     rng = np.random.default_rng(seed)
@@ -486,7 +486,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--polygons", action="store_true", help="write the ground-truth polygon model instead")
     ap.add_argument("--buildings", type=int, default=None,
-                    help="city_block --polygons: buildings (6-7 polygons each; 7500 ~ 50k polygons) [64]")
+                    help="city_block --polygons: buildings (6-7 polygons each; 7710 ~ 50k polygons) [64]")
     a = ap.parse_args(argv)
     if a.polygons and a.shape == "city_block":
         m = city_block_model(a.buildings or 64, seed=a.seed)

@@ -19,7 +19,7 @@ import time
 import traceback
 from pathlib import Path
 
-STAGES = ["convert", "c2m", "synth", "track", "slam", "fuse", "nav"]
+STAGES = ["convert", "c2m", "synth", "track", "slam", "fuse", "nav", "uav"]
 
 
 def timed_command(cmd: list[str], **kw) -> dict:
