@@ -171,3 +171,28 @@ def test_uav_survey_band_default_mode(survey):
     # the block is tracked again after the turn (the model / relocalised in the last 20 %)
     tail = [d["status"].get(k) for k in range(int(0.8 * n), n)]
     assert tail.count("model") + tail.count("relocalised") >= 0.5 * len(tail), tail
+
+
+# ---------------------------------------------------------------------------- policy
+def test_relocalisation_is_tried_while_the_aid_carries_with_the_model_in_view():
+    """A SLAM stretch with the model projecting into the image (edge samples) gets relocalisation
+    attempts like a lost stretch (the 40 m survey: the aid's 11 m-off map poses became a
+    relocalised frame); without samples (the model out of view) or with the aid on standby, none."""
+    from mst.core.poses import se3_exp
+    from mst.pipeline.tracking.edge_tracker import FrameResult
+    from mst.pipeline.tracking.session import TrackingPolicy
+
+    T = se3_exp(np.array([0.0, 0.0, 2.0, 0.0, 0.0, 0.0]))
+    bad = FrameResult(T, False, 100, 20, 0.3, 40.0, np.eye(6), np.eye(6), reason="inliers 20%", support=0.3)
+    unseen = FrameResult(T, False, 0, 0, float("nan"), float("nan"), np.eye(6), np.eye(6), reason="outside")
+    p = TrackingPolicy(T, search_range_px=8)
+    p.accepted(T)
+    p.frame_done(bad)
+    assert not p.should_relocalise(bad, every=2)  # edges only / standby: not lost yet, no attempt
+    tries = []
+    for _ in range(4):  # the aid carries: slam frames (accepted, lost_streak stays 0)
+        tries.append(p.should_relocalise(bad, every=2, aid_on=True))
+        p.slam_streak += 1
+        p.accepted(T)
+    assert tries == [True, False, True, False] and p.lost_streak == 0
+    assert not p.should_relocalise(unseen, every=2, aid_on=True)  # the model out of view: no attempt
