@@ -25,6 +25,9 @@ COMMANDS: dict[str, str] = {
     "c2m": "c2m:c2m",
     "eval": "eval_cmd:eval_group",
     "nav": "nav:nav_group",
+    "batch": "batch:batch",
+    "report": "report:report",
+    "c2m-tiles": "c2m_tiles:c2m_tiles",
 }
 
 

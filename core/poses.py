@@ -283,3 +283,15 @@ def pnp_ransac(X_model: np.ndarray, uv_px: np.ndarray, K: np.ndarray, dist, iter
                                   confidence=0.999, flags=flags)
     except cv2.error:
         return False, None, None, None
+
+
+def refine_pnp(X_model: np.ndarray, uv_px: np.ndarray, K: np.ndarray, dist, rvec: np.ndarray,
+               tvec: np.ndarray) -> np.ndarray:
+    """``T_cam_model`` (4x4) of a PnP pose ``(rvec, tvec)`` refined by ``cv2.solvePnPRefineLM`` on
+    model points ``X_model (N, 3)`` m and pixels ``uv_px (N, 2)`` (e.g. the inliers of :func:`pnp_ransac`)."""
+    import cv2
+
+    rvec, tvec = cv2.solvePnPRefineLM(X_model, uv_px, K, dist, rvec, tvec)
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = cv2.Rodrigues(rvec)[0], tvec.ravel()
+    return T

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # The whole mst chain on the bundled sample (run by `make demo`; mst must be on PATH).
-#   synth (only when the sequence is absent) -> convert-model -> init -> track -> fuse -> c2m -> eval traj
+#   synth (only when the sequence is absent) -> convert-model -> init -> track -> fuse -> c2m -> eval traj -> report
 # Every stage reads the previous stage's files; results land in $OUT (default demo-out/).
 set -euo pipefail
 HERE=$(cd "$(dirname "$0")" && pwd)
@@ -32,6 +32,9 @@ mst c2m "$OUT/cloud.ply" "$SEQ/scene.ply" --thresholds 0.01,0.02,0.05,0.1 --mark
 step "eval traj: tracked trajectory vs ground truth"
 mst eval traj "$OUT/traj.txt" "$SEQ/gt.txt" --align none --json > "$OUT/eval.json"
 
+step "report: one self-contained HTML page of the run (open it in a browser)"
+mst report "$OUT" -o "$OUT/report.html" --frames "$SEQ/rgb" --model "$OUT/building.wrl" --camera "$SEQ/camera.json" --fps 30
+
 # ---- the headline case (issue 11): a UAV survey of a procedural city block, in OUT/uav/
 UAV=$OUT/uav
 mkdir -p "$UAV"
@@ -49,4 +52,4 @@ mst track "$UAV/seq/rgb" --fps 30 --model "$UAV/city_from_tin.wrl" --camera "$UA
   --init "$UAV/pose0.txt" -o "$UAV/traj.txt" --json > "$UAV/track.json"
 mst eval traj "$UAV/traj.txt" "$UAV/seq/gt.txt" --align none --json > "$UAV/eval.json"
 
-printf '\nDemo outputs in %s/\n' "$OUT" >&2
+printf '\nDemo outputs in %s/ (report: %s/report.html)\n' "$OUT" "$OUT" >&2

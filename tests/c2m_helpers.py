@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 
 from mst.eval import c2m
+from mst.meshtools.formats import save_triangles
 from mst.meshtools.generate import box
-from mst.meshtools.io import save_triangles
 
 BOX = (4.0, 6.0, 2.0)  # box from (0,0,0) to (4,6,2), outward winding
 

@@ -1,7 +1,7 @@
 """mst.eval.c2m: cloud-to-mesh (C2M) distances and the Table-1 statistics of ``mst c2m``.
 
-Holds: geometry, grids (+ numba kernels), distances, stats, driver (core ``c2m``), runner (``run_c2m``), report, config.
-May import: numpy, numba, Open3D (lazily), mst.core, mst.errors, mst.meshtools (mesh files), mst.eval.cloud_io.
+Holds: geometry, grids (+ numba kernels), distances, stats, driver (core ``c2m``), runner (``run_c2m``), report, config,
+tiles (many tiles on dask). May import: numpy, numba, Open3D and dask.distributed (lazily), mst.core, mst.errors, mst.meshtools (mesh files), mst.eval.cloud_io.
 
 Distance: for every cloud point, the exact Euclidean distance (metres, float64) to the nearest
 triangle of the mesh, like CloudCompare's C2M. How it is computed:

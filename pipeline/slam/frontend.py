@@ -111,7 +111,7 @@ class FrontEnd:
         for t in self.tid[has[~good]]:
             self.lm.pop(int(t), None)
         self._keep_tracks(keep)
-        Xc = Xh[good] @ R.T + T[:3, 3]
+        Xc = Xh[good] @ R.T + T[:3, 3]  # R itself, not T's view: the product's last bits as they were
         if len(Xc):
             self.scene_depth = float(np.median(Xc[:, 2]))
         return T, pose_information(self.K, Xc), int(good.sum())

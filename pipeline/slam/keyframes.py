@@ -13,7 +13,7 @@ import math
 
 import numpy as np
 
-from mst.core.poses import inv_T, pnp_ransac, se3_log, transform_points
+from mst.core.poses import inv_T, pnp_ransac, refine_pnp, se3_log, transform_points
 from mst.pipeline.slam.state import STATUS_MODEL, Keyframe
 
 
@@ -141,9 +141,7 @@ class KeyframeMap:
             if not ok or inl is None or len(inl) < self.cfg.reloc_min_inliers:
                 continue
             inl = inl.ravel()
-            rvec, tvec = cv2.solvePnPRefineLM(X[inl], uv[inl], self.K, self.dist, rvec, tvec)
-            T = np.eye(4)
-            T[:3, :3], T[:3, 3] = cv2.Rodrigues(rvec)[0], tvec.ravel()
+            T = refine_pnp(X[inl], uv[inl], self.K, self.dist, rvec, tvec)
             # restart the tracks from the inlier matches (new landmark ids, positions from the keyframe)
             for t, x in zip(self._add_tracks(uv[inl], 90.0, T), X[inl]):
                 self.lm[int(t)] = x

@@ -10,9 +10,8 @@ evidence of the final pose (:mod:`mst.pipeline.tracking.health`) go back in a
 :class:`FrameResult`. Sequence-level decisions (re-acquisition, the SLAM aid) are the session's
 (:mod:`mst.pipeline.tracking.session`).
 
-Frames: ``T_cam_model`` (ViSP cMo). Pixels, metres. Over 500 lines: one class whose methods share
-the per-frame state (reference image, pose, faces, KLT points); the numeric kernels it calls live in
-their own modules.
+Frames: ``T_cam_model`` (ViSP cMo). Pixels, metres. One class whose methods share the per-frame state
+(reference image, pose, faces, KLT points); the numeric kernels it calls live in their own modules.
 """
 
 from __future__ import annotations

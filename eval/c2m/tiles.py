@@ -1,0 +1,242 @@
+"""C2M at scale: many cloud tiles (LAS/LAZ read by point ranges; any other cloud file whole) as dask
+tasks, the mesh index built once per worker, the statistics reduced on the client without ever
+gathering the points.
+
+Exact where the single-process run is: every task streams its range in the chunks that
+:func:`mst.eval.c2m.run_c2m` would use (``chunk_points`` from the start of each file; a range
+starts on a chunk boundary) and returns per chunk the count, sum, sum of squares, min and max of the
+distances, overall and under each Table-1 threshold (the compiled ``threshold_sums``, as the single
+run computes them); the client merges them in file and chunk order with the same
+:class:`~mst.eval.c2m.stats.Moments`, so count, mean, std, RMS, min, max and Table 1 are bit-identical
+to a single-process run over the same files. The median is read from a merged fixed-width histogram
+(``HIST_BINS`` bins over ``[0, HIST_RANGE_X * max(thresholds))``): within half a bin width of the
+exact median (``median_bound_m`` in the result), None when the median lies beyond the histogram.
+Unsigned distances only, grid engine only (the compiled kernels); ``max_dist_m`` applies as usual.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from mst import InputError
+from mst.errors import ConfigError
+from mst.eval.c2m.config import C2MConfig
+from mst.eval.c2m.stats import Moments, ThresholdRow
+
+HIST_BINS = 1 << 16
+HIST_RANGE_X = 8.0
+LAS_SUFFIXES = (".las", ".laz")
+
+
+@dataclass(frozen=True)
+class PointRange:
+    """Points ``start .. start + count`` of one cloud file (a task)."""
+
+    path: str
+    start: int
+    count: int
+    whole: bool  #: the whole file (formats without random access)
+
+
+def plan_ranges(paths: list[str | os.PathLike], cfg: C2MConfig, chunks_per_task: int = 4) -> list[PointRange]:
+    """The tasks over ``paths``: LAS/LAZ in ranges of ``chunks_per_task`` chunks, other files whole."""
+    from mst.eval.cloud_io import open_cloud
+
+    out = []
+    step = cfg.chunk_points * chunks_per_task
+    for p in paths:
+        n = open_cloud(p).count
+        if Path(p).suffix.lower() in LAS_SUFFIXES:
+            out += [PointRange(str(p), s, min(step, n - s), False) for s in range(0, n, step)]
+        else:
+            out.append(PointRange(str(p), 0, n, True))
+    return out
+
+
+def _read(r: PointRange, size: int):
+    """Float64 (k, 3) blocks of ``size`` points of the range, in file order."""
+    if r.whole:
+        from mst.eval.cloud_io import open_cloud
+
+        yield from open_cloud(r.path).chunks(size)
+        return
+    import laspy
+
+    try:
+        with laspy.open(r.path) as f:
+            f.seek(r.start)
+            left = r.count
+            while left > 0:
+                pts = f.read_points(min(size, left))
+                left -= len(pts)
+                if len(pts) == 0:
+                    raise InputError(r.path, f"ended {left} points early")
+                yield np.stack([np.asarray(pts.x, np.float64), np.asarray(pts.y, np.float64),
+                                np.asarray(pts.z, np.float64)], axis=1)
+    except InputError:
+        raise
+    except Exception as e:  # laspy raises several types for corrupt files
+        raise InputError(r.path, f"cannot read LAS/LAZ points ({e})") from None
+
+
+#: per worker process: (mesh path, mtime, settings) -> its MeshIndex (built once per worker)
+_INDEXES: dict[tuple, Any] = {}
+
+
+def _index(mesh: str, cfg: C2MConfig):
+    from mst.eval.c2m.runner import load_mesh_index
+
+    key = (mesh, os.stat(mesh).st_mtime_ns, cfg.engine, cfg.small_mesh_triangles)
+    idx = _INDEXES.get(key)
+    if idx is None:
+        _INDEXES.clear()
+        idx = _INDEXES[key] = load_mesh_index(mesh, cfg)
+    return idx
+
+
+def _chunk_sums(idx, dv: np.ndarray, thr: np.ndarray) -> tuple[list, list, list, float, float]:
+    """(counts, sums, sums of squares) under each threshold and overall (last), min, max of one chunk's
+    distances, computed as the single-process accumulator does (compiled, else numpy)."""
+    if idx.kernels is not None:
+        cnt, s1, s2, lo, hi = idx.kernels.threshold_sums(dv, thr)
+        return np.asarray(cnt).tolist(), np.asarray(s1).tolist(), np.asarray(s2).tolist(), float(lo), float(hi)
+    cnt, s1, s2 = [], [], []
+    for x in [*(dv[dv < t] for t in thr), dv]:
+        x = np.asarray(x, np.float64)
+        cnt.append(len(x))
+        s1.append(float(x.sum()))
+        s2.append(float(np.dot(x, x)))
+    lo, hi = (float(dv.min()), float(dv.max())) if len(dv) else (np.inf, -np.inf)
+    return cnt, s1, s2, lo, hi
+
+
+def _worker_threads() -> None:
+    """On a dask worker, the compiled kernels use as many threads as the worker has (its ``nthreads``):
+    workers of one thread each share a machine's cores instead of oversubscribing them."""
+    try:
+        from distributed import get_worker
+
+        n = get_worker().state.nthreads
+    except (ImportError, ValueError, AttributeError):
+        return  # not in a worker: the process's own setting
+    import numba
+
+    numba.set_num_threads(max(1, min(int(n), numba.config.NUMBA_NUM_THREADS)))
+
+
+def range_partials(r: PointRange, mesh: str, cfg_dict: dict) -> dict[str, Any]:
+    """The dask task: per chunk of the range ``(n seen, n non-finite, n beyond, cnt, s1, s2, lo, hi)``
+    (arrays over the thresholds + overall last) and the range's distance histogram."""
+    from mst.eval.c2m.driver import stream_distances
+
+    cfg = C2MConfig.from_dict(cfg_dict)
+    _worker_threads()
+    idx = _index(mesh, cfg)
+    thr = np.asarray(sorted(float(t) for t in cfg.thresholds_m), np.float64)
+    edges_hi = HIST_RANGE_X * float(thr[-1])
+    hist = np.zeros(HIST_BINS + 1, np.int64)  # the last bin: at or beyond the histogram
+    chunks: list[tuple] = []
+
+    def on_chunk(xyz, fin, du, ds):
+        valid = ~np.isnan(du)
+        dv = du if valid.all() else du[valid]
+        chunks.append((len(xyz), int((~fin).sum()), len(du) - len(dv), *_chunk_sums(idx, dv, thr)))
+        b = np.minimum((dv * (HIST_BINS / edges_hi)).astype(np.int64), HIST_BINS)
+        hist[:] += np.bincount(b, minlength=HIST_BINS + 1)
+
+    stream_distances(idx, _read(r, cfg.chunk_points), r.count, cfg, on_chunk=on_chunk, cloud=r.path, mesh=mesh)
+    return {"range": (r.path, r.start), "chunks": chunks, "hist": hist, "triangles": idx.n_triangles,
+            "shift": idx.shift.tolist()}
+
+
+@dataclass
+class TiledC2M:
+    """The statistics of a tiled run: :meth:`to_json` has the fields of ``mst c2m --json`` it computes."""
+
+    files: list[str]
+    mesh: str
+    points_total: int
+    points_valid: int
+    points_nonfinite: int
+    points_beyond_max_dist: int
+    thresholds: list[ThresholdRow]
+    unsigned: dict[str, Any]
+    median_bound_m: float
+    tasks: int
+    elapsed_s: float
+    config: C2MConfig
+
+    def to_json(self) -> dict[str, Any]:
+        return {"files": self.files, "mesh": self.mesh, "points_total": self.points_total,
+                "points_valid": self.points_valid, "points_nonfinite": self.points_nonfinite,
+                "points_beyond_max_dist": self.points_beyond_max_dist,
+                "thresholds": [t.to_json() for t in self.thresholds], "unsigned": self.unsigned,
+                "median": "histogram", "median_bound_m": self.median_bound_m, "tasks": self.tasks,
+                "elapsed_s": self.elapsed_s, "config": self.config.to_dict()}
+
+
+def _median(hist: np.ndarray, n: int, width: float) -> float | None:
+    """The histogram's median: the centre of the bin of the middle rank (the mean of the two middle ranks'
+    bin centres for an even count, as the median averages them), so within ``width / 2`` of the exact
+    one; None when it lies beyond the histogram."""
+    if n == 0:
+        return None
+    ranks = [(n + 1) // 2] if n % 2 else [n // 2, n // 2 + 1]
+    bins = np.searchsorted(np.cumsum(hist), ranks)
+    if bins.max() >= len(hist) - 1:
+        return None
+    return float(np.mean((bins + 0.5) * width))
+
+
+def reduce_partials(parts: list[dict[str, Any]], files: list[str], mesh: str, cfg: C2MConfig, t0: float) -> TiledC2M:
+    """Merge the tasks' chunks in file and chunk order (the single run's order) and their histograms."""
+    order = {f: i for i, f in enumerate(files)}
+    parts = sorted(parts, key=lambda p: (order[p["range"][0]], p["range"][1]))
+    thr = sorted(float(t) for t in cfg.thresholds_m)
+    mo_u, th_mo = Moments(), [Moments() for _ in thr]
+    n_seen = n_nonfinite = n_beyond = 0
+    hist = np.zeros(HIST_BINS + 1, np.int64)
+    for p in parts:
+        hist += p["hist"]
+        for seen, nonfin, beyond, cnt, s1, s2, lo, hi in p["chunks"]:
+            n_seen, n_nonfinite, n_beyond = n_seen + seen, n_nonfinite + nonfin, n_beyond + beyond
+            mo_u.add_sums(int(cnt[-1]), float(s1[-1]), float(s2[-1]), float(lo), float(hi))
+            for j, mo in enumerate(th_mo):
+                mo.add_sums(int(cnt[j]), float(s1[j]), float(s2[j]))
+    n_valid = n_seen - n_nonfinite
+    if n_valid == 0:
+        raise InputError(files[0] if len(files) == 1 else None, "the clouds have no finite points")
+    width = HIST_RANGE_X * thr[-1] / HIST_BINS
+    unsigned = {"count": mo_u.n, "mean": mo_u.mean if mo_u.n else None, "median": _median(hist, mo_u.n, width),
+                "std": mo_u.std() if mo_u.n else None, "rms": float(np.sqrt(mo_u.sumsq / mo_u.n)) if mo_u.n else None,
+                "min": mo_u.min if mo_u.n else None, "max": mo_u.max if mo_u.n else None}
+    return TiledC2M(files, mesh, n_seen, n_valid, n_nonfinite, n_beyond,
+                    [ThresholdRow.from_moments(t, mo, n_valid) for t, mo in zip(thr, th_mo)], unsigned, width / 2,
+                    len(parts), round(time.perf_counter() - t0, 3), cfg)
+
+
+def c2m_tiles(paths: list[str | os.PathLike], mesh: str | os.PathLike, cfg: C2MConfig | None = None,
+              client=None, chunks_per_task: int = 4) -> TiledC2M:
+    """C2M statistics of the cloud tiles ``paths`` against ``mesh``: on ``client`` (a dask Client) as one
+    task per point range, or in this process (``client=None``) with the same reduction."""
+    cfg = cfg or C2MConfig()
+    if cfg.signed:
+        raise ConfigError("signed", "tiled C2M computes unsigned distances only")
+    if cfg.engine == "bvh":
+        raise ConfigError("engine", "tiled C2M needs the grid engine (its compiled per-chunk sums)")
+    t0 = time.perf_counter()
+    files = [str(p) for p in paths]
+    ranges = plan_ranges(files, cfg, chunks_per_task)
+    mesh = str(mesh)
+    if client is None:
+        parts = [range_partials(r, mesh, cfg.to_dict()) for r in ranges]
+    else:
+        futures = [client.submit(range_partials, r, mesh, cfg.to_dict(), pure=False) for r in ranges]
+        parts = client.gather(futures)
+    return reduce_partials(parts, files, mesh, cfg, t0)
