@@ -196,3 +196,25 @@ def test_relocalisation_is_tried_while_the_aid_carries_with_the_model_in_view():
         p.accepted(T)
     assert tries == [True, False, True, False] and p.lost_streak == 0
     assert not p.should_relocalise(unseen, every=2, aid_on=True)  # the model out of view: no attempt
+
+
+def test_t_junction_joint_between_coplanar_facades_is_not_tracked():
+    """Two buildings' facades in one plane, split unevenly (a T-junction: the low facade's joint edge
+    lies on the tall one's longer edge): the joint shows no image edge and is dropped; the tall
+    facade's edge above the low one is a real outline and stays; facades turned 10 deg keep both."""
+    from mst.meshtools.model import PolygonModel
+    from mst.pipeline.tracking.visibility import ModelGeometry
+
+    def edges(turn_deg: float):
+        a = np.radians(turn_deg)
+        V = np.array([[0, 0, 0], [1, 0, 0], [1, 0, 1], [0, 0, 1],  # low facade, normal -y
+                      [1, 0, 0], [1 + np.cos(a), np.sin(a), 0], [1 + np.cos(a), np.sin(a), 2], [1, 0, 2]], float)
+        g = ModelGeometry.from_model(PolygonModel(V, [[0, 1, 2, 3], [4, 5, 6, 7]]))
+        return {tuple(sorted(map(tuple, np.round(g.vertices[e], 6).tolist()))) for e in g.edges}
+
+    joint = ((1.0, 0.0, 0.0), (1.0, 0.0, 1.0))
+    tall = ((1.0, 0.0, 0.0), (1.0, 0.0, 2.0))
+    flat = edges(0.0)
+    assert joint not in flat and tall in flat and len(flat) == 7
+    turned = edges(10.0)
+    assert joint in turned and tall in turned and len(turned) == 8
