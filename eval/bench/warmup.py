@@ -26,7 +26,6 @@ def warm_c2m() -> None:
     from mst.eval.c2m.config import C2MConfig
     from mst.eval.c2m.driver import c2m
     from mst.eval.c2m.geometry import prepare_mesh
-
     from mst.meshtools.generate import courtyard
 
     V, F = (np.asarray(a) for a in courtyard()[:2])
