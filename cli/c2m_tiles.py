@@ -52,12 +52,17 @@ def _clouds(specs: tuple[str, ...]) -> list[str]:
               help="Chunks of a LAS/LAZ file per dask task.")
 @click.option("--workers", type=click.IntRange(1), default=2, show_default=True, help="Local worker processes.")
 @click.option("--scheduler", default=None, metavar="ADDRESS", help="An existing dask cluster (tcp://host:8786).")
+@click.option("--exact-median", is_flag=True, help="A second pass over the points for the exact median "
+                                                  "(default: from the histogram, within median_bound_m).")
+@click.option("--output-dir", type=click.Path(file_okay=False, path_type=Path), default=None,
+              help="Write each LAS/LAZ tile with the distance as the extra dimension C2M_absolute_distances "
+                   "to DIR/<stem>_c2m.<las|laz> (one task per tile).")
 @config_options()
 @json_option
 @quiet_option
 @verbosity_options
-def c2m_tiles(mesh, clouds, thresholds, max_dist, chunk, chunks_per_task, workers, scheduler, config_file, set_values,
-              as_json, quiet, verbose):
+def c2m_tiles(mesh, clouds, thresholds, max_dist, chunk, chunks_per_task, workers, scheduler, exact_median, output_dir,
+              config_file, set_values, as_json, quiet, verbose):
     """Table 1 and the overall C2M statistics of the cloud tiles CLOUDS against MESH, on dask.
 
     \b
@@ -65,18 +70,22 @@ def c2m_tiles(mesh, clouds, thresholds, max_dist, chunk, chunks_per_task, worker
     per --chunks-per-task chunks), other formats one task per file. The mesh and its index are built
     once per worker; the points are never gathered. Count, mean, std, RMS, min, max and Table 1 are
     bit-identical to `mst c2m` on the same points in the same chunks; the median comes from a merged
-    65536-bin histogram (within median_bound_m, in --json). Unsigned distances, grid engine.
+    65536-bin histogram (within median_bound_m, in --json), or exact with --exact-median (a second
+    pass). Unsigned distances, grid engine.
 
     \b
     Examples:
       mst c2m-tiles building.obj tiles/ --workers 2 --json
       mst c2m-tiles tin.ply 'survey/*.laz' --scheduler tcp://10.0.0.5:8786 --max-dist 2
+      mst c2m-tiles building.obj tiles/ --output-dir c2m/     # + tiles with the distance dimension
     """
     setup_logging(quiet, verbose, prog="mst c2m-tiles")
+    from mst import check_outputs
     from mst.eval.batch.config import BatchConfig
     from mst.eval.batch.runner import close_client, connect
     from mst.eval.c2m import C2MConfig, table1_rows
     from mst.eval.c2m.tiles import c2m_tiles as run
+    from mst.eval.c2m.tiles import output_name
 
     thr = None if thresholds is None else [v for v in thresholds.replace(";", ",").split(",") if v.strip()]
     cfg = build_config(C2MConfig, config_file=config_file, set_values=set_values, section_name="c2m", flags=FLAGS,
@@ -84,9 +93,14 @@ def c2m_tiles(mesh, clouds, thresholds, max_dist, chunk, chunks_per_task, worker
     files = _clouds(clouds)
     if not mesh.is_file():
         raise InputError(mesh, "mesh file does not exist")
+    if output_dir is not None:
+        if not output_dir.is_dir():
+            raise InputError(output_dir, "output folder does not exist")
+        check_outputs([output_name(f, output_dir) for f in files], [mesh, *files])
     client = connect(BatchConfig(workers=workers, scheduler=scheduler))
     try:
-        res = run(files, mesh, cfg, client=client, chunks_per_task=chunks_per_task)
+        res = run(files, mesh, cfg, client=client, chunks_per_task=chunks_per_task, out_dir=output_dir,
+                  exact_median=exact_median)
     finally:
         close_client(client)
     summary = res.to_json()

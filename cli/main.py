@@ -25,6 +25,7 @@ COMMANDS: dict[str, str] = {
     "c2m": "c2m:c2m",
     "eval": "eval_cmd:eval_group",
     "nav": "nav:nav_group",
+    "refine": "refine:refine",
     "batch": "batch:batch",
     "report": "report:report",
     "c2m-tiles": "c2m_tiles:c2m_tiles",
@@ -66,6 +67,7 @@ def cli() -> None:
       mst c2m cloud.ply mesh.obj                    cloud-to-mesh statistics (Table 1)
       mst eval traj traj.txt gt.txt                 trajectory errors (ATE/RPE, dX dY dZ dyaw)
       mst nav fuse --traj traj.txt --nav nav.csv -o fused.txt   GPS/AHRS + vision fusion
+      mst refine --traj traj.txt --model bldg.wrl --camera cam.json --depth depth/ -o refined.txt
 
     Results and --json summaries go to stdout, progress and messages to stderr.
     """

@@ -53,6 +53,8 @@ def _sim_options(f):
                      help="Model-to-world translation, m [default: 0 0 0]."),
         click.option("--enh-offset", nargs=3, type=float, default=None, metavar="E N H",
                      help="Write easting,northing,height columns with this offset (a '# offset:' line)."),
+        click.option("--time-offset", "time_offset_s", type=float, default=None,
+                     help="Clock offset of the log: a row measured at video time t is stamped t - OFFSET, s [default: 0]."),
     ]
     for o in reversed(opts):
         f = o(f)
@@ -64,7 +66,7 @@ SIM_FLAGS = {"seed": "--seed", "rate_hz": "--rate", "sigma_h_m": "--gps-sigma", 
              "bias_rw_m_per_sqrt_s": "--gps-bias-rw", "outlier_rate": "--outlier-rate", "dropouts": "--dropouts",
              "ahrs_sigma_deg": "--ahrs-sigma", "ahrs_yaw_bias_deg": "--ahrs-yaw-bias", "mount_ypr_deg": "--mount",
              "lever_arm_m": "--lever", "world_yaw_deg": "--world-yaw", "world_offset_m": "--world-offset",
-             "enh_offset_m": "--enh-offset"}
+             "enh_offset_m": "--enh-offset", "time_offset_s": "--time-offset"}
 
 
 def _pair(v, i):
@@ -78,7 +80,8 @@ def _sim_config(o: dict, config_file=None, set_values=()):
                "sigma_v_m": _pair(o["gps_sigma"], 1), "bias_rw_m_per_sqrt_s": o["gps_bias_rw"],
                "outlier_rate": o["outlier_rate"], "dropouts": o["dropouts"], "ahrs_sigma_deg": o["ahrs_sigma"],
                "ahrs_yaw_bias_deg": o["ahrs_yaw_bias"], "mount_ypr_deg": o["mount"], "lever_arm_m": o["lever"],
-               "world_yaw_deg": o["world_yaw"], "world_offset_m": o["world_offset"], "enh_offset_m": o["enh_offset"]}
+               "world_yaw_deg": o["world_yaw"], "world_offset_m": o["world_offset"], "enh_offset_m": o["enh_offset"],
+               "time_offset_s": o["time_offset_s"]}
     return build_config(NavSimConfig, config_file=config_file, set_values=set_values, section_name="nav_simulate",
                         options=options, flags=SIM_FLAGS)
 
@@ -118,7 +121,9 @@ def simulate(gt_path, out, config_file, set_values, as_json, quiet, verbose, **o
 #: FusionConfig field -> the option that sets it
 FUSE_FLAGS = {"mode": "--mode", "lever_arm_m": "--lever", "gps_sigma_h_m": "--gps-sigma", "gps_sigma_v_m": "--gps-sigma",
               "ahrs_sigma_deg": "--ahrs-sigma", "vision_sigma_m": "--vision-sigma", "vision_sigma_deg": "--vision-sigma",
-              "accel_sigma_mps2": "--accel-sigma", "ang_accel_sigma_dps2": "--ang-accel-sigma"}
+              "accel_sigma_mps2": "--accel-sigma", "ang_accel_sigma_dps2": "--ang-accel-sigma",
+              "time_offset_s": "--time-offset", "estimate_time_offset": "--estimate-time-offset",
+              "estimate_lever_arm": "--estimate-lever-arm"}
 
 
 @nav_group.command("fuse")
@@ -142,15 +147,26 @@ FUSE_FLAGS = {"mode": "--mode", "lever_arm_m": "--lever", "gps_sigma_h_m": "--gp
 @click.option("--vision-sigma", nargs=2, type=float, default=None, metavar="M DEG",
               help="Vision noise when no covariance file is given (x3 for SLAM frames) [default: 0.05 0.3].")
 @click.option("--accel-sigma", type=float, default=None,
-              help="Motion model: white acceleration, m/s^2/sqrt(Hz) [default: 1].")
+              help="With motion_model=cv (--set motion_model=cv): white acceleration, m/s^2/sqrt(Hz) [default: 1]; "
+                   "the default model is constant acceleration (jerk_sigma_mps3, default 0.5).")
 @click.option("--ang-accel-sigma", type=float, default=None,
               help="Motion model: white angular acceleration, deg/s^2/sqrt(Hz) [default: 2].")
+@click.option("--time-offset", type=float, default=None,
+              help="Seconds added to the log's times to put them on the video clock [default: 0].")
+@click.option("--estimate-time-offset", is_flag=True, default=None,
+              help="Estimate the clock offset (1-D search within --time-offset +- max_time_offset_s, default 1 s; "
+                   "its std in --json).")
+@click.option("--estimate-lever-arm", is_flag=True, default=None,
+              help="Estimate the lever arm from the GPS (used when its std is below max_lever_std_m, default 5 cm; "
+                   "--lever is then the start); its std in --json.")
 @config_options()
 @json_option
 @quiet_option
 @verbosity_options
 def fuse(traj_path, nav_path, out, cov_path, mode, offset, lever, mount_path, m2w_path, gps_sigma, ahrs_sigma,
-         vision_sigma, accel_sigma, ang_accel_sigma, config_file, set_values, as_json, quiet, verbose):
+         vision_sigma, accel_sigma, ang_accel_sigma, time_offset, estimate_time_offset, estimate_lever_arm,
+         config_file, set_values, as_json,
+         quiet, verbose):
     """Fuse a vision trajectory with a GPS/AHRS log (robust Kalman smoother, calibration estimated).
 
     Estimates the model-to-world transform (yaw + translation), the camera mount rotation
@@ -168,6 +184,7 @@ def fuse(traj_path, nav_path, out, cov_path, mode, offset, lever, mount_path, m2
       mst nav fuse --traj traj.txt --nav nav.csv -o fused.txt --json
       mst nav fuse --traj traj.txt --nav nav.csv -o causal.txt --mode filter --lever 0.1 0 -0.15
       mst nav fuse --traj traj.txt --nav nav.csv -o fused.txt --config noise.yaml --set huber_k=2
+      mst nav fuse --traj traj.txt --nav nav.csv -o fused.txt --estimate-time-offset --json
     """
     from mst.pipeline.navfusion import FusionConfig
     from mst.pipeline.navrun import fuse_nav_files
@@ -176,7 +193,8 @@ def fuse(traj_path, nav_path, out, cov_path, mode, offset, lever, mount_path, m2
     options = {"mode": mode, "lever_arm_m": lever, "gps_sigma_h_m": _pair(gps_sigma, 0),
                "gps_sigma_v_m": _pair(gps_sigma, 1), "ahrs_sigma_deg": ahrs_sigma,
                "vision_sigma_m": _pair(vision_sigma, 0), "vision_sigma_deg": _pair(vision_sigma, 1),
-               "accel_sigma_mps2": accel_sigma, "ang_accel_sigma_dps2": ang_accel_sigma}
+               "accel_sigma_mps2": accel_sigma, "ang_accel_sigma_dps2": ang_accel_sigma, "time_offset_s": time_offset,
+               "estimate_time_offset": estimate_time_offset, "estimate_lever_arm": estimate_lever_arm}
     cfg = build_config(FusionConfig, config_file=config_file, set_values=set_values, section_name="nav_fuse",
                        options=options, flags=FUSE_FLAGS)
     summary, res = fuse_nav_files(traj_path, nav_path, out, cfg, cov_path=cov_path, offset=offset,
@@ -186,5 +204,49 @@ def fuse(traj_path, nav_path, out, cov_path, mode, offset, lever, mount_path, m2
          f"mount yaw/pitch/roll {c['mount_ypr_deg'][0]:.2f} {c['mount_ypr_deg'][1]:.2f} {c['mount_ypr_deg'][2]:.2f} deg, "
          f"model-to-world yaw {c['world_yaw_deg']:.2f} deg (std {c['world_yaw_std_deg']:.2f}), "
          f"{res.stats['gps_outliers']} GPS outliers -> {out}", quiet)
+    if c["lever_arm_std_m"] is not None:
+        std = ", ".join(f"{v:.3f}" for v in c["lever_arm_std_m"])
+        info(f"lever arm {'estimated' if c['lever_arm_estimated'] else 'NOT observable, kept'}: "
+             f"{' '.join(f'{v:.3f}' for v in c['lever_arm_m'])} m (std {std} m)", quiet)
+    if c["time_offset_estimated"]:
+        info(f"log clock offset {c['time_offset_s']:+.3f} s (std {c['time_offset_std_s']:.3f} s)", quiet)
     if as_json:
         emit_json(summary)
+
+
+@nav_group.command("plot")
+@click.option("--fused", "estimate", required=True, type=click.Path(dir_okay=False),
+              help="The fused trajectory (TUM, mst nav fuse), or any estimate.")
+@click.option("--gt", "reference", required=True, type=click.Path(dir_okay=False), help="Reference trajectory (TUM).")
+@click.option("--nav", "nav_path", required=True, type=click.Path(dir_okay=False), help="Navigation log (nav.csv).")
+@click.option("--calib", "calib_path", type=click.Path(dir_okay=False), default=None,
+              help="Calibration JSON of `mst nav fuse --json` (maps the log into the model frame).")
+@click.option("--vision", "vision_path", type=click.Path(dir_okay=False), default=None,
+              help="The vision trajectory (TUM, mst track) for its own series.")
+@click.option("-o", "--output", "out", required=True, type=click.Path(dir_okay=False), help="PNG to write.")
+@click.option("--t-max-diff", type=float, default=0.01, show_default=True,
+              help="Seconds: poses match the reference's within this.")
+@json_option
+@quiet_option
+@verbosity_options
+def plot(estimate, reference, nav_path, calib_path, vision_path, out, t_max_diff, as_json, quiet, verbose):
+    """Plot vision, GPS/AHRS and fused positions over time against a reference, and their yaw
+    differences, with the vision gaps and the GPS dropouts shaded (the UAV paper's figure).
+
+    \b
+    Examples:
+      mst nav plot --fused fused.txt --gt seq/gt.txt --nav seq/nav.csv --calib fused.json --vision traj.txt -o nav.png
+
+    The numbers of the same comparison: `mst eval traj fused.txt gt.txt --nav nav.csv --nav-calib fused.json`.
+    """
+    from mst import atomic_output, check_outputs
+    from mst.eval.traj.navtable import nav_figure, nav_table_from_files
+
+    setup_logging(quiet, verbose, "mst nav plot")
+    check_outputs([out], [estimate, reference, nav_path, calib_path, vision_path])
+    tab = nav_table_from_files(estimate, reference, nav_path, calib_path, vision_path, t_max_diff)
+    with atomic_output(out) as tmp:
+        nav_figure(tmp, tab)
+    info(f"wrote {out} ({', '.join(tab.columns)} against {reference})", quiet)
+    if as_json:
+        emit_json({"output": str(out), **tab.to_json()})

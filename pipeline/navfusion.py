@@ -24,10 +24,13 @@ Estimator, in two stages:
      batch Gauss-Newton on SO(3) (:func:`smooth_rotations_gn`), then a linear KF + RTS about that
      smooth solution (state ``[theta, dtheta/dt]``, the model-frame correction) for the covariances.
      Causal: a multiplicative EKF (nominal rotation + rate, error state) frame by frame;
-   * position: state ``[p, v, b]`` (camera position, velocity in the model frame, GPS bias random
-     walk); constant-velocity model with white acceleration; measurements: vision positions, GPS
-     fixes mapped into the model frame and moved from the antenna to the camera with the attitude
-     (``H = [I, dtau I, I]``, ``dtau`` = fix time - frame time, so fixes need not fall on frames).
+   * position: state ``[p, v, a, b]`` (camera position, velocity, acceleration in the model frame,
+     GPS bias random walk); constant-acceleration model with white jerk (``motion_model="ca"``, the
+     default; ``"cv"``: ``[p, v, b]`` with white acceleration, which to allow a turn must be so loose
+     that across a vision gap of seconds the bridge follows the GPS noise); measurements: vision
+     positions, GPS fixes mapped into the model frame and moved from the antenna to the camera with
+     the attitude (``H = [I, dtau I, dtau^2/2 I, I]``, ``dtau`` = fix time - frame time, so fixes
+     need not fall on frames).
 
    Robust: every measurement whose Mahalanobis innovation exceeds ``huber_k`` is down-weighted by the
    Huber weight ``huber_k / d`` (variance inflated); offline, the smoother is re-run with Huber
@@ -62,16 +65,29 @@ class FusionConfig(Config):
     gps_bias_rw_m_per_sqrt_s: float = param(0.05, min=0, help="random walk of the GPS bias, m / sqrt(s)")
     gps_bias_sigma_m: float = param(3.0, min=0, min_open=True, help="prior of the bias left after the calibration, m")
     ahrs_sigma_deg: float = param(3.0, min=0, min_open=True, help="AHRS noise, deg")
-    accel_sigma_mps2: float = param(1.0, min=0, min_open=True, help="motion model: white acceleration, (m/s^2)/sqrt(Hz)")
+    motion_model: str = param("ca", choices=("cv", "ca"),
+                              help="position motion model: cv (white acceleration) or ca (white jerk)")
+    accel_sigma_mps2: float = param(1.0, min=0, min_open=True, help="cv model: white acceleration, (m/s^2)/sqrt(Hz)")
+    jerk_sigma_mps3: float = param(0.5, min=0, min_open=True, help="ca model: white jerk, (m/s^3)/sqrt(Hz)")
     ang_accel_sigma_dps2: float = param(2.0, min=0, min_open=True,
                                         help="motion model: white angular acceleration, (deg/s^2)/sqrt(Hz)")
     vision_sigma_m: float = param(0.05, min=0, min_open=True, help="vision noise when no covariance is given, m")
     vision_sigma_deg: float = param(0.3, min=0, min_open=True, help="vision noise when no covariance is given, deg")
     huber_k: float = param(3.0, min=0, min_open=True, help="Mahalanobis distance where Huber down-weighting starts")
-    lever_arm_m: tuple[float, float, float] = param((0.0, 0.0, 0.0), help="camera in the body frame, m (not estimated)")
+    lever_arm_m: tuple[float, float, float] = param((0.0, 0.0, 0.0), help="camera in the body frame, m (the prior "
+                                                                          "value with estimate_lever_arm)")
+    estimate_lever_arm: bool = param(False, help="estimate the lever arm from the GPS where the attitude changes "
+                                                 "make it observable")
+    max_lever_std_m: float = param(0.05, min=0, min_open=True,
+                                   help="use the estimated lever arm only when its std (each axis) is below this, m")
     max_world_yaw_std_deg: float = param(2.0, min=0, min_open=True,
                                          help="refuse when the fit cannot pin the model-to-world yaw, deg")
     min_pairs: int = param(10, min=1, help="GPS fixes with vision needed for the calibration")
+    time_offset_s: float = param(0.0, min=-60, max=60, help="added to the log's times to put them on the video clock, s")
+    estimate_time_offset: bool = param(False, help="estimate the clock offset (1-D search of the calibration cost "
+                                                   "around time_offset_s)")
+    max_time_offset_s: float = param(1.0, min=0, min_open=True, max=30,
+                                     help="the search spans time_offset_s +- this, s")
 
 
 @dataclass
@@ -111,6 +127,24 @@ def _cv_model(dt: np.ndarray, q: float, extra: int = 0, q_extra: float = 0.0) ->
     for e in range(extra):
         j = 6 + 3 * e + i3
         Q[:, j, j] = (q_extra * dt)[:, None]
+    return F, Q
+
+
+def _ca_model(dt: np.ndarray, q_jerk: float, q_extra: float) -> tuple[np.ndarray, np.ndarray]:
+    """Constant-acceleration model in 3-D for steps dt (K,): F, Q (K, 12, 12); state [value(3),
+    rate(3), 2nd derivative(3), a random walk(3)] with white 3rd-derivative (jerk) PSD ``q_jerk`` and
+    walk PSD ``q_extra``."""
+    K = len(dt)
+    F = np.tile(np.eye(12), (K, 1, 1))
+    Q = np.zeros((K, 12, 12))
+    i3 = np.arange(3)
+    F[:, i3, i3 + 3] = F[:, i3 + 3, i3 + 6] = dt[:, None]
+    F[:, i3, i3 + 6] = (dt**2 / 2)[:, None]
+    blk = np.array([[dt**5 / 20, dt**4 / 8, dt**3 / 6], [dt**4 / 8, dt**3 / 3, dt**2 / 2], [dt**3 / 6, dt**2 / 2, dt]])
+    for a in range(3):
+        for b in range(3):
+            Q[:, 3 * a + i3, 3 * b + i3] = (q_jerk * blk[a, b])[:, None]
+    Q[:, 9 + i3, 9 + i3] = (q_extra * dt)[:, None]
     return F, Q
 
 
@@ -334,7 +368,8 @@ def _fuse_attitude(al: _Aligned, T_vis, cov_vis, R_wm, R_bc, cfg: FusionConfig):
 
 def _fuse_position(al: _Aligned, T_vis, cov_vis, R_fused, R_wm, t_wm, R_bc, cfg: FusionConfig):
     """Per-frame camera positions and the GPS bias from vision + GPS (smoother or causal filter).
-    Returns ``(states (K, 9), covariances, measurement weights, used GPS rows)``."""
+    Returns ``(states (K, n), covariances, measurement weights, used GPS rows)``: ``[p, v, b]`` (n = 9)
+    or, with the constant-acceleration model, ``[p, v, a, b]`` (n = 12); the bias is the last three."""
     fix, g_w, k_a, dtau_a, dts, vidx = al.fix, al.g_w, al.k_a, al.dtau_a, al.dts, al.vidx
     lever, sig, _ = _noise(cfg)
     smooth = cfg.mode == "smoother"
@@ -342,19 +377,31 @@ def _fuse_position(al: _Aligned, T_vis, cov_vis, R_fused, R_wm, t_wm, R_bc, cfg:
     g_m = (g_w[gi] - t_wm) @ R_wm  # = R_wm^T (g - t)
     g_cam = g_m + np.einsum("nij,j->ni", R_fused[k_a[gi]] @ R_bc.T[None], lever)  # antenna -> camera
     Sg = R_wm.T @ np.diag(sig**2) @ R_wm
-    F9, Q9 = _cv_model(dts, cfg.accel_sigma_mps2**2, extra=1, q_extra=cfg.gps_bias_rw_m_per_sqrt_s**2)
+    q_b = cfg.gps_bias_rw_m_per_sqrt_s**2
+    ca = cfg.motion_model == "ca"
+    F, Q = _ca_model(dts, cfg.jerk_sigma_mps3**2, q_b) if ca else _cv_model(dts, cfg.accel_sigma_mps2**2, 1, q_b)
+    n = F.shape[1]
     steps_p = np.concatenate([vidx, k_a[gi]])
     z_p = np.concatenate([T_vis[:, :3, 3], g_cam])
-    H_p = np.zeros((len(steps_p), 3, 9))
+    H_p = np.zeros((len(steps_p), 3, n))
     H_p[:, :, :3] = np.eye(3)
-    H_p[len(vidx):, :, 3:6] = dtau_a[gi][:, None, None] * np.eye(3)
-    H_p[len(vidx):, :, 6:] = np.eye(3)
+    dt_g = dtau_a[gi][:, None, None]
+    H_p[len(vidx):, :, 3:6] = dt_g * np.eye(3)  # the fix is dtau after the frame: p + v dtau (+ a dtau^2 / 2)
+    if ca:
+        H_p[len(vidx):, :, 6:9] = 0.5 * dt_g**2 * np.eye(3)
+    H_p[len(vidx):, :, n - 3:] = np.eye(3)
     C_p = np.concatenate([cov_vis[:, :3, :3], np.tile(Sg, (len(gi), 1, 1))])
-    x0 = np.zeros(9)
+    x0 = np.zeros(n)
     x0[:3] = T_vis[0, :3, 3] if vidx[0] == 0 else (g_cam[0] if len(gi) else T_vis[0, :3, 3])
-    P0 = np.diag([100.0**2] * 3 + [30.0**2] * 3 + [cfg.gps_bias_sigma_m**2] * 3)
-    xp_, Pp_, wp = _run_kf(F9, Q9, x0, P0, steps_p, z_p, H_p, C_p, cfg.huber_k, smooth, smooth)
+    P0 = np.diag([100.0**2] * 3 + [30.0**2] * 3 + ([10.0**2] * 3 if ca else []) + [cfg.gps_bias_sigma_m**2] * 3)
+    xp_, Pp_, wp = _run_kf(F, Q, x0, P0, steps_p, z_p, H_p, C_p, cfg.huber_k, smooth, smooth)
     return xp_, Pp_, wp, gi
+
+
+def _shifted(nav: NavLog, delta: float, keep: np.ndarray | None = None) -> NavLog:
+    """``nav`` with ``delta`` s added to its times (and only the rows ``keep``)."""
+    k = slice(None) if keep is None else keep
+    return NavLog(t=nav.t[k] + delta, p_world=nav.p_world[k], ypr_deg=nav.ypr_deg[k], fix=nav.fix[k], offset=nav.offset)
 
 
 def fuse_navigation(t_vis: np.ndarray, T_vis: np.ndarray, cov_vis: np.ndarray | None, nav: NavLog,
@@ -372,8 +419,29 @@ def fuse_navigation(t_vis: np.ndarray, T_vis: np.ndarray, cov_vis: np.ndarray | 
     cfg = cfg or FusionConfig()
     if cov_vis is None:
         cov_vis = np.tile(np.diag([cfg.vision_sigma_m**2] * 3 + [np.radians(cfg.vision_sigma_deg) ** 2] * 3), (len(t_vis), 1, 1))
+    offset, offset_std = cfg.time_offset_s, 0.0
+    if cfg.estimate_time_offset:
+        from mst.pipeline.navfusion_offset import estimate_time_offset
+
+        offset, offset_std = estimate_time_offset(t_vis, T_vis, nav, cfg, R_body_cam, T_world_model, nav_name)
+    if offset:
+        nav = _shifted(nav, offset)
     al = _align(t_vis, T_vis, nav, nav_name)
     T_wm, R_bc, yaw_std, mount_std, w_g, w_a = _calibrate(al, cfg, R_body_cam, T_world_model, nav_name)
+    lever_std = None
+    if cfg.estimate_lever_arm:
+        from dataclasses import replace
+
+        from mst.pipeline.navfusion_lever import estimate_lever_arm
+
+        ug = al.pair & al.fix
+        for _ in range(2):  # lever given the calibration, the calibration given the lever
+            lev, lever_std = estimate_lever_arm(al.p_ci[ug], al.R_ci[ug], al.g_w[ug], w_g, T_wm[:3, :3], R_bc,
+                                                _noise(cfg)[1])
+            if lever_std.max() > cfg.max_lever_std_m:
+                break
+            cfg = replace(cfg, lever_arm_m=tuple(float(v) for v in lev))
+            T_wm, R_bc, yaw_std, mount_std, w_g, w_a = _calibrate(al, cfg, R_body_cam, T_world_model, nav_name)
     R_wm, t_wm = T_wm[:3, :3], T_wm[:3, 3]
     R_fused, Pr, wr = _fuse_attitude(al, T_vis, cov_vis, R_wm, R_bc, cfg)
     xp_, Pp_, wp, gi = _fuse_position(al, T_vis, cov_vis, R_fused, R_wm, t_wm, R_bc, cfg)
@@ -395,10 +463,12 @@ def fuse_navigation(t_vis: np.ndarray, T_vis: np.ndarray, cov_vis: np.ndarray | 
         "mount_ypr_deg": mount_ypr_deg_from_R(R_bc).tolist(),
         "mount_std_deg": float(np.degrees(mount_std)),
         "lever_arm_m": lever.tolist(),
-        "lever_arm_estimated": False,
-        "time_offset_s": 0.0,
-        "time_offset_estimated": False,
-        "gps_bias_m_start_end": [xp_[0, 6:].tolist(), xp_[-1, 6:].tolist()],
+        "lever_arm_estimated": bool(lever_std is not None and lever_std.max() <= cfg.max_lever_std_m),
+        "lever_arm_std_m": None if lever_std is None else lever_std.tolist(),
+        "time_offset_s": float(offset),
+        "time_offset_estimated": bool(cfg.estimate_time_offset),
+        "time_offset_std_s": float(offset_std),
+        "gps_bias_m_start_end": [xp_[0, -3:].tolist(), xp_[-1, -3:].tolist()],
         "nav_offset_enh": nav.offset.tolist(),
     }
     stats = {
@@ -409,7 +479,7 @@ def fuse_navigation(t_vis: np.ndarray, T_vis: np.ndarray, cov_vis: np.ndarray | 
         "pos_sigma_median_m": float(np.median(np.sqrt(np.trace(cov[:, :3, :3], axis1=1, axis2=2)))),
         "rot_sigma_median_deg": float(np.degrees(np.median(np.sqrt(np.trace(cov[:, 3:, 3:], axis1=1, axis2=2))))),
     }
-    return FusionResult(t=t_grid, T_model_cam=T_out, cov=cov, has_vision=has_vis, gps_bias_m=xp_[:, 6:].copy(),
+    return FusionResult(t=t_grid, T_model_cam=T_out, cov=cov, has_vision=has_vis, gps_bias_m=xp_[:, -3:].copy(),
                         T_world_model=T_wm, R_body_cam=R_bc, calib=calib, stats=stats)
 
 

@@ -256,6 +256,8 @@ class NavSimConfig(Config):
     world_yaw_deg: float = param(0.0, help="T_world_model: rotation about up, deg")
     world_offset_m: tuple[float, float, float] = param((0.0, 0.0, 0.0), help="T_world_model: translation, m")
     enh_offset_m: tuple[float, float, float] | None = param(None, help="write easting/northing/height with this offset, m")
+    time_offset_s: float = param(0.0, min=-60, max=60,
+                                 help="clock offset of the log: a row measured at video time t is stamped t - offset, s")
     seed: int = param(0, help="seed of the errors")
 
 
@@ -276,7 +278,7 @@ class NavSimResult:
             "rows": int(len(self.nav.t)), "fixes": int(self.nav.fix.sum()), "outliers": int(self.outlier.sum()),
             "T_world_model": self.T_world_model.tolist(), "T_body_cam": self.T_body_cam.tolist(),
             "mount_ypr_deg": list(self.config.mount_ypr_deg), "lever_arm_m": list(self.config.lever_arm_m),
-            "ahrs_yaw_bias_deg": self.config.ahrs_yaw_bias_deg,
+            "ahrs_yaw_bias_deg": self.config.ahrs_yaw_bias_deg, "time_offset_s": self.config.time_offset_s,
             # the mount a fusion can see: a constant AHRS heading bias b is indistinguishable from a
             # mount yaw of -b for a near-level platform (R_body_cam seen = Rz(-b) R_body_cam)
             "effective_mount_ypr_deg": mount_ypr_deg_from_R(
@@ -342,7 +344,7 @@ def simulate_nav(t_gt: np.ndarray, T_model_cam: np.ndarray, cfg: NavSimConfig | 
     ypr[:, 0] = (ypr[:, 0] + cfg.ahrs_yaw_bias_deg + 180.0) % 360.0 - 180.0
     ypr[:, 1] = np.clip(ypr[:, 1], -90.0, 90.0)
     off = np.asarray(cfg.enh_offset_m, float) if cfg.enh_offset_m is not None else np.zeros(3)
-    nav = NavLog(t=t, p_world=gps, ypr_deg=ypr, fix=fix, offset=off)
+    nav = NavLog(t=t - cfg.time_offset_s, p_world=gps, ypr_deg=ypr, fix=fix, offset=off)
     return NavSimResult(nav=nav, T_world_model=T_wm, T_body_cam=T_bc, gps_bias_m=bias, outlier=outlier & fix, config=cfg)
 
 

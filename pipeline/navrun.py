@@ -75,10 +75,67 @@ def simulate_nav_files(gt_path, out_path, cfg: NavSimConfig) -> dict:
     return {"nav": str(out), "truth": str(truth), **res.to_json()}
 
 
-def _vision_covariances(traj_path, t_v: np.ndarray, cov_path, cfg: FusionConfig) -> np.ndarray:
-    """The vision poses' covariances: the side file (given, or ``<stem>.cov.csv`` when present), else
-    ``cfg.vision_sigma_*`` (x9 for the SLAM frames of ``mst track``'s per-frame CSV beside it)."""
+def _is_track_cov(path: Path) -> bool:
+    """``mst track``'s ``.cov.csv`` (``frame,status,...,c00..c55``: the edge pose's twist covariance)."""
+    with open(path, newline="") as f:
+        for line in f:
+            if line.strip() and not line.lstrip().startswith("#"):
+                hdr = [h.strip() for h in line.split(",")]
+                return "frame" in hdr and "c00" in hdr and "t" not in hdr
+    return False
+
+
+def read_track_cov(cov_path: Path, traj_path, t_v: np.ndarray, T_v: np.ndarray, cfg: FusionConfig) -> np.ndarray:
+    """The covariances (fusion convention) of the poses ``T_v`` (``T_model_cam`` at ``t_v``) from
+    ``mst track``'s ``.cov.csv`` and the frame times of its ``.csv``.
+
+    The tracker's rows hold the covariance ``C`` of the left twist ``T_cam_model' = exp(v, w)
+    T_cam_model`` (camera frame); then ``T_model_cam' = T_model_cam exp(-(v, w))``: the camera
+    centre moves by ``-R_mc v`` and the rotation by ``exp(-R_mc w)`` on the left, so the fusion's
+    covariance is ``B C Bᵀ``, ``B = diag(R_mc, R_mc)``. Frames whose pose is not the edge pose (SLAM,
+    relocalised: empty rows) get ``cfg.vision_sigma_*`` x 3."""
+    status_csv = Path(traj_path).with_suffix(".csv")
+    if not status_csv.is_file():
+        raise InputError(cov_path, f"mst track's covariance rows are per frame; their times are in {status_csv.name}, "
+                                   "which is missing")
+    with open(status_csv, newline="") as f:
+        try:
+            time_of = {int(r["frame"]): float(r["time"]) for r in csv.DictReader(f)}
+        except (ValueError, KeyError, TypeError):
+            raise InputError(status_csv, "not mst track's per-frame CSV (frame, time columns)") from None
+    rows = [r for r in csv.DictReader(io.StringIO(cov_path.read_text()))]
+    by_t: dict[float, np.ndarray] = {}
+    for r in rows:
+        try:
+            k = int(r["frame"])
+            vals = [r.get(f"c{i}{j}") or "" for i in range(6) for j in range(6)]
+            C = np.array([float(v) for v in vals]).reshape(6, 6) if all(vals) else None
+        except (ValueError, KeyError, TypeError):
+            raise InputError(cov_path, f"not a number or a short row (frame {r.get('frame')})") from None
+        if k in time_of and C is not None:
+            if not np.isfinite(C).all() or (np.diag(C) <= 0).any():
+                raise InputError(cov_path, f"frame {k}: covariance holds NaN/inf or a non-positive variance")
+            by_t[round(time_of[k], 6)] = C
+    s2 = np.array([cfg.vision_sigma_m**2] * 3 + [np.radians(cfg.vision_sigma_deg) ** 2] * 3)
+    out = np.tile(np.diag(9.0 * s2), (len(t_v), 1, 1))
+    got = [by_t.get(round(float(ti), 6)) for ti in t_v]
+    has = np.array([c is not None for c in got], bool)
+    if has.any():
+        C = np.stack([c for c in got if c is not None])
+        B = np.zeros((int(has.sum()), 6, 6))
+        B[:, :3, :3] = B[:, 3:, 3:] = T_v[has, :3, :3]
+        out[has] = B @ (0.5 * (C + np.swapaxes(C, 1, 2))) @ np.swapaxes(B, 1, 2)
+    return out
+
+
+def _vision_covariances(traj_path, t_v: np.ndarray, cov_path, cfg: FusionConfig, T_v: np.ndarray | None = None
+                        ) -> np.ndarray:
+    """The vision poses' covariances: the side file (given, or ``<stem>.cov.csv`` when present: the
+    fusion's own format, or ``mst track``'s per-frame one), else ``cfg.vision_sigma_*`` (x9 for the
+    SLAM frames of ``mst track``'s per-frame CSV beside it)."""
     cp = Path(cov_path) if cov_path else cov_path_for(traj_path)
+    if (cov_path or cp.is_file()) and T_v is not None and cp.is_file() and _is_track_cov(cp):
+        return read_track_cov(cp, traj_path, t_v, T_v, cfg)
     if cov_path or cp.is_file():
         t_c, C = read_cov_csv(cp)
         m = {round(x, 6): i for i, x in enumerate(t_c)}
@@ -111,7 +168,7 @@ def fuse_nav_files(traj_path: str | os.PathLike, nav_path: str | os.PathLike, ou
 
     t_v, T_v = read_tum(traj_path)
     nav = read_navlog(nav_path, offset=offset)
-    cov = _vision_covariances(traj_path, t_v, cov_path, cfg)
+    cov = _vision_covariances(traj_path, t_v, cov_path, cfg, T_v)
     res = fuse_navigation(t_v, T_v, cov, nav, cfg, nav_name=nav_path,
                           R_body_cam=read_mount_rotation(mount_path) if mount_path else None,
                           T_world_model=read_rigid_transform(m2w_path, "model-to-world file") if m2w_path else None)

@@ -66,6 +66,8 @@ def test_tiles_on_two_workers_equal_the_single_process_run(tiles):
         assert (r["points_total"], r["points_valid"]) == (single["points_total"], single["points_valid"])
         assert abs(r["unsigned"]["median"] - single["unsigned"]["median"]) <= r["median_bound_m"] + 1e-12
     assert dist["unsigned"] == local["unsigned"]
+    exact = c2m_tiles(paths, d / "box.obj", cfg, chunks_per_task=3, exact_median=True).to_json()
+    assert exact["unsigned"] == single["unsigned"] and exact["median"] == "exact (second pass)"
 
 
 def test_c2m_tiles_command(tiles):
@@ -82,3 +84,24 @@ def test_c2m_tiles_command(tiles):
     assert res["config"]["thresholds_m"] == [0.05, 0.2, 0.5] and res["median"] == "histogram"
     bad = run_mst("c2m-tiles", d / "box.obj", d / "nope.laz", check=False)
     assert bad.returncode == 1 and "nope.laz: cloud file does not exist" in bad.stderr
+
+
+def test_distance_tiles_written_with_every_dimension_and_the_distance(tiles, tmp_path):
+    import laspy
+
+    from mst.eval.c2m.distances import point_distances
+    from mst.eval.c2m.runner import load_mesh_index, run_c2m
+    from mst.eval.c2m.tiles import c2m_tiles
+
+    d, paths = tiles
+    cfg = C2MConfig(chunk_points=1000, thresholds_m=(0.05, 0.2, 0.5))
+    res = c2m_tiles(paths, d / "box.obj", cfg, out_dir=tmp_path).to_json()
+    assert res["unsigned"]["mean"] == run_c2m(d / "all.las", d / "box.obj", cfg).unsigned.mean
+    for p in paths:
+        out = laspy.read(tmp_path / f"{p.stem}_c2m.laz")
+        src = laspy.read(p)
+        assert np.array_equal(out.X, src.X) and np.array_equal(out.Z, src.Z)
+        idx = load_mesh_index(d / "box.obj", cfg)
+        xyz = np.stack([np.asarray(src.x), np.asarray(src.y), np.asarray(src.z)], axis=1)
+        ref, _ = point_distances(idx, xyz - idx.shift)  # every point, in file order
+        assert np.array_equal(np.asarray(out["C2M_absolute_distances"]), ref)

@@ -5,7 +5,8 @@ noise 0.3 m / 0.5 deg per axis (3-D RMS 0.52 m / 0.87 deg) with a 6 s loss; GPS 
 horizontal / 5 m vertical (3-D RMS 6.6 m) + 0.05 m/sqrt(s) bias walk + 2 % multipath of 15-40 m;
 AHRS 3 deg; mount 60 deg pan, 20 deg down, lever 0.18 m; the model frame rotated 30 deg and shifted
 ~110 m from the world frame. Motion model of the fusion: 1 m/s^2 and 0.5 deg/s^2 white (the path's
-own accelerations are ~0.6 m/s^2 and < 0.5 deg/s^2).
+own accelerations are ~0.6 m/s^2 and < 0.5 deg/s^2); the position uses the default constant-
+acceleration model (white jerk 0.5 m/s^3/sqrt(Hz)).
 """
 
 from __future__ import annotations
@@ -155,6 +156,38 @@ def test_gps_dropout_bridged_by_vision_without_jump(scene):
     assert steps[k - 3:k + 3].max() <= 2 * np.percentile(steps, 99)
 
 
+def _all_frames_seeds(seeds):
+    """The issue's bound on ALL frames (the 6 s vision gap included: 10 % of the frames) for 8 seeds
+    of vision and GPS noise. With the former constant-velocity model (white acceleration 1 m/s^2,
+    loose enough for the 0.6 m/s^2 turn) the gap bridge followed the 3 m GPS noise (gap RMSE
+    0.4-1.0 m) and 2-4 of 8 seeds broke the bound; the constant-acceleration model (white jerk
+    0.5 m/s^3/sqrt(Hz): the acceleration may change by 1.2 m/s^2 over the gap, 3x what the flight's
+    turn does) carries the turn through the gap. Across these seeds the ratio is 0.3-0.65."""
+    t, T = flight()
+    ratio, e_ca, e_cv = [], [], []
+    for s in seeds:
+        t_v, T_v, C_v, keep, e = noisy_vision(t, T, seed=s + 1, gap=(20.0, 26.0))
+        sim = _sim(t, T, seed=s + 3)
+        res = fuse_navigation(t_v, T_v, C_v, sim.nav, _cfg())
+        cv = fuse_navigation(t_v, T_v, C_v, sim.nav, _cfg(motion_model="cv"))
+        bound = 0.5 * min(_rms(np.linalg.norm(e[keep, :3], axis=1)), _gps_only_rmse(sim, t, T))
+        e_ca.append(_rms(_pos_err(res.T_model_cam, T)))
+        e_cv.append(_rms(_pos_err(cv.T_model_cam, T)))
+        ratio.append(e_ca[-1] / bound)
+    assert max(ratio) <= 1.0, np.round(ratio, 2)
+    # the default is at least as good as the simpler model, seed by seed
+    assert all(a <= b for a, b in zip(e_ca, e_cv)), (np.round(e_ca, 3), np.round(e_cv, 3))
+
+
+def test_fused_rmse_on_all_frames_seeds_the_cv_model_failed():
+    _all_frames_seeds([2, 7])
+
+
+@pytest.mark.slow
+def test_fused_rmse_on_all_frames_over_8_seeds():
+    _all_frames_seeds(range(8))
+
+
 def test_filter_mode_is_causal_and_the_smoother_is_at_least_as_good(scene):
     t, T, t_v, T_v, C_v, keep, _ = scene
     sim = _sim(t, T)
@@ -169,6 +202,62 @@ def test_filter_mode_is_causal_and_the_smoother_is_at_least_as_good(scene):
     # (the calibration is fitted on the whole log in both runs; with less data it differs slightly)
     assert np.abs(cut.T_model_cam[k, :3, 3] - fl.T_model_cam[k, :3, 3]).max() < 0.5
     assert _rot_err_deg(cut.T_model_cam[k:k + 1], fl.T_model_cam[k:k + 1])[0] < 0.5
+
+
+def _varying_speed_flight(duration_s: float = 60.0, fps: float = 30.0):
+    """The orbit of nav_helpers.flight with the speed swinging between ~0 and ~18 m/s (a survey
+    flight's stops and dashes): a time shift is then not a rotation or translation of the path."""
+    from mst.core.poses import look_at
+
+    t = np.arange(0.0, duration_s, 1.0 / fps)
+    th = 0.1 * t + 0.8 * np.sin(0.25 * t)
+    P = np.stack([60 * np.cos(th), 42 * np.sin(th), 40 + 3 * np.sin(0.2 * t)], 1)
+    return t, np.stack([look_at(p, np.zeros(3)) for p in P])
+
+
+@pytest.mark.parametrize("seed", [0, pytest.param(2, marks=pytest.mark.slow)])
+def test_time_offset_estimated(seed):
+    """A log 0.3 s late (GPS/AHRS clock). Budget: 300 fixes of 3 m on a path of ~8 m/s mean speed
+    change: the GPS alone pins the offset to ~3 / (8 sqrt(300)) = 0.02 s; the reported std must be
+    honest (|error| <= 3 std) and <= 0.05 s. The fused positions with the estimate: within 1.25x of
+    a log on the right clock; ignoring the offset is worse (a 0.3 s lag at 8 m/s is 2.4 m)."""
+    t, T = _varying_speed_flight()
+    t_v, T_v, C_v, _, _ = noisy_vision(t, T, seed=seed + 1, gap=(20.0, 26.0))
+    late = _sim(t, T, seed=seed + 3, time_offset_s=0.3).nav
+    est = fuse_navigation(t_v, T_v, C_v, late, _cfg(estimate_time_offset=True))
+    c = est.calib
+    assert c["time_offset_estimated"] and 0 < c["time_offset_std_s"] <= 0.05
+    assert abs(c["time_offset_s"] - 0.3) <= 3 * c["time_offset_std_s"], (c["time_offset_s"], c["time_offset_std_s"])
+    right = fuse_navigation(t_v, T_v, C_v, _sim(t, T, seed=seed + 3).nav, _cfg())
+    ignored = fuse_navigation(t_v, T_v, C_v, late, _cfg())
+    e_est, e_right, e_ign = (_rms(_pos_err(r.T_model_cam, T)) for r in (est, right, ignored))
+    assert e_est <= 1.25 * e_right and e_est < e_ign, (e_est, e_right, e_ign)
+
+
+def test_time_offset_on_a_constant_speed_orbit_is_weak_and_says_so(scene, tmp_path, mst):
+    """On the constant-speed orbit a shift is nearly a rotation of the path about its centre (the
+    model-to-world yaw takes it up): the reported std is ~4x larger than on the varying flight, still
+    honest (|error| <= 3 std), and the refitted calibration keeps the fused positions as good as on
+    the right clock (within 1.1x). Through the CLI: nav simulate --time-offset, nav fuse
+    --estimate-time-offset."""
+    import json
+
+    from mst.core.trajectory import read_tum, write_tum
+
+    t, T, t_v, T_v, C_v, _, _ = scene
+    write_tum(tmp_path / "gt.txt", t, T)
+    write_tum(tmp_path / "traj.txt", t_v, T_v)
+    (tmp_path / "traj.cov.csv").write_text(format_cov_csv(t_v, C_v))
+    mst("nav", "simulate", "--gt", tmp_path / "gt.txt", "-o", tmp_path / "nav.csv", "--world-yaw", "30",
+        "--world-offset", "100", "-50", "10", "--lever", *map(str, LEVER), "--seed", "3", "--time-offset", "0.3")
+    r = mst("nav", "fuse", "--traj", tmp_path / "traj.txt", "--nav", tmp_path / "nav.csv", "-o", tmp_path / "f.txt",
+            "--lever", *map(str, LEVER), "--ang-accel-sigma", "0.5", "--estimate-time-offset", "--json")
+    c = json.loads(r.stdout)
+    assert c["time_offset_estimated"] and c["config"]["estimate_time_offset"] is True
+    assert c["time_offset_std_s"] > 0.04 and abs(c["time_offset_s"] - 0.3) <= 3 * c["time_offset_std_s"]
+    _, Tf = read_tum(tmp_path / "f.txt")
+    right = fuse_navigation(t_v, T_v, C_v, _sim(t, T).nav, _cfg())
+    assert _rms(_pos_err(Tf, T)) <= 1.1 * _rms(_pos_err(right.T_model_cam, T))
 
 
 def test_bad_inputs_are_refused_with_the_file_named(scene):
@@ -233,3 +322,48 @@ def test_cli_fuse_chain_and_bad_log(tmp_path, mst, scene):
     r = mst("nav", "fuse", "--traj", tmp_path / "traj.txt", "--nav", tmp_path / "nav.csv", "-o", tmp_path / "f3.txt",
             "--config", tmp_path / "k.yaml", check=False)
     assert r.returncode == 1 and "huber: unknown key" in r.stderr and not (tmp_path / "f3.txt").exists()
+
+
+def _lever_case(seed: int, rtk: bool):
+    """60 s orbit, lever (0.5, -0.3, -0.2) m; RTK-grade GPS (5 / 8 cm, no outliers, no heading bias,
+    vision 3 cm) or the default consumer GPS (3 / 5 m)."""
+    t, T = flight()
+    t_v, T_v, C_v, keep, _ = noisy_vision(t, T, seed=seed + 1, gap=None)
+    kw = dict(seed=seed + 3, lever_arm_m=(0.5, -0.3, -0.2))
+    cfg = dict(ang_accel_sigma_dps2=0.5, estimate_lever_arm=True)
+    if rtk:
+        T_v = T_v.copy()
+        T_v[:, :3, 3] = T[keep, :3, 3] + np.random.default_rng(seed).normal(0, 0.03, (int(keep.sum()), 3))
+        C_v = C_v / 100.0
+        kw.update(sigma_h_m=0.05, sigma_v_m=0.08, outlier_rate=0.0, bias_rw_m_per_sqrt_s=0.002, dropouts=0,
+                  ahrs_yaw_bias_deg=0.0)
+        cfg.update(gps_sigma_h_m=0.05, gps_sigma_v_m=0.08, gps_bias_rw_m_per_sqrt_s=0.002, gps_bias_sigma_m=0.1)
+    return fuse_navigation(t_v, T_v, C_v, _sim(t, T, **kw).nav, FusionConfig(**cfg)).calib
+
+
+def _check_rtk_lever(seed):
+    """Budget: the reported std is the white-noise one (GPS 5 cm, 300 fixes, yaw and translation
+    free): ~2 / 1.5 / 4 cm; the GPS bias walk (0.002 m/sqrt(s), ~1.5 cm over the log) is not in it:
+    within 3 std + 3 cm."""
+    c = _lever_case(seed, rtk=True)
+    err = np.abs(np.array(c["lever_arm_m"]) - [0.5, -0.3, -0.2])
+    assert c["lever_arm_estimated"] and max(c["lever_arm_std_m"]) <= 0.05
+    assert (err <= 3 * np.array(c["lever_arm_std_m"]) + 0.03).all(), (c["lever_arm_m"], c["lever_arm_std_m"])
+
+
+def test_lever_arm_estimated_with_rtk_gps():
+    _check_rtk_lever(1)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", range(8))
+def test_lever_arm_estimated_with_rtk_gps_seeds(seed):
+    _check_rtk_lever(seed)
+
+
+def test_lever_arm_not_observable_with_consumer_gps_is_declined():
+    """3 m GPS over 60 s: the lever's std is ~1 m (the tangential part turns with the orbit like a
+    yaw of the model), so the given lever (0) is kept and the json says so."""
+    c = _lever_case(0, rtk=False)
+    assert not c["lever_arm_estimated"] and c["lever_arm_m"] == [0.0, 0.0, 0.0]
+    assert min(c["lever_arm_std_m"]) > 0.3

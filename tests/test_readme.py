@@ -54,8 +54,8 @@ def _options(cmd: str) -> tuple[str, list[str]]:
     toks = shlex.split(cmd.split("|")[0].replace("...", " "))
     path = toks[0]
     rest = toks[1:]
-    if path == "eval" and rest and not rest[0].startswith("-"):
-        path, rest = f"eval {rest[0]}", rest[1:]
+    if path in ("eval", "nav") and rest and not rest[0].startswith("-"):  # command groups
+        path, rest = f"{path} {rest[0]}", rest[1:]
     return path, [t.split("=", 1)[0] for t in rest if re.match(r"^--?[a-zA-Z]", t)]
 
 

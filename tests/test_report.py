@@ -52,7 +52,8 @@ def run_dir(tmp_path_factory) -> Path:
     P = rng.uniform([-1, -0.75, 0], [1, 0.75, 1.2], (4000, 3))
     P[:, 2] = np.where(rng.random(4000) < 0.5, 1.2, P[:, 2]) + rng.normal(0, 0.01, 4000)
     write_cloud(d / "cloud.ply", P)
-    c2m = run_mst("c2m", d / "cloud.ply", d / "box.obj", "--thresholds", "0.01,0.05", "--json", "-q").stdout
+    c2m = run_mst("c2m", d / "cloud.ply", d / "box.obj", "--thresholds", "0.01,0.05", "--json", "-q",
+                  "--plot", d.parent / "cli_hist.png").stdout
     (d / "c2m.json").write_text(c2m)
     ev = run_mst("eval", "traj", d / "traj.txt", d / "gt.txt", "--align", "none", "--json", "-q").stdout
     (d / "eval.json").write_text(ev)
@@ -85,6 +86,11 @@ def test_run_folder_report_sections_and_self_contained(report):
     assert "<script" not in html and not re.search(r"(href|src)=\"(https?:)?//", html)
     assert '"thresholds_m": [\n    0.01,\n    0.05\n  ]' in html  # the c2m configuration, as recorded
     assert res["config"]["overlay_frames"] == 6
+    # the histogram is the image `mst c2m --plot` writes (the same function on the same distances)
+    import base64
+
+    hist = re.search(r'alt="C2M histogram" src="data:image/png;base64,([^"]+)"', html).group(1)
+    assert base64.b64decode(hist) == (report[0].parent / "cli_hist.png").read_bytes()
 
 
 def test_report_settings_from_a_config_file_and_unknown_key(run_dir, tmp_path):

@@ -10,15 +10,18 @@ run computes them); the client merges them in file and chunk order with the same
 :class:`~mst.eval.c2m.stats.Moments`, so count, mean, std, RMS, min, max and Table 1 are bit-identical
 to a single-process run over the same files. The median is read from a merged fixed-width histogram
 (``HIST_BINS`` bins over ``[0, HIST_RANGE_X * max(thresholds))``): within half a bin width of the
-exact median (``median_bound_m`` in the result), None when the median lies beyond the histogram.
+exact median (``median_bound_m`` in the result), None when the median lies beyond the histogram; or
+exact (``exact_median``): a second pass returns only the distances in the middle ranks' bins.
 Unsigned distances only, grid engine only (the compiled kernels); ``max_dist_m`` applies as usual.
+With an output folder each LAS/LAZ tile is one task that also writes the tile with the distance as
+an extra dimension (``<stem>_c2m.laz``), every original dimension kept.
 """
 
 from __future__ import annotations
 
 import os
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -44,15 +47,17 @@ class PointRange:
     whole: bool  #: the whole file (formats without random access)
 
 
-def plan_ranges(paths: list[str | os.PathLike], cfg: C2MConfig, chunks_per_task: int = 4) -> list[PointRange]:
-    """The tasks over ``paths``: LAS/LAZ in ranges of ``chunks_per_task`` chunks, other files whole."""
+def plan_ranges(paths: list[str | os.PathLike], cfg: C2MConfig, chunks_per_task: int = 4,
+                whole_files: bool = False) -> list[PointRange]:
+    """The tasks over ``paths``: LAS/LAZ in ranges of ``chunks_per_task`` chunks, other files (and every
+    file with ``whole_files``) whole."""
     from mst.eval.cloud_io import open_cloud
 
     out = []
     step = cfg.chunk_points * chunks_per_task
     for p in paths:
         n = open_cloud(p).count
-        if Path(p).suffix.lower() in LAS_SUFFIXES:
+        if Path(p).suffix.lower() in LAS_SUFFIXES and not whole_files:
             out += [PointRange(str(p), s, min(step, n - s), False) for s in range(0, n, step)]
         else:
             out.append(PointRange(str(p), 0, n, True))
@@ -130,9 +135,63 @@ def _worker_threads() -> None:
     numba.set_num_threads(max(1, min(int(n), numba.config.NUMBA_NUM_THREADS)))
 
 
-def range_partials(r: PointRange, mesh: str, cfg_dict: dict) -> dict[str, Any]:
+def output_name(path: str | os.PathLike, out_dir: str | os.PathLike) -> Path:
+    """The distance cloud of a tile: ``<out_dir>/<stem>_c2m.<las|laz>`` (a LAS/LAZ tile keeps its format)."""
+    p = Path(path)
+    return Path(out_dir) / f"{p.stem}_c2m{p.suffix.lower()}"
+
+
+class _LasDistanceWriter:
+    """Reads a LAS/LAZ tile's point records chunk by chunk and writes them, every dimension kept, with the
+    extra dimension ``C2M_absolute_distances`` (float64, NaN for invalid or beyond-max-dist points) to
+    ``tmp`` (readable by CloudCompare and PDAL)."""
+
+    def __init__(self, src: str, tmp: Path):
+        import collections
+
+        import laspy
+
+        self.src, self.tmp = src, tmp
+        self.queue: collections.deque = collections.deque()
+        self._reader = laspy.open(src)
+        header = self._reader.header
+        self.header = laspy.LasHeader(point_format=header.point_format.id, version=header.version)
+        self.header.scales, self.header.offsets = header.scales, header.offsets
+        for d in header.point_format.extra_dimensions:
+            self.header.add_extra_dim(laspy.ExtraBytesParams(d.name, d.dtype))
+        self.header.add_extra_dim(laspy.ExtraBytesParams("C2M_absolute_distances", np.float64))
+        self._writer = laspy.open(tmp, mode="w", header=self.header, do_compress=tmp.suffix.lower() == ".laz")
+
+    def chunks(self, size: int):
+        for pts in self._reader.chunk_iterator(size):
+            self.queue.append(pts)
+            yield np.stack([np.asarray(pts.x, np.float64), np.asarray(pts.y, np.float64),
+                            np.asarray(pts.z, np.float64)], axis=1)
+
+    def write(self, fin: np.ndarray, du: np.ndarray) -> None:
+        import laspy
+
+        pts = self.queue.popleft()
+        out = laspy.ScaleAwarePointRecord.zeros(len(pts), header=self.header)
+        for name in pts.array.dtype.names:
+            out.array[name] = pts.array[name]
+        d = np.full(len(pts), np.nan)
+        d[fin] = du
+        out["C2M_absolute_distances"] = d
+        self._writer.write_points(out)
+
+    def close(self) -> None:
+        self._writer.close()
+        self._reader.close()
+
+
+def range_partials(r: PointRange, mesh: str, cfg_dict: dict, out_dir: str | None = None,
+                   select: tuple[int, int] | None = None) -> dict[str, Any]:
     """The dask task: per chunk of the range ``(n seen, n non-finite, n beyond, cnt, s1, s2, lo, hi)``
-    (arrays over the thresholds + overall last) and the range's distance histogram."""
+    (arrays over the thresholds + overall last) and the range's distance histogram; with ``out_dir`` (a
+    whole LAS/LAZ tile) also its distance cloud :func:`output_name`, written atomically; with ``select``
+    (first, last histogram bin) only the distances in those bins (``selected``), for the exact median."""
+    from mst import atomic_output
     from mst.eval.c2m.driver import stream_distances
 
     cfg = C2MConfig.from_dict(cfg_dict)
@@ -142,6 +201,7 @@ def range_partials(r: PointRange, mesh: str, cfg_dict: dict) -> dict[str, Any]:
     edges_hi = HIST_RANGE_X * float(thr[-1])
     hist = np.zeros(HIST_BINS + 1, np.int64)  # the last bin: at or beyond the histogram
     chunks: list[tuple] = []
+    picked: list[np.ndarray] = []
 
     def on_chunk(xyz, fin, du, ds):
         valid = ~np.isnan(du)
@@ -149,10 +209,25 @@ def range_partials(r: PointRange, mesh: str, cfg_dict: dict) -> dict[str, Any]:
         chunks.append((len(xyz), int((~fin).sum()), len(du) - len(dv), *_chunk_sums(idx, dv, thr)))
         b = np.minimum((dv * (HIST_BINS / edges_hi)).astype(np.int64), HIST_BINS)
         hist[:] += np.bincount(b, minlength=HIST_BINS + 1)
+        if select is not None:
+            picked.append(dv[(b >= select[0]) & (b <= select[1])])
 
-    stream_distances(idx, _read(r, cfg.chunk_points), r.count, cfg, on_chunk=on_chunk, cloud=r.path, mesh=mesh)
+    if out_dir is None:
+        stream_distances(idx, _read(r, cfg.chunk_points), r.count, cfg, on_chunk=on_chunk, cloud=r.path, mesh=mesh)
+    else:
+        with atomic_output(output_name(r.path, out_dir)) as tmp:
+            w = _LasDistanceWriter(r.path, Path(tmp))
+            try:
+                def both(xyz, fin, du, ds):
+                    on_chunk(xyz, fin, du, ds)
+                    w.write(fin, du)
+
+                stream_distances(idx, w.chunks(cfg.chunk_points), r.count, cfg, on_chunk=both, cloud=r.path,
+                                 mesh=mesh)
+            finally:
+                w.close()
     return {"range": (r.path, r.start), "chunks": chunks, "hist": hist, "triangles": idx.n_triangles,
-            "shift": idx.shift.tolist()}
+            "shift": idx.shift.tolist(), "selected": np.concatenate(picked) if picked else np.zeros(0)}
 
 
 @dataclass
@@ -171,13 +246,15 @@ class TiledC2M:
     tasks: int
     elapsed_s: float
     config: C2MConfig
+    hist: np.ndarray = field(repr=False, default=None)
+    median_method: str = "histogram"
 
     def to_json(self) -> dict[str, Any]:
         return {"files": self.files, "mesh": self.mesh, "points_total": self.points_total,
                 "points_valid": self.points_valid, "points_nonfinite": self.points_nonfinite,
                 "points_beyond_max_dist": self.points_beyond_max_dist,
                 "thresholds": [t.to_json() for t in self.thresholds], "unsigned": self.unsigned,
-                "median": "histogram", "median_bound_m": self.median_bound_m, "tasks": self.tasks,
+                "median": self.median_method, "median_bound_m": self.median_bound_m, "tasks": self.tasks,
                 "elapsed_s": self.elapsed_s, "config": self.config.to_dict()}
 
 
@@ -218,13 +295,16 @@ def reduce_partials(parts: list[dict[str, Any]], files: list[str], mesh: str, cf
                 "min": mo_u.min if mo_u.n else None, "max": mo_u.max if mo_u.n else None}
     return TiledC2M(files, mesh, n_seen, n_valid, n_nonfinite, n_beyond,
                     [ThresholdRow.from_moments(t, mo, n_valid) for t, mo in zip(thr, th_mo)], unsigned, width / 2,
-                    len(parts), round(time.perf_counter() - t0, 3), cfg)
+                    len(parts), round(time.perf_counter() - t0, 3), cfg, hist)
 
 
 def c2m_tiles(paths: list[str | os.PathLike], mesh: str | os.PathLike, cfg: C2MConfig | None = None,
-              client=None, chunks_per_task: int = 4) -> TiledC2M:
+              client=None, chunks_per_task: int = 4, out_dir: str | os.PathLike | None = None,
+              exact_median: bool = False) -> TiledC2M:
     """C2M statistics of the cloud tiles ``paths`` against ``mesh``: on ``client`` (a dask Client) as one
-    task per point range, or in this process (``client=None``) with the same reduction."""
+    task per point range, or in this process (``client=None``) with the same reduction. With ``out_dir``
+    every tile (LAS/LAZ only) is one task that also writes its distance cloud there. With ``exact_median``
+    a second pass over the points gives the exact median (the histogram's bins of the middle ranks)."""
     cfg = cfg or C2MConfig()
     if cfg.signed:
         raise ConfigError("signed", "tiled C2M computes unsigned distances only")
@@ -232,11 +312,39 @@ def c2m_tiles(paths: list[str | os.PathLike], mesh: str | os.PathLike, cfg: C2MC
         raise ConfigError("engine", "tiled C2M needs the grid engine (its compiled per-chunk sums)")
     t0 = time.perf_counter()
     files = [str(p) for p in paths]
-    ranges = plan_ranges(files, cfg, chunks_per_task)
+    if out_dir is not None:
+        bad = [f for f in files if Path(f).suffix.lower() not in LAS_SUFFIXES]
+        if bad:
+            raise InputError(bad[0], "distance clouds are written for LAS/LAZ tiles only")
+        out_dir = str(out_dir)
+    ranges = plan_ranges(files, cfg, chunks_per_task, whole_files=out_dir is not None)
     mesh = str(mesh)
-    if client is None:
-        parts = [range_partials(r, mesh, cfg.to_dict()) for r in ranges]
-    else:
-        futures = [client.submit(range_partials, r, mesh, cfg.to_dict(), pure=False) for r in ranges]
-        parts = client.gather(futures)
-    return reduce_partials(parts, files, mesh, cfg, t0)
+
+    def run(out: str | None, select: tuple[int, int] | None) -> list[dict[str, Any]]:
+        if client is None:
+            return [range_partials(r, mesh, cfg.to_dict(), out, select) for r in ranges]
+        futures = [client.submit(range_partials, r, mesh, cfg.to_dict(), out, select, pure=False) for r in ranges]
+        return client.gather(futures)
+
+    res = reduce_partials(run(out_dir, None), files, mesh, cfg, t0)
+    if exact_median and res.unsigned["count"]:
+        res = _exact_median(res, run)
+    res.elapsed_s = round(time.perf_counter() - t0, 3)
+    return res
+
+
+def _exact_median(res: TiledC2M, run) -> TiledC2M:
+    """The exact median by a second pass: the tasks return only the distances in the bins of the middle
+    ranks; the client sorts those few (the same value ``np.median`` gives a single-process run)."""
+    n = res.unsigned["count"]
+    ranks = [(n + 1) // 2] if n % 2 else [n // 2, n // 2 + 1]
+    cum = np.cumsum(res.hist)
+    bins = np.searchsorted(cum, ranks)
+    lo, hi = int(bins.min()), int(bins.max())
+    below = int(cum[lo - 1]) if lo > 0 else 0
+    vals = np.sort(np.concatenate([p["selected"] for p in run(None, (lo, hi))]))
+    mid = [vals[r - below - 1] for r in ranks]
+    res.unsigned["median"] = float(np.mean(mid))
+    res.median_bound_m = 0.0
+    res.median_method = "exact (second pass)"
+    return res

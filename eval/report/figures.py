@@ -86,7 +86,8 @@ def c2m_histogram(run: RunFiles, data: CloudData | None) -> bytes | None:
 
     thresholds = [r["max_dist"] for r in c2m["thresholds"]]
     percents = [r["percent"] for r in c2m["thresholds"]]
-    return _via_file(lambda p: plot(p, data.distances, thresholds, percents=percents))
+    title = f"C2M {Path(c2m.get('cloud') or data.source).name} vs {Path(c2m.get('mesh') or '').name}"  # as mst c2m --plot
+    return _via_file(lambda p: plot(p, data.distances, thresholds, title=title, percents=percents))
 
 
 def _raster(u: np.ndarray, v: np.ndarray, c: np.ndarray, px: int) -> tuple[np.ndarray, tuple[float, ...]]:

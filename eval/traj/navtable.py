@@ -51,6 +51,10 @@ class NavColumn:
     ate_rmse_m: float
     matched: int
     gaps: int
+    #: the matched series (not in the JSON): reference times (s), estimate positions (m), d-yaw (deg)
+    t_s: np.ndarray | None = field(default=None, repr=False, compare=False)
+    xyz_m: np.ndarray | None = field(default=None, repr=False, compare=False)
+    dyaw_deg: np.ndarray | None = field(default=None, repr=False, compare=False)
 
     def to_json(self) -> dict:
         return {"dX": self.dX.to_json(), "dY": self.dY.to_json(), "dZ": self.dZ.to_json(),
@@ -60,10 +64,14 @@ class NavColumn:
 
 @dataclass
 class NavTable:
-    """The columns (name -> :class:`NavColumn`, in insertion order) against one reference."""
+    """The columns (name -> :class:`NavColumn`, in insertion order) against one reference; the
+    reference's own series and the log's dropouts for :func:`nav_figure`."""
 
     reference: str
     columns: dict[str, NavColumn] = field(default_factory=dict)
+    ref_t_s: np.ndarray | None = field(default=None, repr=False)
+    ref_xyz_m: np.ndarray | None = field(default=None, repr=False)
+    dropouts_s: list = field(default_factory=list, repr=False)  #: (start, end) of the log's GPS dropouts
 
     def to_json(self) -> dict:
         return {"reference": self.reference, "columns": {k: c.to_json() for k, c in self.columns.items()}}
@@ -116,7 +124,7 @@ def column_stats(t_ref: np.ndarray, T_ref: np.ndarray, t_est: np.ndarray, T_est:
     ms = [MeanStd(float(d[:, i].mean()), float(d[:, i].std())) for i in range(3)]
     return NavColumn(dX=ms[0], dY=ms[1], dZ=ms[2], dyaw=MeanStd(float(dyaw.mean()), float(dyaw.std())),
                      yaw_offset_deg=off, ate_rmse_m=float(np.sqrt(np.mean(np.sum(d**2, axis=1)))),
-                     matched=int(ok.sum()), gaps=int((~ok).sum()))
+                     matched=int(ok.sum()), gaps=int((~ok).sum()), t_s=t_ref[ok], xyz_m=Te[:, :3, 3], dyaw_deg=dyaw)
 
 
 def nav_table(t_ref, T_ref, columns: list[tuple[str, np.ndarray, np.ndarray, bool]], t_max_diff: float = 0.01,
@@ -168,4 +176,61 @@ def nav_table_from_files(estimate: str | os.PathLike, reference: str | os.PathLi
     st = column_stats(t_n[inside], T_ri, t_n[inside], T_n[inside], 1e-9, remove_yaw_offset=not known)
     tab.columns["GPS/AHRS"] = dataclasses.replace(st, gaps=int((~inside).sum()))
     tab.columns[Path(estimate).stem] = column_stats(t_ref, T_ref, *read_tum(estimate), t_max_diff)
+    tab.ref_t_s, tab.ref_xyz_m = t_ref, T_ref[:, :3, 3]
+    tab.dropouts_s = _runs(nav.t, ~nav.fix)
     return tab
+
+
+def _runs(t: np.ndarray, flag: np.ndarray) -> list[tuple[float, float]]:
+    """(start, end) times of the runs of ``flag``."""
+    f = np.concatenate([[False], np.asarray(flag, bool), [False]])
+    d = np.diff(f.astype(np.int8))
+    return [(float(t[a]), float(t[b - 1])) for a, b in zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1))]
+
+
+def _gaps(t: np.ndarray) -> list[tuple[float, float]]:
+    """Stretches (s) where the times ``t`` jump by more than 1.5 x their median step (tracking lost)."""
+    if len(t) < 3:
+        return []
+    step = np.median(np.diff(t))
+    k = np.flatnonzero(np.diff(t) > 1.5 * step)
+    return [(float(t[i]), float(t[i + 1])) for i in k]
+
+
+def nav_figure(path: str | os.PathLike, tab: NavTable, title: str = "") -> None:
+    """PNG: X, Y, Z (model frame, m) over time of the reference and every column, and each column's
+    d-yaw (deg, its yaw offset removed); vision gaps shaded red (where the vision column, or else the
+    estimate, has no pose), GPS dropouts shaded blue. Call inside :func:`mst.atomic_output`."""
+    from mst.eval.plots import _plt
+
+    plt = _plt()
+    colors = {"vision": "#4477aa", "GPS/AHRS": "#999933"}
+    cols = list(tab.columns.items())
+    vis = tab.columns.get("vision") or cols[-1][1]
+    gaps = _gaps(vis.t_s) if vis.t_s is not None else []
+    fig, axes = plt.subplots(4, 1, figsize=(11, 9), sharex=True)
+    for k, lab in enumerate(["X [m]", "Y [m]", "Z [m]", "d-yaw [deg]"]):
+        a = axes[k]
+        if k < 3 and tab.ref_t_s is not None:
+            a.plot(tab.ref_t_s, tab.ref_xyz_m[:, k], "-", color="#bbbbbb", lw=3, label="reference")
+        for name, c in cols:
+            y = c.xyz_m[:, k] if k < 3 else c.dyaw_deg
+            tt = c.t_s
+            if name != "GPS/AHRS" and len(tt) > 2:  # no line drawn across a gap
+                cut = np.flatnonzero(np.diff(tt) > 1.5 * np.median(np.diff(tt))) + 1
+                tt, y = np.insert(tt, cut, np.nan), np.insert(y, cut, np.nan)
+            a.plot(tt, y, "." if name == "GPS/AHRS" else ".-", ms=2, lw=0.8, color=colors.get(name, "#cc3311"),
+                   label=name)
+        for g0, g1 in gaps:
+            a.axvspan(g0, g1, color="#ffcccc", lw=0)
+        for g0, g1 in tab.dropouts_s:
+            a.axvspan(g0, g1, color="#cce0ff", lw=0, alpha=0.7)
+        if k == 3:
+            a.axhline(0, color="k", lw=0.5)
+            a.set_xlabel("time [s]  (red: vision gaps, blue: GPS dropouts)")
+        a.set_ylabel(lab)
+    axes[0].legend(loc="upper right", fontsize=8, ncol=len(cols) + 1)
+    axes[0].set_title(title or f"against {Path(tab.reference).name}")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100, format="png")
+    plt.close(fig)
