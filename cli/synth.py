@@ -157,8 +157,8 @@ def synth(scenario, model, out_dir, from_scene, as_json, quiet, verbose, overwri
     if nav_log:  # after the sequence is complete: default error model of `mst nav simulate`
         # the sequence's seed (with --from-scene: --seed, 0 by default, as before)
         nav_seed = (opts.get("seed") or 0) if from_scene else summary["config"]["seed"]
-        from mst.pipeline.navlog import NavSimConfig
-        from mst.pipeline.navrun import simulate_nav_files
+        from mst.pipeline.nav.log import NavSimConfig
+        from mst.pipeline.nav.run import simulate_nav_files
 
         summary["nav"] = simulate_nav_files(Path(out_dir) / "gt.txt", Path(out_dir) / "nav.csv", NavSimConfig(seed=nav_seed))["nav"]
     if as_json:
