@@ -17,13 +17,13 @@ setup: $(STAMP)
 
 $(STAMP): pyproject.toml $(LOCK) .ci/setup
 	PYTHON=$(PYTHON) VENV=$(VENV) bash .ci/setup
-	$(BIN)/python -m mst.eval.bench.warmup
+	$(BIN)/python -m mst.eval.c2m.warmup
 	@touch $(STAMP)
 
 ## warmup: compile the numba kernels of mst c2m into their on-disk cache (make setup does it once;
 ## every later process only loads them)
 warmup: $(STAMP)
-	$(BIN)/python -m mst.eval.bench.warmup
+	$(BIN)/python -m mst.eval.c2m.warmup
 
 ## demo: the whole chain on the bundled sample (samples/), results in $(DEMO_OUT)/
 demo: $(STAMP)

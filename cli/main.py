@@ -13,7 +13,7 @@ import warnings
 
 import click
 
-from mst import MstError, __version__
+from mst import ConfigError, MstError, __version__
 
 #: command name -> "module:attribute" (module relative to mst.cli)
 COMMANDS: dict[str, str] = {
@@ -77,6 +77,21 @@ def _warning_line(w: warnings.WarningMessage) -> str:
     return f"{w.category.__name__}: {w.message}"
 
 
+def _option_named(args: list[str], field: str) -> str | None:
+    """The ``--option`` of the invoked (sub)command that carries config field ``field``, or None."""
+    flag = "--" + field.replace("_", "-")
+    try:
+        cmd = cli.get_command(None, args[0]) if args else None
+        if isinstance(cmd, click.Group) and len(args) > 1:
+            cmd = cmd.get_command(None, args[1])
+    except Exception:  # noqa: BLE001 - only a nicer name; the message stands without it
+        return None
+    if cmd is None:
+        return None
+    opts = {o for p in cmd.params for o in getattr(p, "opts", ())}
+    return flag if flag in opts else None
+
+
 def main(argv: list[str] | None = None) -> None:
     """Console-script entry point: one clean error line and exit code 1 for every error.
 
@@ -97,6 +112,11 @@ def main(argv: list[str] | None = None) -> None:
         try:
             rv = cli.main(args=args, prog_name="mst", standalone_mode=False)
             code = rv if isinstance(rv, int) else 0
+        except ConfigError as e:
+            # a setting the library refused: named by the option that set it, when the command has one
+            flag = None if e.source else _option_named(args, e.field)
+            click.echo(f"{prog}: error: {flag}: {e.problem}" if flag else f"{prog}: error: {e}", err=True)
+            code = 1
         except MstError as e:
             click.echo(f"{prog}: error: {e}", err=True)
             code = 1

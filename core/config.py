@@ -300,6 +300,19 @@ def deep_merge(base: Mapping[str, Any], over: Mapping[str, Any]) -> dict[str, An
     return out
 
 
+def parse_yaml(path: str | os.PathLike, text: str) -> Any:
+    """``text`` (the contents of ``path``) parsed as YAML; :class:`InputError` naming the file with
+    the line and column of the first problem."""
+    import yaml
+
+    try:
+        return yaml.safe_load(text)
+    except yaml.YAMLError as e:
+        mark = getattr(e, "problem_mark", None)
+        where = f" (line {mark.line + 1}, column {mark.column + 1})" if mark is not None else ""
+        raise InputError(path, f"not valid YAML: {getattr(e, 'problem', None) or e}{where}") from None
+
+
 def load_config_file(path: str | os.PathLike, section_name: str | None = None) -> dict[str, Any]:
     """The settings mapping of a ``.yaml``/``.yml``/``.json`` config file.
 
@@ -319,14 +332,7 @@ def load_config_file(path: str | os.PathLike, section_name: str | None = None) -
         except json.JSONDecodeError as e:
             raise InputError(p, f"not valid JSON: {e.msg} (line {e.lineno}, column {e.colno})") from None
     elif suffix in (".yaml", ".yml"):
-        import yaml
-
-        try:
-            data = yaml.safe_load(text)
-        except yaml.YAMLError as e:
-            mark = getattr(e, "problem_mark", None)
-            where = f" (line {mark.line + 1}, column {mark.column + 1})" if mark is not None else ""
-            raise InputError(p, f"not valid YAML: {getattr(e, 'problem', None) or e}{where}") from None
+        data = parse_yaml(p, text)
     else:
         raise InputError(p, f"unknown config format {p.suffix or '(no suffix)'}: use .yaml, .yml or .json")
     if data is None:

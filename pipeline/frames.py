@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mst import InputError
+from mst import ConfigError, InputError
 from mst.pipeline.depth_io import IMAGE_SUFFIXES as IMAGE_EXTS
 from mst.pipeline.depth_io import natural_key
 
@@ -43,18 +43,18 @@ def parse_range(text: str | None) -> tuple[int, int | None, int]:
         return 0, None, 1
     parts = text.split(":")
     if len(parts) > 3:
-        raise InputError(None, f"--frames {text!r}: expected a:b:step")
+        raise ConfigError("frames", f"{text!r}: expected a:b:step")
     try:
         vals = [int(p) if p.strip() else None for p in parts] + [None] * (3 - len(parts))
     except ValueError:
-        raise InputError(None, f"--frames {text!r}: not integers") from None
+        raise ConfigError("frames", f"{text!r}: not integers") from None
     a, b, s = vals
     if len(parts) == 1 and a is not None:  # "a" alone: from a to the end
         b = None
     a = a or 0
     s = 1 if s is None else s  # an empty step is 1; a step of 0 is an error, not 1
     if a < 0 or s <= 0 or (b is not None and b <= a):
-        raise InputError(None, f"--frames {text!r}: need 0 <= a < b and step > 0")
+        raise ConfigError("frames", f"{text!r}: need 0 <= a < b and step > 0")
     return a, b, s
 
 
@@ -148,7 +148,7 @@ def open_frames(spec: str | os.PathLike, frames: str | None = None, scale: float
 
     spec = str(spec)
     if not scale > 0:
-        raise InputError(spec, f"--scale {scale} must be > 0")
+        raise ConfigError("scale", f"must be > 0, got {scale}")
     a, b, s = parse_range(frames)
     p = Path(spec)
     files: list[Path] | None = None
@@ -195,10 +195,10 @@ def open_frames(spec: str | os.PathLike, frames: str | None = None, scale: float
     stop = n if b is None else min(b, n)
     indices = list(range(a, stop, s))
     if not indices:
-        raise InputError(spec, f"--frames {frames!r} selects no frame of {n}")
+        raise ConfigError("frames", f"{frames!r} selects no frame of the {n} in {spec}")
     W, H = int(round(w * scale)), int(round(h * scale))
     if min(W, H) < MIN_SIDE_PX or max(W, H) > MAX_SIDE_PX:
-        raise InputError("--scale", f"{scale:g} turns the {w}x{h} frames into {W}x{H}: a side must stay within "
+        raise ConfigError("scale", f"{scale:g} turns the {w}x{h} frames into {W}x{H}: a side must stay within "
                                     f"{MIN_SIDE_PX}..{MAX_SIDE_PX} px")
     return FrameSource(spec, kind, indices, src_fps, float(scale), W, H, files, w, h)
 

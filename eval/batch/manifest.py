@@ -302,14 +302,9 @@ def _read_entries(path: Path) -> tuple[dict[str, Any], list[Any]]:
         return {}, entries
     if suffix not in (".yaml", ".yml", ".json"):
         raise InputError(path, f"unknown manifest format {path.suffix or '(no suffix)'}: use .yaml, .yml, .json or .csv")
-    import yaml
+    from mst.core.config import parse_yaml
 
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as e:
-        mark = getattr(e, "problem_mark", None)
-        at = f" (line {mark.line + 1}, column {mark.column + 1})" if mark is not None else ""
-        raise InputError(path, f"not valid YAML: {getattr(e, 'problem', None) or e}{at}") from None
+    data = parse_yaml(path, text)  # JSON is YAML too
     if isinstance(data, list):
         return {}, data
     if not isinstance(data, dict):

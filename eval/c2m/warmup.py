@@ -7,7 +7,7 @@ process loads it (a few ms per kernel). This module calls every kernel on a tiny
 argument types ``mst c2m`` uses (dense grid and binned grid, signed and unsigned, ``--max-dist``,
 points far outside the grid), so that the first real ``mst c2m`` does not compile.
 
-``python -m mst.eval.bench.warmup --json`` prints, per kernel, the signatures loaded from the cache
+``python -m mst.eval.c2m.warmup --json`` prints, per kernel, the signatures loaded from the cache
 (``cache_hits``) and compiled in this process (``cache_misses``): a second run must show no misses.
 """
 
