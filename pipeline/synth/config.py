@@ -13,10 +13,10 @@ from dataclasses import dataclass
 from mst.core.config import Config, param
 from mst.errors import ConfigError
 
-SCENARIOS = ("orbit", "corridor", "flyover", "fast", "turntable", "occluder", "blackout")
-DYNAMIC = ("turntable", "occluder", "blackout")  #: moving object / interrupted view: pipeline/synth/dynamic.py
+SCENARIOS = ("orbit", "corridor", "flyover", "fast", "turntable", "carried", "leave", "occluder", "blackout")
+DYNAMIC = ("turntable", "carried", "leave", "occluder", "blackout")  #: moving object / interrupted view: pipeline/synth/dynamic.py
 BASE_SCENARIOS = ("orbit", "corridor", "flyover")
-DEFAULT_FRAMES = {"orbit": 120, "corridor": 150, "flyover": 120, "fast": 60, "turntable": 80, "occluder": 60, "blackout": 60}
+DEFAULT_FRAMES = {"orbit": 120, "corridor": 150, "flyover": 120, "fast": 60, "turntable": 80, "carried": 80, "leave": 90, "occluder": 60, "blackout": 60}
 UP_AXES = {"z": (0, 0, 1), "-z": (0, 0, -1), "y": (0, 1, 0), "-y": (0, -1, 0), "x": (1, 0, 0), "-x": (-1, 0, 0)}
 
 # material ids (also the ``label`` face property of scene.ply)
