@@ -124,6 +124,28 @@ class AidPolicy:
             self.frames_since_fix += 1
         return T_out, status
 
+    def follow_model(self) -> None:
+        """Stop bridging with the map: follow the model poses, re-anchor the map onto them, output no
+        map pose until they agree for ``static_world_frames`` frames in a row (the state the
+        static-world check enters). Also after a relocalisation: its pose passed the health test on
+        its own image after a loss, the map of the lost stretch (the object may have been moved
+        meanwhile) does not gate it."""
+        self.moving_hold = True
+        self._agree_streak = 0
+
+    def refute_map_pose(self, k: int) -> None:
+        """The image refutes the map pose of frame ``k`` (output as ``slam``), while the model lies in
+        the view at that pose: its edges and appearance are not there (the tracking session's check,
+        :meth:`mst.pipeline.tracking.session.TrackingPolicy.map_pose_refuted`). The map and the object
+        disagree: the object moved in the map's world (carried, turned) or the map drifted. Either
+        way a map pose is no model pose: stop bridging as after the static-world check (follow
+        the model poses, re-anchor the map onto them, no map pose until they agree again for
+        ``static_world_frames`` frames). The frame is not output (the session marks it lost)."""
+        self.follow_model()
+        self.T_hist.clear()  # the refuted pose gives no velocity
+        self.map_refuted.append(int(k))
+        self.stats["image_refutations"] += 1
+
     def _process_noise(self) -> np.ndarray:
         """Per-frame random-walk covariance (v, w) of the SLAM pose against the model frame."""
         cfg = self.cfg
