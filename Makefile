@@ -11,13 +11,19 @@ LOCK_PLATFORM ?= x86_64-manylinux_2_36
 LOCK_PYTHON ?= 3.11
 UV_VERSION ?= 0.13.9
 
-.PHONY: setup demo test test-latest test-all bench lint lock clean
+.PHONY: setup warmup demo test test-latest test-all bench lint lock clean
 
 setup: $(STAMP)
 
 $(STAMP): pyproject.toml $(LOCK) .ci/setup
 	PYTHON=$(PYTHON) VENV=$(VENV) bash .ci/setup
+	$(BIN)/python -m mst.eval.bench.warmup
 	@touch $(STAMP)
+
+## warmup: compile the numba kernels of mst c2m into their on-disk cache (make setup does it once;
+## every later process only loads them)
+warmup: $(STAMP)
+	$(BIN)/python -m mst.eval.bench.warmup
 
 ## demo: the whole chain on the bundled sample (samples/), results in $(DEMO_OUT)/
 demo: $(STAMP)

@@ -9,6 +9,7 @@ import click
 
 from mst import InputError
 from mst.cli.common import (
+    CONFIG_CLASSES,
     build_config,
     config_options,
     emit_json,
@@ -20,6 +21,7 @@ from mst.cli.common import (
     verbosity_options,
 )
 
+CONFIG_CLASSES["mst c2m-tiles"] = "mst.eval.c2m.config:C2MConfig"  # for --show-config
 FLAGS = {"thresholds_m": "--thresholds", "max_dist_m": "--max-dist", "chunk_points": "--chunk"}
 
 

@@ -17,8 +17,8 @@ from mst.cli.common import (
 )
 
 # for --show-config
-CONFIG_CLASSES["mst nav simulate"] = "mst.pipeline.navlog:NavSimConfig"
-CONFIG_CLASSES["mst nav fuse"] = "mst.pipeline.navfusion:FusionConfig"
+CONFIG_CLASSES["mst nav simulate"] = "mst.pipeline.nav.log:NavSimConfig"
+CONFIG_CLASSES["mst nav fuse"] = "mst.pipeline.nav.fusion:FusionConfig"
 
 
 @click.group("nav")
@@ -74,7 +74,7 @@ def _pair(v, i):
 
 
 def _sim_config(o: dict, config_file=None, set_values=()):
-    from mst.pipeline.navlog import NavSimConfig
+    from mst.pipeline.nav.log import NavSimConfig
 
     options = {"seed": o["seed"], "rate_hz": o["rate_hz"], "sigma_h_m": _pair(o["gps_sigma"], 0),
                "sigma_v_m": _pair(o["gps_sigma"], 1), "bias_rw_m_per_sqrt_s": o["gps_bias_rw"],
@@ -108,7 +108,7 @@ def simulate(gt_path, out, config_file, set_values, as_json, quiet, verbose, **o
       mst nav simulate --gt gt.txt -o nav.csv --config errors.yaml --set dropouts=3
     """
     from mst import check_outputs
-    from mst.pipeline.navrun import simulate_nav_files
+    from mst.pipeline.nav.run import simulate_nav_files
 
     setup_logging(quiet, verbose, "mst nav simulate")
     check_outputs([out], [config_file])
@@ -186,8 +186,8 @@ def fuse(traj_path, nav_path, out, cov_path, mode, offset, lever, mount_path, m2
       mst nav fuse --traj traj.txt --nav nav.csv -o fused.txt --config noise.yaml --set huber_k=2
       mst nav fuse --traj traj.txt --nav nav.csv -o fused.txt --estimate-time-offset --json
     """
-    from mst.pipeline.navfusion import FusionConfig
-    from mst.pipeline.navrun import fuse_nav_files
+    from mst.pipeline.nav.fusion import FusionConfig
+    from mst.pipeline.nav.run import fuse_nav_files
 
     setup_logging(quiet, verbose, "mst nav fuse")
     options = {"mode": mode, "lever_arm_m": lever, "gps_sigma_h_m": _pair(gps_sigma, 0),

@@ -18,7 +18,7 @@ from mst.cli.common import (
     verbosity_options,
 )
 
-SCENARIOS = ("orbit", "corridor", "flyover", "fast", "turntable", "carried", "leave", "occluder", "blackout")
+SCENARIOS = ("orbit", "corridor", "flyover", "uav", "fpv", "fast", "turntable", "carried", "leave", "occluder", "blackout")
 CONFIG_CLASSES["mst synth"] = "mst.pipeline.synth.config:SynthConfig"  # for --show-config
 #: SynthConfig fields whose option is not "--" + the field name with dashes
 FLAGS = {"focal_px": "--focal", "rgb_noise": "--noise", "environment": "--no-environment", "aa_samples": "--aa",
@@ -66,7 +66,9 @@ def _check_not_inputs(out_dir, inputs) -> None:
               "the model) [model fills ~70% of the image height; flyover clamp(0.3 diag, 30, 150)].")
 @click.option("--seed", type=int, default=None, help="Seed of textures and noise [default: 0].")
 @click.option("--drop", type=int, default=None, help="Keep every N-th frame of the trajectory (large motion) [fast: 8, else 1].")
-@click.option("--base", type=click.Choice(["orbit", "corridor", "flyover"]), default=None,
+@click.option("--pitch", "pitch_deg", type=FINITE, default=None,
+              help="uav/fpv: camera pitch below the horizon, degrees [uav 45, fpv 8].")
+@click.option("--base", type=click.Choice(["orbit", "corridor", "flyover", "uav", "fpv"]), default=None,
               help="Base scenario of 'fast' [default: orbit].")
 @click.option("--depth/--no-depth", default=None, help="Write depth/ (16-bit PNG mm + float32 .npy m) [default: on].")
 @click.option("--depth-noise", type=click.Choice(["none", "kinect"]), default=None,
@@ -82,6 +84,8 @@ def _check_not_inputs(out_dir, inputs) -> None:
 @click.option("--up", type=click.Choice(["z", "-z", "y", "-y", "x", "-x"]), default=None,
               help="The model's up axis [default: z].")
 @click.option("--video", is_flag=True, default=None, help="Also write video.mp4 (mp4v).")
+@click.option("--video-codec", type=click.Choice(["mp4v", "h264"]), default=None,
+              help="Codec of video.mp4: h264 (H.264, as a UAV records; needs OpenCV's H.264 encoder) [mp4v].")
 @click.option("--aa", "aa_samples", type=click.Choice(["0", "4", "8", "16"]), default=None,
               help="Sub-pixel rays per silhouette/crease pixel [default: 16].")
 @click.option("--texture-size", type=int, default=None, help="Texture tile size, texels (a power of two) [default: 2048].")
@@ -99,7 +103,9 @@ def synth(scenario, model, out_dir, from_scene, as_json, quiet, verbose, overwri
     \b
     SCENARIO: orbit (circle the model, always in view), corridor (walk past it; it
     leaves the view for a stretch), flyover (UAV pass above it, pitched toward the
-    facades), fast (any --base scenario keeping every --drop-th frame); turntable,
+    facades), uav (survey UAV 30-120 m up, camera pitched 30-60 deg down, turning
+    away from the block for a stretch), fpv (forward-looking camera passing the facades
+    at 20-50 m), fast (any --base scenario keeping every --drop-th frame); turntable,
     carried, leave, occluder, blackout (pipeline/synth/dynamic.py: the object turns in a
     still room, is carried along a path, leaves the view and comes back moved, a slab
     sweeps in front of it, black and blurred frames; frames.csv holds the truth).
@@ -158,8 +164,8 @@ def synth(scenario, model, out_dir, from_scene, as_json, quiet, verbose, overwri
     if nav_log:  # after the sequence is complete: default error model of `mst nav simulate`
         # the sequence's seed (with --from-scene: --seed, 0 by default, as before)
         nav_seed = (opts.get("seed") or 0) if from_scene else summary["config"]["seed"]
-        from mst.pipeline.navlog import NavSimConfig
-        from mst.pipeline.navrun import simulate_nav_files
+        from mst.pipeline.nav.log import NavSimConfig
+        from mst.pipeline.nav.run import simulate_nav_files
 
         summary["nav"] = simulate_nav_files(Path(out_dir) / "gt.txt", Path(out_dir) / "nav.csv", NavSimConfig(seed=nav_seed))["nav"]
     if as_json:

@@ -5,6 +5,7 @@ Two layers:
 * ``*_model(...)`` functions build the *ground-truth* :class:`PolygonModel` of a shape (planar
   polygons, holes where the shape has them, outward normals: outer loops counter-clockwise seen
   from outside).
+  ``city_block_model(...)`` is a procedural LoD2-like city (flat and gabled roofs) up to 50k+ polygons.
 * ``box(...)``, ``l_shape(...)``, ``courtyard(...)``, ``gabled_house(...)``, ``cylinder(...)``,
   ``city_block(...)`` return the shape as a TIN ``(V, F)``: V (N, 3) float64 metres (model frame,
   z up), F (M, 3) int64 triangles wound outward (right-hand normal points out of the solid; up for
@@ -417,6 +418,55 @@ def city_block(n_triangles: int = 1_000_000, buildings: int = 64, seed: int = 0,
     return np.concatenate(Vs), np.concatenate(Fs)
 
 
+def city_block_model(buildings: int = 64, seed: int = 0, lot_m: float = 30.0, street_m: float = 12.0,
+                     gabled: float = 0.5, height_m=(6.0, 30.0), max_yaw_deg: float = 15.0,
+                     ground: bool = False) -> PolygonModel:
+    """A procedural LoD2-like city block as a *polygon* model (the ground truth of a CityJSON-style
+    city): ``buildings`` closed buildings on the ground plane z = 0, one per lot of a square grid of
+    ``lot_m`` metre lots with ``street_m`` metre streets between blocks of 4 x 4 lots.
+
+    Each building is a box footprint (35-80 % of its lot per side, turned by up to ``max_yaw_deg``
+    about its centre) of eaves height uniform in ``height_m`` (metres), with a flat roof (6 faces:
+    floor, 4 walls, roof) or, with probability ``gabled``, a gabled roof (7 faces: floor, 2 walls,
+    2 gable pentagons, 2 roof slopes; ridge along the longer side, 25-50 % of the shorter side
+    high). ``ground``: add one ground quad at z = 0 around the block (no hole: the buildings' floors
+    lie on it). Polygon count: 6-7 per building (+1): ``buildings=7710`` gives about 50,000.
+    Deterministic (``seed``). Model frame: x east, y north, z up, metres; outward normals.
+    """
+    rng = np.random.default_rng(seed)
+    n = int(buildings)
+    side = max(1, int(np.ceil(np.sqrt(n))))
+    gi, gj = np.divmod(np.arange(n), side)
+    cx = gi * lot_m + (gi // 4) * street_m + 0.5 * lot_m
+    cy = gj * lot_m + (gj // 4) * street_m + 0.5 * lot_m
+    a = lot_m * rng.uniform(0.35, 0.8, n)  # footprint along the local x
+    b = lot_m * rng.uniform(0.35, 0.8, n)
+    h = rng.uniform(height_m[0], height_m[1], n)
+    yaw = np.radians(rng.uniform(-max_yaw_deg, max_yaw_deg, n))
+    is_gabled = rng.random(n) < gabled
+    ridge = rng.uniform(0.25, 0.5, n) * np.minimum(a, b)
+    Vs, faces = [], []
+    off = 0
+    for k in range(n):
+        L, W = (a[k], b[k]) if a[k] >= b[k] else (b[k], a[k])
+        c, s = np.cos(yaw[k] + (0.0 if a[k] >= b[k] else np.pi / 2)), np.sin(yaw[k] + (0.0 if a[k] >= b[k] else np.pi / 2))
+        if is_gabled[k]:
+            m = gabled_house_model(L, W, h[k], ridge[k], (-L / 2, -W / 2, 0.0))
+        else:
+            m = box_model((L, W, h[k]), (-L / 2, -W / 2, 0.0))
+        V = m.vertices
+        V = np.column_stack([c * V[:, 0] - s * V[:, 1] + cx[k], s * V[:, 0] + c * V[:, 1] + cy[k], V[:, 2]])
+        Vs.append(V)
+        faces += [f + off for f in m.faces]
+        off += len(V)
+    if ground:
+        x1 = float(cx.max() + lot_m)
+        y1 = float(cy.max() + lot_m)
+        Vs.append(np.array([[-lot_m, -lot_m, 0.0], [x1, -lot_m, 0.0], [x1, y1, 0.0], [-lot_m, y1, 0.0]]))
+        faces.append(np.arange(off, off + 4))
+    return PolygonModel(np.concatenate(Vs), faces, names=["city_block"] * len(faces))
+
+
 # ====================================================================== command line
 SHAPES = ("box", "l_shape", "courtyard", "gabled_house", "cylinder", "terrain", "city_block", "torus", "blob", "vase")
 
@@ -435,7 +485,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--triangles", type=int, default=1_000_000, help="city_block size (default 1e6)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--polygons", action="store_true", help="write the ground-truth polygon model instead")
+    ap.add_argument("--buildings", type=int, default=None,
+                    help="city_block --polygons: buildings (6-7 polygons each; 7710 ~ 50k polygons) [64]")
     a = ap.parse_args(argv)
+    if a.polygons and a.shape == "city_block":
+        m = city_block_model(a.buildings or 64, seed=a.seed)
+        save_model(a.output, m)
+        print(f"{a.output}: {len(m.vertices)} vertices, {m.n_faces} polygons")
+        return 0
     if a.polygons:
         if a.shape in ("terrain", "city_block", "torus", "blob", "vase"):
             ap.error("--polygons exists for the single buildings only")

@@ -271,7 +271,7 @@ def guess_from_nav(nav_path, t: float | None, mount_ypr_deg, lever_arm_m) -> tup
     """``T_cam_model`` guess from the log row nearest to ``t`` (default: the first row with a fix);
     the model frame is taken as the log's world frame (offset removed). Returns (T_cam_model, row time)."""
     from mst.pipeline.init_pose import pose_from_gps
-    from mst.pipeline.navlog import read_navlog
+    from mst.pipeline.nav.log import read_navlog
 
     nav = read_navlog(nav_path)
     idx = np.flatnonzero(nav.fix)

@@ -27,7 +27,7 @@ grid and fills 2x2 cells whose corners see one plane with the exact ray-plane de
 mean) runs in single-threaded numba kernels (:mod:`mst.pipeline.render_kernels`, float32, compiled
 once and cached on disk), so the only multi-threaded part is Embree (``nthreads``).
 
-Speed (``mst.eval.bench_synth``, 640x480 orbit of the sample house, colour + depth, one thread of
+Speed (``mst.eval.bench.synth``, 640x480 orbit of the sample house, colour + depth, one thread of
 this project's shared 2-core machine): about 41 ms of CPU per frame with 16 edge rays, 35 ms with 8
 (ray casting ~18 ms of it, shading ~15 ms); the numpy version before the kernels took 73 ms.
 

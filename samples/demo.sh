@@ -35,4 +35,21 @@ mst eval traj "$OUT/traj.txt" "$SEQ/gt.txt" --align none --json > "$OUT/eval.jso
 step "report: one self-contained HTML page of the run (open it in a browser)"
 mst report "$OUT" -o "$OUT/report.html" --frames "$SEQ/rgb" --model "$OUT/building.wrl" --camera "$SEQ/camera.json" --fps 30
 
+# ---- the headline case (issue 11): a UAV survey of a procedural city block, in OUT/uav/
+UAV=$OUT/uav
+mkdir -p "$UAV"
+step "uav: a procedural LoD2-like city block (36 buildings, flat and gabled roofs)"
+python -m mst.meshtools.generate city_block --polygons --buildings 36 -o "$UAV/city.wrl"
+
+step "uav synth: 8 s survey pass 60 m up, camera 45 deg down, hovering while it looks away from the block"
+mst synth uav --model "$UAV/city.wrl" -o "$UAV/seq" --frames 240 --width 320 --height 240 --no-depth \
+  --model-texture --aa 4 --texture-size 512 --overwrite -q
+
+step "uav convert-model + init + track (default mode) + eval"
+mst convert-model "$UAV/seq/model.obj" -o "$UAV/city_from_tin.wrl" -q
+mst init --model "$UAV/city_from_tin.wrl" --camera "$UAV/seq/camera.json" --clicks "$UAV/seq/clicks.txt" -o "$UAV/pose0.txt" -q
+mst track "$UAV/seq/rgb" --fps 30 --model "$UAV/city_from_tin.wrl" --camera "$UAV/seq/camera.json" \
+  --init "$UAV/pose0.txt" -o "$UAV/traj.txt" --json > "$UAV/track.json"
+mst eval traj "$UAV/traj.txt" "$UAV/seq/gt.txt" --align none --json > "$UAV/eval.json"
+
 printf '\nDemo outputs in %s/ (report: %s/report.html)\n' "$OUT" "$OUT" >&2

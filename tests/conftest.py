@@ -1,4 +1,5 @@
-"""Shared fixtures: the real data in ../shared/data (skipped cleanly when absent) and run helpers."""
+"""Shared fixtures: the real data in ../shared/data (skipped cleanly when absent), the gabled-house
+model of the synthetic tests, and the run helpers."""
 
 from __future__ import annotations
 
@@ -11,6 +12,35 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = Path(os.environ.get("MST_SHARED_DATA", ROOT.parent / "shared" / "data"))
+
+#: the one gabled house of the synthetic tests: 4 x 3 m, eaves at 2.4 m, ridge 1.4 m above them (m)
+HOUSE_M = dict(length=4.0, width=3.0, eaves=2.4, ridge=1.4)
+
+
+@pytest.fixture(scope="session")
+def gabled_house_tin(tmp_path_factory):
+    """Factory ``(scale=1.0) -> Path``: the gabled-house TIN (OBJ, faces split twice, so a TIN with
+    coplanar triangles) with every dimension of ``HOUSE_M`` times ``scale``; written once per scale."""
+    from mst.meshtools.formats import save_triangles
+    from mst.meshtools.generate import gabled_house
+
+    made: dict[float, Path] = {}
+
+    def make(scale: float = 1.0) -> Path:
+        if scale not in made:
+            p = tmp_path_factory.mktemp("models") / f"house_x{scale:g}.obj"
+            V, F = gabled_house(split=2, **{k: v * scale for k, v in HOUSE_M.items()})
+            save_triangles(p, V, F)
+            made[scale] = p
+        return made[scale]
+
+    return make
+
+
+@pytest.fixture(scope="module")
+def house(gabled_house_tin) -> Path:
+    """The gabled house at its full size (``HOUSE_M``)."""
+    return gabled_house_tin(1.0)
 
 
 @pytest.fixture(scope="session")

@@ -81,7 +81,7 @@ def test_cli_from_nav_converges_or_refuses_a_frame_without_the_model(view, tmp_p
     from mst.core.camera import write_camera
     from mst.core.trajectory import read_pose_file
     from mst.meshtools.formats import save_model
-    from mst.pipeline.navlog import R_MOUNT_CAM, NavLog, format_navlog, ypr_deg_from_R
+    from mst.pipeline.nav.log import R_MOUNT_CAM, NavLog, format_navlog, ypr_deg_from_R
 
     m, cam, T_mc, img, _ = view
     save_model(tmp_path / "model.obj", m)

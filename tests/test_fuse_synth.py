@@ -9,19 +9,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mst.meshtools.formats import load_triangles, save_triangles
-from mst.meshtools.generate import gabled_house
+from mst.meshtools.formats import load_triangles
 from mst.pipeline.fusion import FuseConfig, fuse, read_ply_points
 from mst.pipeline.synth import SynthConfig, synthesize
 
 
 @pytest.fixture(scope="module")
-def house(tmp_path_factory) -> Path:
-    """A 1.6 x 1.2 m gabled house (1.5 m high), a TIN with split faces."""
-    p = tmp_path_factory.mktemp("models") / "house.obj"
-    V, F = gabled_house(split=2, length=1.6, width=1.2, eaves=1.0, ridge=0.5)
-    save_triangles(p, V, F)
-    return p
+def house(gabled_house_tin) -> Path:
+    """The tests' gabled house at 0.4 x (1.6 x 1.2 m, 1.5 m high): a tabletop-size RGB-D scene."""
+    return gabled_house_tin(0.4)
 
 
 def _distance_to(mesh_path: Path, X: np.ndarray) -> np.ndarray:

@@ -7,7 +7,7 @@ import json
 import numpy as np
 from nav_helpers import flight, noisy_vision
 
-from mst.pipeline.navrun import format_cov_csv
+from mst.pipeline.nav.run import format_cov_csv
 
 
 def test_nav_plot_writes_the_figure_and_refuses_a_bad_log(tmp_path, mst):

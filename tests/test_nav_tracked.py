@@ -38,7 +38,7 @@ def tracked(tmp_path_factory):
 
 def test_nav_fuse_reads_mst_track_output_and_keeps_its_accuracy(tracked, tmp_path, mst):
     from mst.core.trajectory import read_tum
-    from mst.pipeline.navrun import read_cov_csv
+    from mst.pipeline.nav.run import read_cov_csv
 
     seq = tracked
     c, s = np.cos(np.radians(30.0)), np.sin(np.radians(30.0))

@@ -17,15 +17,15 @@ from nav_helpers import flight, noisy_vision
 
 from mst import InputError
 from mst.core.poses import inv_T, so3_log
-from mst.pipeline.navfusion import FusionConfig, _rot_mean, fuse_navigation
-from mst.pipeline.navlog import (
+from mst.pipeline.nav.fusion import FusionConfig, _rot_mean, fuse_navigation
+from mst.pipeline.nav.log import (
     NavSimConfig,
     R_from_ypr_deg,
     interpolate_poses,
     mount_ypr_deg_from_R,
     simulate_nav,
 )
-from mst.pipeline.navrun import format_cov_csv, read_cov_csv
+from mst.pipeline.nav.run import format_cov_csv, read_cov_csv
 
 LEVER = (0.10, 0.0, -0.15)
 

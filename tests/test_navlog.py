@@ -9,7 +9,7 @@ from nav_helpers import flight
 from mst import InputError
 from mst.core.poses import inv_T
 from mst.pipeline.init_pose import pose_from_gps
-from mst.pipeline.navlog import (
+from mst.pipeline.nav.log import (
     NavLog,
     NavSimConfig,
     R_from_ypr_deg,

@@ -13,8 +13,8 @@ from nav_helpers import VISION_SIGMA_M, flight, noisy_vision
 
 from mst.core.trajectory import write_tum
 from mst.eval.traj.navtable import nav_table_from_files
-from mst.pipeline.navfusion import FusionConfig, fuse_navigation
-from mst.pipeline.navlog import NavSimConfig, simulate_nav, write_sim_outputs
+from mst.pipeline.nav.fusion import FusionConfig, fuse_navigation
+from mst.pipeline.nav.log import NavSimConfig, simulate_nav, write_sim_outputs
 
 
 def test_nav_table_columns_match_the_noise_budget(tmp_path, mst):

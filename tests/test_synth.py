@@ -13,18 +13,10 @@ from mst.core.camera import read_camera
 from mst.core.poses import inv_T
 from mst.core.trajectory import read_pose_file, read_tum
 from mst.meshtools.formats import save_triangles
-from mst.meshtools.generate import box, gabled_house
+from mst.meshtools.generate import box
 from mst.pipeline.synth import SynthConfig, synthesize, synthesize_from_scene
 
 SMALL = dict(width=160, height=120, texture_size=64)
-
-
-@pytest.fixture(scope="module")
-def house(tmp_path_factory) -> Path:
-    p = tmp_path_factory.mktemp("models") / "house.obj"
-    V, F = gabled_house(split=2, length=4.0, width=3.0, eaves=2.4, ridge=1.4)
-    save_triangles(p, V, F)
-    return p
 
 
 @pytest.fixture(scope="module")

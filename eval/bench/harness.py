@@ -19,7 +19,7 @@ import time
 import traceback
 from pathlib import Path
 
-STAGES = ["convert", "c2m", "synth", "track", "slam", "fuse", "nav", "refine", "batch", "c2m_tiles"]
+STAGES = ["startup", "convert", "c2m", "synth", "track", "slam", "fuse", "nav", "refine", "batch", "c2m_tiles", "uav"]
 
 
 def timed_command(cmd: list[str], **kw) -> dict:

@@ -2,7 +2,7 @@
 automatic-initialisation search (target <= 2 s).
 
 Inputs are generated here: a 600 s UAV orbit (18,000 frames) with vision poses = truth + white noise
-(0.3 m / 0.5 deg) and a 10 s loss, a 5 Hz GPS/AHRS log from :func:`mst.pipeline.navlog.simulate_nav`;
+(0.3 m / 0.5 deg) and a 10 s loss, a 5 Hz GPS/AHRS log from :func:`mst.pipeline.nav.log.simulate_nav`;
 for the search, one rendered 640x480 view of an L-shaped building from 40 m and a 3 m / 3 deg guess.
 The fusion is timed as a whole command (files in, files out), the search in-process.
 """
@@ -30,7 +30,7 @@ def _flight(duration_s: float, fps: float):
 def run(workdir: Path) -> list[dict]:
     from mst.core.poses import so3_exp
     from mst.core.trajectory import write_tum
-    from mst.pipeline.navlog import NavSimConfig, simulate_nav, write_sim_outputs
+    from mst.pipeline.nav.log import NavSimConfig, simulate_nav, write_sim_outputs
 
     workdir.mkdir(parents=True, exist_ok=True)
     t, T = _flight(600.0, 30.0)

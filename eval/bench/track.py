@@ -8,6 +8,11 @@ CPU time is the stable number. The first frame (3 initialisation passes) is excl
 
 Targets (issue #5): median <= 5 ms edges-only, <= 10 ms with KLT (ViSP C++ on the same 2-core
 machine: 1.2 / 2.1 ms). A whole ``mst track`` command is also timed (start-up, decoding, I/O).
+
+Issue #14: each timed mode is followed by its per-frame budget (:func:`_budget_row`: visibility and
+sampling, moving-edge search, VVS, KLT, health evidence, Python overhead), and the ViSP rows (when
+the runner is built; ``VISP_ANCHOR=/path/visp_mbt_anchor``) state mst's median of the same mode in
+this run and the ratio (target <= 1.0). Run alone: ``python -m mst.eval.bench.track``.
 """
 
 from __future__ import annotations
@@ -48,15 +53,68 @@ def _time_tracker(model, cam, cfg, grays, T0, repeats: int = 2) -> dict:
 def _rows(name: str, model, cam, cfg, grays, T0) -> list[dict]:
     out = []
     for klt, target in ((False, 5.0), (True, 10.0)):
-        r = _time_tracker(model, cam, cfg.replace(use_klt=klt), grays, T0)
+        c = cfg.replace(use_klt=klt)
+        r = _time_tracker(model, cam, c, grays, T0)
         r["bench"] = f"track {name} {'edges+klt' if klt else 'edges'} 640x480"
         r["target"] = f"median <= {target:g} ms (CPU time)"
         r["ok"] = bool(r["cpu_median_ms"] <= target and r["lost"] == 0)
         out.append(r)
+        out.append(_budget_row(f"{name} {'edges+klt' if klt else 'edges'}", model, cam, c, grays, T0, r["median_ms"]))
     return out
 
 
-def _visp_anchor_rows(tb: Path, workdir: Path) -> list[dict]:
+#: stages of the per-frame budget: (name, function names whose cumulative time counts for it)
+BUDGET_STAGES = (
+    ("visibility_sampling", ("visible_samples",)),
+    ("moving_edge_search", ("search_edges",)),
+    ("vvs", ("solve_pose",)),
+    ("klt", ("_klt_points", "track_forward_backward")),
+    ("health_evidence", ("evidence", "_absolute_health")),
+)
+
+
+def _budget_row(name: str, model, cam, cfg, grays, T0, median_ms: float) -> dict:
+    """Per-frame budget of ``EdgeTracker.track`` + ``accept`` (issue #14), measured with cProfile on
+    the same frames: each stage's cumulative time (functions of :data:`BUDGET_STAGES`; nested calls
+    are counted once, in the outermost stage listed), the rest as ``python_overhead``. The profiler
+    slows Python-heavy code more than compiled code, so the shares are given and the ms are those
+    shares of the un-profiled ``median_ms`` (an estimate)."""
+    import cProfile
+    import pstats
+
+    from mst.pipeline.tracking import EdgeTracker
+
+    def loop():
+        tr = EdgeTracker(model, cam, cfg)
+        T = T0
+        for k, g in enumerate(grays):
+            fr = tr.track(g, T, first=k == 0)
+            if fr.healthy:
+                tr.accept(g, fr.T_cam_model)
+                T = fr.T_cam_model
+
+    pr = cProfile.Profile()
+    pr.enable()
+    loop()
+    pr.disable()
+    st = pstats.Stats(pr).stats  # {(file, line, func): (cc, nc, tt, ct, callers)}
+    cum: dict[str, float] = {}
+    for (_f, _l, fn), (_cc, _nc, _tt, ct, _callers) in st.items():
+        cum[fn] = cum.get(fn, 0.0) + ct
+    total = cum.get("track", 0.0) + cum.get("accept", 0.0)
+    row = {"bench": f"track {name} per-frame budget (cProfile shares x median)", "median_ms": round(median_ms, 3)}
+    used = 0.0
+    for stage, fns in BUDGET_STAGES:
+        t = max((cum.get(f, 0.0) for f in fns), default=0.0)
+        used += t
+        row[f"{stage}_share"] = round(t / total, 3) if total else None
+        row[f"{stage}_ms"] = round(median_ms * t / total, 3) if total else None
+    row["python_overhead_share"] = round(1 - used / total, 3) if total else None
+    row["python_overhead_ms"] = round(median_ms * (1 - used / total), 3) if total else None
+    return row
+
+
+def _visp_anchor_rows(tb: Path, workdir: Path, mst_median: dict | None = None) -> list[dict]:
     """ViSP's own tracker on the same frames, when its runner is built (../shared/tools/visp-anchor,
     ``$VISP_ANCHOR`` or /tmp/visp_build/visp_mbt_anchor): its median time, and how far the mst and
     ViSP trajectories are apart (camera position mm, rotation deg)."""
@@ -85,9 +143,19 @@ def _visp_anchor_rows(tb: Path, workdir: Path) -> list[dict]:
                                "--init", workdir / "pose0.txt", "-o", mf, "-q", flag), check=True)
         _, T_mst = read_tum(mf)
         dt, dr = pose_error(T_mst, inv_T(T)[: len(T_mst)])
-        out.append({"bench": f"ViSP 3.5 {mode} on teabox (same machine, now)", "median_ms": float(np.median(a[:, 14])),
-                    "mst_vs_visp_median_mm": float(np.median(dt) * 1e3), "mst_vs_visp_max_mm": float(dt.max() * 1e3),
-                    "mst_vs_visp_median_deg": float(np.median(dr)), "mst_vs_visp_max_deg": float(dr.max())})
+        row = {"bench": f"ViSP 3.5 {mode} on teabox (same machine, now)", "median_ms": float(np.median(a[:, 14])),
+               "mst_vs_visp_median_mm": float(np.median(dt) * 1e3), "mst_vs_visp_max_mm": float(dt.max() * 1e3),
+               "mst_vs_visp_median_deg": float(np.median(dr)), "mst_vs_visp_max_deg": float(dr.max())}
+        if mst_median and mode in mst_median:  # issue #14: mst's median (same frames, this run) / ViSP's
+            wall, cpu = mst_median[mode]
+            row["mst_median_ms"] = round(wall, 3)
+            row["ratio_vs_visp"] = round(wall / row["median_ms"], 3)
+            # on a loaded machine mst's wall median is inflated by waiting; its CPU median is not
+            row["mst_cpu_median_ms"] = round(cpu, 3)
+            row["ratio_vs_visp_mst_cpu"] = round(cpu / row["median_ms"], 3)
+            row["target"] = "mst median <= 1.0 x ViSP's (same run)"
+            row["ok"] = bool(row["ratio_vs_visp"] <= 1.0)
+        out.append(row)
     return out
 
 
@@ -142,7 +210,10 @@ def run(workdir: Path) -> list[dict]:
             if not ok:
                 break
             grays.append(cv2.cvtColor(img, cv2.COLOR_BGR2GRAY))
-        rows += _rows("teabox", model, cam, cfg, grays, T0)
+        tb_rows = _rows("teabox", model, cam, cfg, grays, T0)
+        rows += tb_rows
+        mst_median = {("hybrid" if "klt" in r["bench"] else "edge"): (r["median_ms"], r["cpu_median_ms"])
+                      for r in tb_rows if "frames" in r}
         from mst.core.trajectory import write_pose_file
 
         write_pose_file(workdir / "pose0.txt", T0)
@@ -151,7 +222,7 @@ def run(workdir: Path) -> list[dict]:
         rows.append({"bench": "mst track teabox.mp4 (whole command, 39 frames)", "wall_s": r["wall_s"],
                      "peak_rss_mib": r["peak_rss_mib"]})
         rows += _default_mode_rows(tb, workdir, grays, model, cam, cfg, T0)
-        rows += _visp_anchor_rows(tb, workdir)
+        rows += _visp_anchor_rows(tb, workdir, mst_median)
     else:
         print(f"[bench track] shared data absent ({tb}): teabox skipped", file=sys.stderr)
 

@@ -203,6 +203,7 @@ class DenseGrid:
         self.cand = np.zeros(0, np.int32)
         self.levels = max(0, int(np.ceil(np.log2(int(self.dims.max())))) - 2)
         self._lock = threading.Lock()
+        self._filled = False  # any cell computed yet
         self._tg = TriangleGrid(idx)
         self.ext = ext
         nb = None
@@ -217,6 +218,12 @@ class DenseGrid:
         md = -1.0 if max_dist is None else float(max_dist)
         lo, inv_h = self.lo.astype(np.float64), 1.0 / self.h
         args = (idx.A, idx.AB, idx.AC, idx.BC, idx.N, idx.G)
+        if not self._filled:  # first chunk: no cell computed yet, so the query below would only
+            # report "not computed" for every point and run again; fill the chunk's cells first
+            flat = nb.cells_of(P, lo, inv_h, self.dims)
+            flat = flat[flat >= 0]
+            if len(flat):
+                self._fill(np.unique(flat))
         order = nb.bucket_order(P, lo, inv_h, self.dims, 3)
         tri, d2, feat, st = nb.grid_query(P, lo, inv_h, self.dims, self.cell, self.lb, self.cand, md, *args, order,
                                           self.BB)
@@ -261,6 +268,7 @@ class DenseGrid:
             self.lb[cells] = lb
             self.cand = np.concatenate([self.cand, tri.astype(np.int32)])
             self.cell[cells] = ((base + ptr[:-1]) << 16) | np.diff(ptr)  # last: marks the cells as computed
+            self._filled = True
 
     def nearest(self, P: np.ndarray, max_dist: float | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(tri, d2, feature)`` per point; tri = -1 where provably farther than ``max_dist``."""

@@ -2,7 +2,7 @@
 
 Holds: config (TrajConfig), metrics (association, alignment, errors, yaw), compare (core + file form ->
 TrajResult), report (console rows), navtable (the UAV table against a GPS/AHRS log).
-May import: numpy, mst.core (trajectory files), mst.errors, mst.pipeline.navlog (navtable only).
+May import: numpy, mst.core (trajectory files), mst.errors, mst.pipeline.nav.log (navtable only).
 
 Conventions: poses are ``T_model_cam`` 4x4 float64 (camera pose in the model/world frame, what TUM
 files hold); positions in metres, angles in degrees. The computations follow evo (Grupp 2017)

@@ -24,7 +24,7 @@ import numpy as np
 from mst import InputError
 from mst.core.trajectory import read_tum
 from mst.eval.traj.metrics import camera_yaw_deg, wrap_deg
-from mst.pipeline.navlog import R_MOUNT_CAM, NavLog, interpolate_poses, read_navlog
+from mst.pipeline.nav.log import R_MOUNT_CAM, NavLog, interpolate_poses, read_navlog
 
 
 @dataclass(frozen=True)

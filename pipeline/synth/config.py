@@ -13,11 +13,16 @@ from dataclasses import dataclass
 from mst.core.config import Config, param
 from mst.errors import ConfigError
 
-SCENARIOS = ("orbit", "corridor", "flyover", "fast", "turntable", "carried", "leave", "occluder", "blackout")
+SCENARIOS = ("orbit", "corridor", "flyover", "uav", "fpv", "fast", "turntable", "carried", "leave", "occluder", "blackout")
 DYNAMIC = ("turntable", "carried", "leave", "occluder", "blackout")  #: moving object / interrupted view: pipeline/synth/dynamic.py
-BASE_SCENARIOS = ("orbit", "corridor", "flyover")
-DEFAULT_FRAMES = {"orbit": 120, "corridor": 150, "flyover": 120, "fast": 60, "turntable": 80, "carried": 80, "leave": 90, "occluder": 60, "blackout": 60}
+BASE_SCENARIOS = ("orbit", "corridor", "flyover", "uav", "fpv")
+DEFAULT_FRAMES = {"orbit": 120, "corridor": 150, "flyover": 120, "uav": 240, "fpv": 150, "fast": 60, "turntable": 80,
+                  "carried": 80, "leave": 90, "occluder": 60, "blackout": 60}
 UP_AXES = {"z": (0, 0, 1), "-z": (0, 0, -1), "y": (0, 1, 0), "-y": (0, -1, 0), "x": (1, 0, 0), "-x": (-1, 0, 0)}
+
+#: fields added after scene.json format 1 was fixed: written into scene.json only when not at their
+#: default, so that sequences rendered without them keep byte-identical scene files
+LATER_FIELDS = {"video_codec": "mp4v", "pitch_deg": None}
 
 # material ids (also the ``label`` face property of scene.ply)
 MODEL, FLOOR, WALL, CEILING = 0, 1, 2, 3
@@ -51,6 +56,9 @@ class SynthConfig(Config):
     n_clicks: int = param(6, min=4, help="clicked corners")
     up: str = param("z", choices=tuple(UP_AXES), help="the model's up axis")
     video: bool = param(False, help="also write video.mp4")
+    video_codec: str = param("mp4v", choices=("mp4v", "h264"), help="video.mp4 codec (h264: needs an H.264 encoder in OpenCV)")
+    pitch_deg: float | None = param(None, min=-89, max=89,
+                                    help="uav/fpv camera pitch below the horizon, deg (default: uav 45, fpv 8)")
     aa_samples: int = param(16, choices=(0, 4, 8, 16), help="sub-pixel rays per silhouette/crease pixel")
     texture_size: int = param(2048, min=64, help="texels per texture tile side (a power of two)")
     nthreads: int = param(0, min=0, help="ray-casting threads (0: all cores)")

@@ -80,9 +80,11 @@ def _render_into(tmp: Path, plan, cfg: SynthConfig, progress) -> tuple[list, flo
         (tmp / "depth").mkdir()
     writer = None
     if cfg.video:
-        writer = cv2.VideoWriter(str(tmp / "video.mp4"), cv2.VideoWriter_fourcc(*"mp4v"), fps, (cam.width, cam.height))
+        fourcc = "avc1" if cfg.video_codec == "h264" else "mp4v"
+        writer = cv2.VideoWriter(str(tmp / "video.mp4"), cv2.VideoWriter_fourcc(*fourcc), fps, (cam.width, cam.height))
         if not writer.isOpened():
-            raise MstError("cv2.VideoWriter could not open an mp4v writer")
+            raise MstError(f"cv2.VideoWriter could not open a {cfg.video_codec} ({fourcc}) mp4 writer"
+                           + (": this OpenCV has no H.264 encoder (use --video-codec mp4v)" if fourcc == "avc1" else ""))
     rows, render_s = [], 0.0
     for k in range(len(plan.T_model_cam)):
         t0 = time.perf_counter()

@@ -19,6 +19,7 @@ from mst.pipeline.synth.config import (
     WALL,
     SynthConfig,
 )
+from mst.pipeline.synth.scenarios_uav import UAV_SCENARIOS, resolve_uav, uav_pose
 
 
 def R_canon_from_up(up: str) -> np.ndarray:
@@ -100,6 +101,8 @@ class Scene:
             pitch = (1 - w) * pitch_m + w * math.radians(-6.0)
             fwd = np.array([math.cos(pitch) * math.cos(yaw), math.cos(pitch) * math.sin(yaw), math.sin(pitch)])
             return look_at(eye, eye + fwd, roll_deg=1.5 * math.sin(2 * math.pi * s / 2.3))
+        if self.scenario in UAV_SCENARIOS:
+            return uav_pose(self.scenario, p, s)
         if self.scenario == "flyover":
             x = p["x_start"] + p["speed"] * s
             eye = np.array([x, p["eye_y"], p["eye_z"] + 0.01 * p["distance"] * math.sin(2 * math.pi * s / 4.0)])
@@ -118,10 +121,11 @@ def focus_point(Vc: np.ndarray, F: np.ndarray) -> np.ndarray:
 
 
 def _resolve(scenario: str, cfg: SynthConfig, lo: np.ndarray, hi: np.ndarray, cam: Camera,
-             focus: np.ndarray | None = None) -> Scene:
+             focus: np.ndarray | None = None, Vc: np.ndarray | None = None) -> Scene:
     """Scenario geometry from the model's canonical bounding box ``[lo, hi]`` and the camera.
 
-    ``focus``: the point a flyover looks at (default: the bounding-box centre)."""
+    ``focus``: the point a flyover looks at (default: the bounding-box centre); ``Vc``: the model's
+    vertices in the canonical frame (uav/fpv: the buildings' south edge along the pass)."""
     base = cfg.base if scenario == "fast" else scenario
     if base not in BASE_SCENARIOS:
         raise ValueError(f"unknown base scenario {base!r} (expected one of {', '.join(BASE_SCENARIOS)})")
@@ -172,6 +176,11 @@ def _resolve(scenario: str, cfg: SynthConfig, lo: np.ndarray, hi: np.ndarray, ca
             env = _box_room(np.array([x0, y0, lo[2]]), np.array([x1, y1, z1]), True, True, True)
         p["room"] = [x0, y0, lo[2], x1, y1, z1]
         p["texture_distance"] = D
+    elif base in UAV_SCENARIOS:
+        fc = c if focus is None else np.array([focus[0], focus[1], c[2]])
+        p["center"] = fc.tolist()
+        q, env = resolve_uav(base, cfg, lo, hi, fc, Vc, duration, FLOOR)
+        p.update(q)
     else:  # flyover
         D = float(cfg.distance or min(max(30.0, 0.3 * diag), 150.0))
         off = 0.9 * D

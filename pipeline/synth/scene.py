@@ -186,7 +186,7 @@ def build_scene(scenario: str, cfg: SynthConfig, V: np.ndarray, F: np.ndarray):
     Vc = V @ R_cm.T
     used = np.unique(F)
     lo, hi = Vc[used].min(0), Vc[used].max(0)
-    scene = _resolve(scenario, cfg, lo, hi, cam, focus=focus_point(Vc, F))
+    scene = _resolve(scenario, cfg, lo, hi, cam, focus=focus_point(Vc, F), Vc=Vc[used])
     rng = np.random.default_rng([int(cfg.seed), 7])
     Vs, Fs, mats, offs = [V], [F], [np.full(len(F), MODEL)], [np.zeros((len(F), 2))]
     off = len(V)
@@ -202,7 +202,7 @@ def build_scene(scenario: str, cfg: SynthConfig, V: np.ndarray, F: np.ndarray):
     texel = scene.params["texture_distance"] / (1.5 * f)
     size = int(cfg.texture_size)
     seed = int(cfg.seed)
-    floor_kind = "terrain" if scene.scenario == "flyover" else cfg.floor
+    floor_kind = "terrain" if scene.scenario in ("flyover", "uav", "fpv") else cfg.floor
     recipes = {  # material -> (texture kind, texel size, seed); generated only when the scene uses it
         FLOOR: (floor_kind, texel, seed),
         WALL: ("brick", texel, seed + 1),

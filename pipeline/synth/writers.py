@@ -17,6 +17,7 @@ from mst import InputError, __version__
 from mst.core.camera import write_camera
 from mst.core.ply import write_ply
 from mst.core.trajectory import format_tum
+from mst.pipeline.synth.config import LATER_FIELDS
 
 #: the scene.json layout this mst writes and reads (a file of another version is refused, never guessed)
 SCENE_VERSION = 1
@@ -115,7 +116,8 @@ def write_metadata(tmp: Path, plan, cfg, scenario: str, V: np.ndarray, F: np.nda
                                     + "".join(f"{k},{t:.6f},{m},{e}\n" for k, t, m, e in rows))
     spec = {
         "format": "mst-synth-scene", "version": SCENE_VERSION, "mst_version": __version__,
-        "scenario": scenario, "seed": int(cfg.seed), "config": cfg.to_dict(),
+        "scenario": scenario, "seed": int(cfg.seed),
+        "config": {k: v for k, v in cfg.to_dict().items() if k not in LATER_FIELDS or v != LATER_FIELDS[k]},
         "model": {"source": str(model_source), "file": "model.obj",
                   "sha256": _sha256(tmp / "model.obj"), "vertices": len(V), "triangles": len(F)},
         "camera": plan.cam.to_dict(), "resolved": plan.scene.params,

@@ -92,6 +92,7 @@ class TrackingPolicy:
         self.T_prev2: np.ndarray | None = None
         self.T_hint: np.ndarray | None = None
         self.lost_streak = 0
+        self.slam_streak = 0  # frames in a row output by the SLAM aid alone
         self.first = True
         self.first_reason = ""
         self.prev_status = "model"
@@ -132,9 +133,14 @@ class TrackingPolicy:
         """The edge tracker's recovery mode (widened, coarse-to-fine search): after a loss."""
         return self.lost_streak > 0
 
-    def should_relocalise(self, fr: FrameResult, every: int) -> bool:
-        """Lost and this frame's edge pose unhealthy: a relocalisation attempt every ``every`` frames."""
-        return self.lost_streak > 0 and not fr.healthy and (self.lost_streak - 1) % every == 0
+    def should_relocalise(self, fr: FrameResult, every: int, aid_on: bool = False) -> bool:
+        """Lost, or (``aid_on``: an active SLAM aid will carry the frame) the model projects into the
+        image (edge samples), and this frame's edge pose unhealthy: a relocalisation attempt every
+        ``every`` frames of the stretch. (A drifted aid keeps the model's edges outside their
+        search range after a stretch without the model: on the 40 m UAV survey its map poses
+        reached 11 m off while the relocaliser could find the block.)"""
+        n = self.lost_streak if self.lost_streak > 0 else (self.slam_streak + 1 if aid_on and fr.n_samples > 0 else 0)
+        return n > 0 and not fr.healthy and (n - 1) % every == 0
 
     # -------------------------------------------------------------- judging an edge pose
     def judge(self, fr: FrameResult, first_frame: bool) -> FrameResult:
@@ -264,7 +270,7 @@ class TrackingSession:
                 fr = fr_w
                 tr.discard_klt_matches()  # the KLT inliers were those of the discarded fit
         relocalised = False
-        if reloc is not None and p.should_relocalise(fr, reloc.cfg.every):
+        if reloc is not None and p.should_relocalise(fr, reloc.cfg.every, aid_on=aid is not None and not _standby(aid)):
             # lost: search the learned keypoints, refine with the edges, accept only if healthy
             T_r = reloc.relocalise(gray)
             if T_r is not None:
@@ -310,6 +316,7 @@ class TrackingSession:
         if relocalised and status == "model":
             status = "relocalised"
         p.prev_status = status
+        p.slam_streak = p.slam_streak + 1 if status == "slam" else 0
         p.learn(fr, status, healthy)
         if reloc is not None and p.should_learn_appearance(fr, status, healthy) and reloc.should_learn(idx, fr.T_cam_model):
             reloc.learn(idx, gray, fr.T_cam_model)

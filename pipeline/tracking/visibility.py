@@ -29,6 +29,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from mst.pipeline.tracking.edge_joints import flat_t_junctions
+
 CREASE_DEG = 5.0  # edges whose two faces' normals differ by less are not tracked
 
 
@@ -118,6 +120,7 @@ class ModelGeometry:
         cosang = np.ones(len(ef))
         cosang[both] = np.einsum("ij,ij->i", N[ef[both, 0]], N[ef[both, 1]])
         flat = both & (cosang > np.cos(np.radians(CREASE_DEG)))
+        flat |= flat_t_junctions(V, uniq, ef, N, CREASE_DEG)
         uniq, ef = uniq[~flat], ef[~flat]
         # convexity: all vertices behind all face planes (within 1e-6 of the model size)
         size = float(np.ptp(V, axis=0).max()) if len(V) else 1.0

@@ -1,5 +1,5 @@
 """Runners of ``mst nav simulate`` and ``mst nav fuse``: read the files, call the cores
-(:func:`~mst.pipeline.navlog.simulate_nav`, :func:`~mst.pipeline.navfusion.fuse_navigation`),
+(:func:`~mst.pipeline.nav.log.simulate_nav`, :func:`~mst.pipeline.nav.fusion.fuse_navigation`),
 write the outputs atomically, return the summary; the pose-covariance side files (``.cov.csv``)."""
 
 from __future__ import annotations
@@ -13,8 +13,8 @@ from pathlib import Path
 import numpy as np
 
 from mst import InputError, atomic_outputs
-from mst.pipeline.navfusion import FusionConfig, fuse_navigation
-from mst.pipeline.navlog import NavSimConfig
+from mst.pipeline.nav.fusion import FusionConfig, fuse_navigation
+from mst.pipeline.nav.log import NavSimConfig
 
 COV_COLS = [f"c{i}{j}" for i in range(6) for j in range(6)]
 
@@ -64,7 +64,7 @@ def read_cov_csv(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
 def simulate_nav_files(gt_path, out_path, cfg: NavSimConfig) -> dict:
     """Read a TUM ground truth, simulate, write ``out_path`` and ``<stem>.truth.json`` atomically."""
     from mst.core.trajectory import read_tum
-    from mst.pipeline.navlog import simulate_nav, write_sim_outputs
+    from mst.pipeline.nav.log import simulate_nav, write_sim_outputs
 
     t, T = read_tum(gt_path)
     res = simulate_nav(t, T, cfg)
@@ -164,7 +164,7 @@ def fuse_nav_files(traj_path: str | os.PathLike, nav_path: str | os.PathLike, ou
     ``write_json``, ``<stem>.json`` (the summary) atomically. Returns ``(summary, FusionResult)``."""
     from mst.core.poses import read_rigid_transform
     from mst.core.trajectory import format_tum, read_tum
-    from mst.pipeline.navlog import read_mount_rotation, read_navlog
+    from mst.pipeline.nav.log import read_mount_rotation, read_navlog
 
     t_v, T_v = read_tum(traj_path)
     nav = read_navlog(nav_path, offset=offset)

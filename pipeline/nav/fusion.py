@@ -1,7 +1,7 @@
 """Offline / causal fusion of a vision trajectory with a GPS/AHRS log (``mst nav fuse``).
 
 Inputs: the vision trajectory ``T_model_cam`` (K_v, 4, 4) at times ``t_vis`` (lost frames absent)
-with per-pose 6x6 covariances, and a :class:`~mst.pipeline.navlog.NavLog` (frames in its docstring).
+with per-pose 6x6 covariances, and a :class:`~mst.pipeline.nav.log.NavLog` (frames in its docstring).
 
 Covariance convention (input side file and output ``fused.cov.csv``): order ``(x, y, z, rx, ry, rz)``;
 position of the camera in the model frame [m]; rotation as a perturbation in the model frame [rad]:
@@ -49,9 +49,9 @@ import numpy as np
 from mst import InputError
 from mst.core.config import Config, param
 from mst.core.poses import so3_exp, so3_log, transform_points
-from mst.pipeline.navfusion_kernels import kf_rts as _kf_rts
-from mst.pipeline.navfusion_kernels import mekf_attitude as _mekf
-from mst.pipeline.navlog import NavLog, mount_ypr_deg_from_R
+from mst.pipeline.nav.kernels import kf_rts as _kf_rts
+from mst.pipeline.nav.kernels import mekf_attitude as _mekf
+from mst.pipeline.nav.log import NavLog, mount_ypr_deg_from_R
 
 
 @dataclass
@@ -421,7 +421,7 @@ def fuse_navigation(t_vis: np.ndarray, T_vis: np.ndarray, cov_vis: np.ndarray | 
         cov_vis = np.tile(np.diag([cfg.vision_sigma_m**2] * 3 + [np.radians(cfg.vision_sigma_deg) ** 2] * 3), (len(t_vis), 1, 1))
     offset, offset_std = cfg.time_offset_s, 0.0
     if cfg.estimate_time_offset:
-        from mst.pipeline.navfusion_offset import estimate_time_offset
+        from mst.pipeline.nav.offset import estimate_time_offset
 
         offset, offset_std = estimate_time_offset(t_vis, T_vis, nav, cfg, R_body_cam, T_world_model, nav_name)
     if offset:
@@ -432,7 +432,7 @@ def fuse_navigation(t_vis: np.ndarray, T_vis: np.ndarray, cov_vis: np.ndarray | 
     if cfg.estimate_lever_arm:
         from dataclasses import replace
 
-        from mst.pipeline.navfusion_lever import estimate_lever_arm
+        from mst.pipeline.nav.lever import estimate_lever_arm
 
         ug = al.pair & al.fix
         for _ in range(2):  # lever given the calibration, the calibration given the lever

@@ -1,5 +1,5 @@
 """The clock offset between a navigation log and the video (``mst nav fuse --estimate-time-offset``):
-a 1-D search of the calibration cost of :mod:`mst.pipeline.navfusion` (GPS fixes and AHRS attitudes
+a 1-D search of the calibration cost of :mod:`mst.pipeline.nav.fusion` (GPS fixes and AHRS attitudes
 against the vision trajectory interpolated at the shifted log times, calibration refitted per
 candidate)."""
 
@@ -9,8 +9,8 @@ import numpy as np
 
 from mst import InputError
 from mst.core.poses import so3_log, transform_points
-from mst.pipeline.navfusion import FusionConfig, _align, _calibrate, _noise, _shifted
-from mst.pipeline.navlog import NavLog
+from mst.pipeline.nav.fusion import FusionConfig, _align, _calibrate, _noise, _shifted
+from mst.pipeline.nav.log import NavLog
 
 
 def _calibration_cost(t_vis, T_vis, nav: NavLog, cfg: FusionConfig, R_body_cam, T_world_model, nav_name

@@ -1,4 +1,4 @@
-"""Numba kernel of :mod:`mst.pipeline.navfusion`: a linear Kalman filter + RTS smoother.
+"""Numba kernel of :mod:`mst.pipeline.nav.fusion`: a linear Kalman filter + RTS smoother.
 
 Small dense matrices (n <= 9, m = 3) with explicit loops instead of BLAS/LAPACK calls: compiling
 those bindings took ~10-30 s, the loops compile in a few seconds (cached on disk; kept in their own

@@ -1,0 +1,72 @@
+"""Side-by-side rows: mst against a reference tool measured in the same bench run, on the same
+machine and the same inputs (issue #14): CloudCompare 2.11's C2M (``CloudCompare -SILENT``, the
+Debian package ``cloudcompare``) for ``mst c2m``.
+
+Both tools are timed as whole processes (start-up, reading, distances, writing the output cloud),
+best of ``repeats`` runs each, interleaved (mst, reference, mst, ...) so that a change of the
+machine's load hits both alike. Rows give both times, their ratio, points per second of each whole
+process, and the 1-minute load average before the first run.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+from pathlib import Path
+
+
+def cloudcompare() -> str | None:
+    """Path of the CloudCompare executable (None: not installed; the rows then quote targets)."""
+    return shutil.which(os.environ.get("CLOUDCOMPARE", "CloudCompare"))
+
+
+def cloudcompare_c2m_cmd(exe: str, cloud: Path, mesh: Path, out: Path) -> list[str]:
+    """CloudCompare's command-line C2M of ``cloud`` against ``mesh``, the cloud with its distance
+    field saved to ``out`` (binary PLY; mst writes its output cloud too)."""
+    return [exe, "-SILENT", "-AUTO_SAVE", "OFF", "-C_EXPORT_FMT", "PLY", "-O", str(cloud), "-O", str(mesh),
+            "-C2M_DIST", "-SAVE_CLOUDS", "FILE", str(out)]
+
+
+def best_of(cmds: dict[str, list[str]], repeats: int = 3, env: dict[str, dict] | None = None) -> dict[str, dict]:
+    """Run every command of ``cmds`` ``repeats`` times, interleaved; per name the run with the
+    smallest wall time (``timed_command``'s dict) plus ``walls_s`` (all runs) and ``load_avg_first``."""
+    from mst.eval.bench.harness import timed_command
+
+    best: dict[str, dict] = {}
+    walls: dict[str, list[float]] = {k: [] for k in cmds}
+    load0 = os.getloadavg()[0]
+    for _ in range(repeats):
+        for name, cmd in cmds.items():
+            kw = {"env": env[name]} if env and name in env else {}
+            r = timed_command(cmd, **kw)
+            walls[name].append(round(r["wall_s"], 3))
+            if name not in best or r["wall_s"] < best[name]["wall_s"]:
+                best[name] = r
+    for name, r in best.items():
+        r["walls_s"] = walls[name]
+        r["load_avg_first"] = load0
+    return best
+
+
+def c2m_side_by_side(mst_cmd: list[str], cloud: Path, mesh: Path, out_dir: Path, points: int, repeats: int = 3,
+                     target_ratio: float = 0.5) -> dict | None:
+    """Whole-process times of ``mst_cmd`` (an ``mst c2m`` command) and CloudCompare's C2M on the same
+    files, best of ``repeats``; None when CloudCompare is absent. ``ok``: mst <= ``target_ratio`` x CC."""
+    exe = cloudcompare()
+    if exe is None:
+        return None
+    cc_out = Path(out_dir) / f"{Path(cloud).stem}_cc_out.ply"
+    env = dict(os.environ, QT_QPA_PLATFORM="offscreen")  # no display needed
+    runs = best_of({"mst": mst_cmd, "cc": cloudcompare_c2m_cmd(exe, cloud, mesh, cc_out)}, repeats, env={"cc": env})
+    cc_out.unlink(missing_ok=True)
+    m, c = runs["mst"], runs["cc"]
+    ratio = m["wall_s"] / c["wall_s"]
+    return {"mst_best_s": round(m["wall_s"], 3), "mst_runs_s": m["walls_s"], "mst_cpu_s": round(m["cpu_s"], 3),
+            "mst_peak_rss_mib": round(m["peak_rss_mib"], 1),
+            "cloudcompare_best_s": round(c["wall_s"], 3), "cloudcompare_runs_s": c["walls_s"],
+            "cloudcompare_cpu_s": round(c["cpu_s"], 3), "cloudcompare_peak_rss_mib": round(c["peak_rss_mib"], 1),
+            "ratio_vs_cloudcompare": round(ratio, 3),
+            "mst_points_per_s_whole": round(points / m["wall_s"]), "cloudcompare_points_per_s_whole": round(points / c["wall_s"]),
+            "load_avg_1min": round(m["load_avg_first"], 2), "stdout": m["stdout"],
+            "target": f"whole process <= {target_ratio:g} x CloudCompare 2.11 (same run, best of {repeats})",
+            "ok": bool(ratio <= target_ratio)}

@@ -1,0 +1,68 @@
+"""numba's on-disk cache of the C2M kernels is written once and then only loaded (issue #14).
+
+Timing-free evidence: the dispatchers' own ``stats`` (signatures loaded from the cache vs compiled
+in the process), the cache index files on disk, and ``NUMBA_DEBUG_CACHE=1``'s log of a whole
+``mst c2m`` process (``data loaded`` lines, never ``data saved``). The first process may compile
+(a fresh checkout: once, 10-30 s); the second must not.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+
+
+def _warmup_json() -> dict:
+    r = subprocess.run([sys.executable, "-m", "mst.eval.bench.warmup", "--json"], capture_output=True, text=True,
+                       check=True, timeout=600)
+    return json.loads(r.stdout.strip().splitlines()[-1])
+
+
+def _cached_kernels() -> set[str]:
+    """Names of the module-level ``cache=True`` dispatchers of mst.eval.c2m.kernels that Python calls
+    (the ``inline="always"`` helpers are compiled into their callers)."""
+    import numba.core.registry
+
+    from mst.eval.c2m import kernels
+
+    out = set()
+    for name in dir(kernels):
+        d = getattr(kernels, name)
+        if isinstance(d, numba.core.registry.CPUDispatcher) and d.targetoptions.get("inline") != "always":
+            assert d._cache.__class__.__name__ == "FunctionCache", f"{name} is not cache=True"
+            out.add(name)
+    return out
+
+
+def test_second_process_loads_every_c2m_kernel_from_the_cache():
+    _warmup_json()  # first process: may compile (writes the cache)
+    second = _warmup_json()["kernels"]
+    # the warm-up reaches every kernel mst c2m calls
+    assert set(second) == _cached_kernels()
+    for name, st in second.items():
+        assert st["cache_misses"] == 0, f"{name} recompiled in the second process"
+        assert st["cache_hits"] >= 1, name
+        idx = list(Path(st["cache_path"]).glob(f"kernels.{name}-*.nbi"))
+        assert idx, f"no cache index file for {name} in {st['cache_path']}"
+
+
+def test_mst_c2m_process_only_loads_the_cache(tmp_path):
+    from mst.meshtools import generate
+    from mst.meshtools.formats import save_triangles
+
+    _warmup_json()
+    V, F = generate.courtyard()[:2]
+    save_triangles(tmp_path / "m.obj", np.asarray(V, float), np.asarray(F))
+    P = np.random.default_rng(1).uniform(np.min(V, 0), np.max(V, 0), (500, 3))
+    np.savetxt(tmp_path / "c.xyz", P)
+    env = dict(os.environ, NUMBA_DEBUG_CACHE="1")
+    r = subprocess.run([sys.executable, "-m", "mst.cli.main", "c2m", str(tmp_path / "c.xyz"), str(tmp_path / "m.obj"),
+                        "-q"], capture_output=True, text=True, env=env, timeout=300, check=True)
+    log = r.stdout + r.stderr
+    assert "[cache] data loaded" in log  # the kernels came from the cache ...
+    assert "[cache] data saved" not in log  # ... and nothing was compiled and written

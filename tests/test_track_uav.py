@@ -1,0 +1,220 @@
+"""Issue 11: tracking the UAV scenarios of ``mst synth`` in the default mode (edges + KLT, mono aid on
+standby) against ``--slam off``.
+
+* The FPV facade pass over a procedural city block (default suite, 320x240): every frame tracked,
+  the yaw error against the issue's 0.1 deg, the ATE against the pose's own covariance and stated
+  against the 0.1 %-of-distance target.
+* The survey pass (``mst synth uav``: pitched 45 deg down, hovering while it turns 135 deg away from
+  the block and back) over the real Rotterdam CityJSON set at 40, 120 and 250 m above the ground
+  (slow, 640x480, 240 frames = 8 s): no pose is marked tracked while no building is in view, the
+  steady flight before the turn is tracked in every frame as accurately as edges only, and the
+  block is tracked again after the turn. Numbers are printed (``-s``) per band.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+
+import numpy as np
+import pytest
+
+
+def _cli(*args) -> None:
+    from mst.cli.main import main
+
+    with pytest.raises(SystemExit) as e:
+        main([str(a) for a in args])
+    assert e.value.code == 0, args
+
+
+def _prepare(seq, d, model=None):
+    """Converted model (or ``model`` as given), the first pose from the clicks."""
+    m = model
+    if m is None:
+        m = d / "m.wrl"
+        _cli("convert-model", seq / "model.obj", "-o", m, "-q")
+    _cli("init", "--model", m, "--camera", seq / "camera.json", "--clicks", seq / "clicks.txt", "-o", d / "p0.txt", "-q")
+    return m
+
+
+def _run(seq, d, m, slam: str, fps: float):
+    from mst.core.trajectory import read_tum
+    from mst.pipeline.tracking import TrackConfig, run_track
+
+    out = d / f"traj_{slam}.txt"
+    s = run_track(seq / "rgb", m, seq / "camera.json", d / "p0.txt", out, TrackConfig(aid=slam), fps=fps)
+    tg, Tg = read_tum(seq / "gt.txt")
+    te, Te = read_tum(out)
+    idx = np.searchsorted(np.round(tg, 6), np.round(te, 6))
+    status = {int(r["frame"]): r["status"] for r in csv.DictReader(open(out.with_suffix(".csv")))}
+    cov = {int(r["frame"]): np.array([float(r[f"std_{a}_m"]) for a in "xyz"])
+           for r in csv.DictReader(open(out.with_suffix(".cov.csv"))) if r["status"] == "model"}
+    err = np.linalg.norm(Te[:, :3, 3] - Tg[idx, :3, 3], axis=1)
+    fg, fe = Tg[idx, :3, 2], Te[:, :3, 2]  # optical axes in the model frame (z up): heading = yaw
+    dyaw = (np.degrees(np.arctan2(fe[:, 1], fe[:, 0]) - np.arctan2(fg[:, 1], fg[:, 0])) + 180) % 360 - 180
+    return {"summary": s, "idx": idx, "err": err, "dyaw": dyaw, "status": status, "cov": cov, "Tg": Tg}
+
+
+def _model_px(seq) -> np.ndarray:
+    return np.array([int(r["model_px"]) for r in csv.DictReader(open(seq / "frames.csv"))])
+
+
+def _view_distance(Tg: np.ndarray, V: np.ndarray, cam: dict, frames, q: float = 50.0) -> float:
+    """Median over ``frames`` of the ``q``-th percentile distance (m) from the camera to the model
+    vertices in its view (q = 50: the buildings in view; q = 0: the nearest corner)."""
+    out = []
+    for k in frames:
+        T = np.linalg.inv(Tg[k])
+        X = V @ T[:3, :3].T + T[:3, 3]
+        ok = X[:, 2] > 0
+        u = cam["fx"] * X[ok, 0] / X[ok, 2] + cam["cx"]
+        v = cam["fy"] * X[ok, 1] / X[ok, 2] + cam["cy"]
+        inside = (u >= 0) & (u < cam["width"]) & (v >= 0) & (v < cam["height"])
+        if inside.any():
+            out.append(np.percentile(np.linalg.norm(X[ok][inside], axis=1), q))
+    return float(np.median(out))
+
+
+def _rms(a) -> float:
+    return float(np.sqrt(np.mean(np.square(a))))
+
+
+# ---------------------------------------------------------------------------- FPV facade pass
+def test_fpv_facade_pass_default_tracks_every_frame(tmp_path):
+    from mst.meshtools.formats import load_model, save_model
+    from mst.meshtools.generate import city_block_model
+
+    city = tmp_path / "city.wrl"
+    save_model(city, city_block_model(36, seed=0))
+    seq = tmp_path / "seq"
+    # 3 s at 10 frames/s: 1 m and up to ~2 deg of yaw between frames, the S-turn and banking
+    _cli("synth", "fpv", "--model", city, "-o", seq, "--frames", 30, "--fps", 10, "--width", 320, "--height", 240,
+         "--no-depth", "--aa", 4, "--texture-size", 512, "-q")
+    m = _prepare(seq, tmp_path, model=city)
+    d = _run(seq, tmp_path, m, "auto", 10.0)
+    off = _run(seq, tmp_path, m, "off", 10.0)
+    s = d["summary"]
+    assert s["tracked"] == s["frames"] == 30 and set(d["status"].values()) == {"model"}
+    cam = json.loads((seq / "camera.json").read_text())
+    dist = _view_distance(d["Tg"], load_model(city).vertices, cam, range(30), q=0.0)  # the nearest facade corner: the strict reading
+    sig = np.array(list(d["cov"].values()))
+    # error budget: the edge pose's own covariance, 5 sigma RMS over the frames (neighbouring samples of
+    # one edge share its error, so the covariance is optimistic by 1-3x: test_track_survey)
+    budget = 5.0 * float(np.sqrt(np.mean(np.sum(sig**2, axis=1))))
+    ate, yaw = _rms(d["err"]), _rms(d["dyaw"])
+    print(f"fpv: nearest-building distance {dist:.1f} m, ATE default {ate:.3f} m ({100 * ate / dist:.3f} %, target 0.1 %), "
+          f"budget {budget:.3f} m, yaw RMS {yaw:.4f} max {np.abs(d['dyaw']).max():.4f} deg (target 0.1); "
+          f"edges only {off['summary']['tracked']}/30 frames, ATE {_rms(off['err']):.3f} m")
+    assert ate <= budget, (ate, budget)
+    # the issue's yaw target: 0.1 deg (the covariance's rotation sigma here is ~0.01-0.02 deg)
+    assert yaw <= 0.1, yaw
+    # the default is never worse than edges only: as many frames, as accurate on the frames both output
+    assert s["tracked"] >= off["summary"]["tracked"]
+    common = np.intersect1d(d["idx"], off["idx"])
+    e_d = d["err"][np.isin(d["idx"], common)]
+    e_o = off["err"][np.isin(off["idx"], common)]
+    assert _rms(e_d) <= _rms(e_o) + 0.2 * budget, (_rms(e_d), _rms(e_o))
+
+
+# ---------------------------------------------------------------------------- survey bands
+@pytest.fixture(scope="module", params=[40, 120, 250], ids=["40m", "120m", "250m"])
+def survey(request, shared_data, tmp_path_factory):
+    h = request.param
+    d = tmp_path_factory.mktemp(f"uav{h}")
+    seq = d / "seq"
+    _cli("synth", "uav", "--model", shared_data / "cityjson/rotterdam_subset.json", "-o", seq, "--frames", 240,
+         "--distance", h, "--no-depth", "--aa", 4, "--texture-size", 512, "-q")
+    m = _prepare(seq, d)
+    from mst.meshtools.formats import load_model
+
+    runs = {slam: _run(seq, d, m, slam, 30.0) for slam in ("auto", "off")}
+    return h, seq, load_model(m).vertices, runs
+
+
+@pytest.mark.slow
+def test_uav_survey_band_default_mode(survey):
+    from mst.pipeline.synth.scenarios_uav import GAP_PHASES
+
+    h, seq, V, runs = survey
+    n = 240
+    px = _model_px(seq)
+    steady = np.arange(n) < 0.2 * n  # before the hover and the turn: straight flight, the block in view
+    assert (px[steady] > 0).all()
+    cam = json.loads((seq / "camera.json").read_text())
+    dist = _view_distance(runs["auto"]["Tg"], V, cam, np.flatnonzero(steady))
+    line = [f"band {h} m: camera-building distance {dist:.0f} m"]
+    for slam, r in runs.items():
+        st = r["status"]
+        # honest: no pose is marked tracked by the model (model / relocalised) without a building in view
+        assert not [k for k, s in st.items() if px[k] == 0 and s in ("model", "relocalised")], slam
+        sel = steady[r["idx"]]
+        r["ate_steady"] = _rms(r["err"][sel])
+        sig = np.array([r["cov"][k] for k in r["idx"][sel] if k in r["cov"]])
+        r["budget"] = 5.0 * float(np.sqrt(np.mean(np.sum(sig**2, axis=1))))
+        after = r["idx"] > GAP_PHASES[3] * n
+        line.append(f"{slam}: {r['summary']['tracked']}/{n} output ({dict(r['summary']['status_counts'])}), "
+                    f"steady ATE {r['ate_steady']:.3f} m ({100 * r['ate_steady'] / dist:.3f} %, target 0.1 %), "
+                    f"5-sigma budget {r['budget']:.3f} m, whole-run ATE {_rms(r['err']):.3f} m, "
+                    f"max {r['err'].max():.2f} m, after the turn {np.count_nonzero(after)} frames "
+                    f"ATE {_rms(r['err'][after]) if after.any() else float('nan'):.3f} m")
+    print("; ".join(line))
+    d, o = runs["auto"], runs["off"]
+    # the steady flight: every frame tracked by the model in the default mode
+    assert all(d["status"].get(k) == "model" for k in np.flatnonzero(steady))
+    # error budget: the edge covariance (5 sigma RMS, see the FPV test)
+    assert d["ate_steady"] <= d["budget"], (d["ate_steady"], d["budget"])
+    # the SLAM aid costs no accuracy there: within the comparison's noise (1 sigma = 0.2 x the budget)
+    assert d["ate_steady"] <= o["ate_steady"] + 0.2 * o["budget"], (d["ate_steady"], o["ate_steady"])
+    # and it never costs frames: the default outputs at least as many poses as edges only
+    assert d["summary"]["tracked"] >= o["summary"]["tracked"]
+    # the block is tracked again after the turn (the model / relocalised in the last 20 %)
+    tail = [d["status"].get(k) for k in range(int(0.8 * n), n)]
+    assert tail.count("model") + tail.count("relocalised") >= 0.5 * len(tail), tail
+
+
+# ---------------------------------------------------------------------------- policy
+def test_relocalisation_is_tried_while_the_aid_carries_with_the_model_in_view():
+    """A SLAM stretch with the model projecting into the image (edge samples) gets relocalisation
+    attempts like a lost stretch (the 40 m survey: the aid's 11 m-off map poses became a
+    relocalised frame); without samples (the model out of view) or with the aid on standby, none."""
+    from mst.core.poses import se3_exp
+    from mst.pipeline.tracking.edge_tracker import FrameResult
+    from mst.pipeline.tracking.session import TrackingPolicy
+
+    T = se3_exp(np.array([0.0, 0.0, 2.0, 0.0, 0.0, 0.0]))
+    bad = FrameResult(T, False, 100, 20, 0.3, 40.0, np.eye(6), np.eye(6), reason="inliers 20%", support=0.3)
+    unseen = FrameResult(T, False, 0, 0, float("nan"), float("nan"), np.eye(6), np.eye(6), reason="outside")
+    p = TrackingPolicy(T, search_range_px=8)
+    p.accepted(T)
+    p.frame_done(bad)
+    assert not p.should_relocalise(bad, every=2)  # edges only / standby: not lost yet, no attempt
+    tries = []
+    for _ in range(4):  # the aid carries: slam frames (accepted, lost_streak stays 0)
+        tries.append(p.should_relocalise(bad, every=2, aid_on=True))
+        p.slam_streak += 1
+        p.accepted(T)
+    assert tries == [True, False, True, False] and p.lost_streak == 0
+    assert not p.should_relocalise(unseen, every=2, aid_on=True)  # the model out of view: no attempt
+
+
+def test_t_junction_joint_between_coplanar_facades_is_not_tracked():
+    """Two buildings' facades in one plane, split unevenly (a T-junction: the low facade's joint edge
+    lies on the tall one's longer edge): the joint shows no image edge and is dropped; the tall
+    facade's edge above the low one is a real outline and stays; facades turned 10 deg keep both."""
+    from mst.meshtools.model import PolygonModel
+    from mst.pipeline.tracking.visibility import ModelGeometry
+
+    def edges(turn_deg: float):
+        a = np.radians(turn_deg)
+        V = np.array([[0, 0, 0], [1, 0, 0], [1, 0, 1], [0, 0, 1],  # low facade, normal -y
+                      [1, 0, 0], [1 + np.cos(a), np.sin(a), 0], [1 + np.cos(a), np.sin(a), 2], [1, 0, 2]], float)
+        g = ModelGeometry.from_model(PolygonModel(V, [[0, 1, 2, 3], [4, 5, 6, 7]]))
+        return {tuple(sorted(map(tuple, np.round(g.vertices[e], 6).tolist()))) for e in g.edges}
+
+    joint = ((1.0, 0.0, 0.0), (1.0, 0.0, 1.0))
+    tall = ((1.0, 0.0, 0.0), (1.0, 0.0, 2.0))
+    flat = edges(0.0)
+    assert joint not in flat and tall in flat and len(flat) == 7
+    turned = edges(10.0)
+    assert joint in turned and tall in turned and len(turned) == 8
