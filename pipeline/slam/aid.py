@@ -143,6 +143,7 @@ class ModelAidedSlam(FrontEnd, Landmarks, AidPolicy, KeyframeMap, LocalBA):
         self._agree_streak = 0
         self.static_world_fired: list[int] = []
         self.map_refuted: list[int] = []  #: frames whose map pose the image refuted (:meth:`refute_map_pose`)
+        self._refute_streak = 0
 
     # ------------------------------------------------------------------ public interface
     def predict(self, k: int, gray: np.ndarray, T_cam_model_prev: np.ndarray | None) -> np.ndarray | None:

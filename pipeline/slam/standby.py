@@ -66,10 +66,9 @@ class StandbyAid:
         """Frames whose map pose the image refuted (:meth:`ModelAidedSlam.refute_map_pose`)."""
         return self._refuted + (self.aid.map_refuted if self.aid is not None else [])
 
-    def refute_map_pose(self, k: int) -> None:
+    def refute_map_pose(self, k: int) -> bool:
         """The image refutes the active map's pose of frame ``k``: see :meth:`ModelAidedSlam.refute_map_pose`."""
-        if self.aid is not None:
-            self.aid.refute_map_pose(k)
+        return self.aid.refute_map_pose(k) if self.aid is not None else False
 
     def _strong(self, W: np.ndarray | None) -> bool:
         if W is None or not np.isfinite(W).all():

@@ -307,9 +307,18 @@ class TrackingSession:
                 # a map pose is output only while the image does not refute it (the model in view)
                 why = p.map_pose_refuted(tr.evidence(gray, T_out))
                 if why:
-                    aid.refute_map_pose(idx)
-                    T_out, status = None, "lost"
                     fr.reason = why
+                    if aid.refute_map_pose(idx):
+                        # not output, but the map still bridges: the next frame goes on from its
+                        # pose as from a slam frame (only the output is withheld)
+                        tr.accept(gray, T_out)
+                        p.accepted(T_out)
+                        p.update_support("slam", recovering, fr.support)
+                        p.prev_status = "slam"
+                        p.frame_done(fr)
+                        ms = (time.perf_counter() - t0) * 1000.0
+                        return FrameRecord(idx, time_s, "lost", None, fr, self._aid_state(idx), ms)
+                    T_out, status = None, "lost"
         else:
             T_out, status = (fr.T_cam_model, "model") if healthy else (None, "lost")
         p.update_support(status, recovering, fr.support)
