@@ -18,7 +18,7 @@ from mst.cli.common import (
     verbosity_options,
 )
 
-SCENARIOS = ("orbit", "corridor", "flyover", "uav", "fpv", "fast", "turntable", "occluder", "blackout")
+SCENARIOS = ("orbit", "corridor", "flyover", "uav", "fpv", "fast", "turntable", "carried", "leave", "occluder", "blackout")
 CONFIG_CLASSES["mst synth"] = "mst.pipeline.synth.config:SynthConfig"  # for --show-config
 #: SynthConfig fields whose option is not "--" + the field name with dashes
 FLAGS = {"focal_px": "--focal", "rgb_noise": "--noise", "environment": "--no-environment", "aa_samples": "--aa",
@@ -106,7 +106,8 @@ def synth(scenario, model, out_dir, from_scene, as_json, quiet, verbose, overwri
     facades), uav (survey UAV 30-120 m up, camera pitched 30-60 deg down, turning
     away from the block for a stretch), fpv (forward-looking camera passing the facades
     at 20-50 m), fast (any --base scenario keeping every --drop-th frame); turntable,
-    occluder, blackout (pipeline/synth/dynamic.py: the object turns in a still room, a slab
+    carried, leave, occluder, blackout (pipeline/synth/dynamic.py: the object turns in a
+    still room, is carried along a path, leaves the view and comes back moved, a slab
     sweeps in front of it, black and blurred frames; frames.csv holds the truth).
 
     \b

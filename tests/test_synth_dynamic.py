@@ -1,11 +1,13 @@
-"""``mst synth turntable|occluder|blackout`` (pipeline/synth_dynamic.py) and ``mst track`` on them.
+"""``mst synth turntable|carried|leave|occluder|blackout`` (pipeline/synth/dynamic.py) and ``mst track`` on them.
 
 Bounds are comparisons within the run: at 320x240 the edge tracker's own error on this textured
 object is 1-1.6 % of the distance even on still frames (measured; the checker texture pulls the
 moving edges by ~2-3 px), so a pose counts as right when it is within twice the largest error of
 the still frames before anything happens (plus 2 deg for rotations, the issue's bound). The point
 of these tests is the frames where something happens: the object turning in a still room (a SLAM
-map of the room says it did not move), an occluder, black and blurred frames.
+map of the room says it did not move), carried along a path, leaving the view and coming back
+moved, an occluder, black and blurred frames. The issue's own bound (1 % of the distance) is
+below the 320x240 tracker's still-frame error, so it cannot be checked at this size.
 """
 
 from __future__ import annotations
@@ -53,12 +55,29 @@ def _track(seq, mode, out):
 
 
 def test_dynamic_scenarios_write_their_truth(tmp_path_factory):
-    """Small and fast (default suite): the three scenarios render, with frames.csv flags."""
-    for sc, key in (("turntable", "object_moving"), ("occluder", "occluded_fraction"), ("blackout", "black")):
+    """Small and fast (default suite): the scenarios render, with frames.csv flags."""
+    for sc, key in (("turntable", "object_moving"), ("carried", "object_moving"), ("leave", "in_view"),
+                    ("occluder", "occluded_fraction"), ("blackout", "black")):
         out = _synth(tmp_path_factory, sc, 5, 160, 120)
         rows = list(csv.DictReader(open(out / "frames.csv")))
         assert len(rows) == 5 and len(list((out / "rgb").glob("*.png"))) == 5
-        assert any(float(r[key]) > 0 for r in rows)  # the event happens inside 5 frames too
+        assert float(rows[0]["in_view"]) == 1.0 and float(rows[0]["object_moving"]) == 0  # starts fully in view, at rest
+        if key == "in_view":  # the object leaves the view entirely
+            assert any(float(r[key]) == 0 for r in rows)
+        else:
+            assert any(float(r[key]) > 0 for r in rows)  # the event happens inside 5 frames too
+
+
+def _reacquired_within(st, truth, frames=10):
+    """Frames from the object being fully visible and at rest again (after its motion) to the first
+    model/relocalised frame (None: never)."""
+    moving = np.array([r["object_moving"] == "1" for r in truth])
+    view = np.array([float(r["in_view"]) == 1.0 for r in truth])
+    last = int(np.flatnonzero(moving)[-1])
+    rest = np.flatnonzero(view & ~moving & (np.arange(len(st)) > last))
+    assert len(rest) > frames  # the sequence gives the tracker the time
+    ok = np.flatnonzero(np.isin(st[rest[0]:], ["model", "relocalised"]))
+    return int(ok[0]) if len(ok) else None
 
 
 @pytest.fixture(scope="module")
@@ -78,12 +97,16 @@ def test_turntable_no_map_pose_while_the_object_turns(turntable, tmp_path, mode)
     # every output pose is right: no map (SLAM) pose of the still room given as the turning object's
     assert np.nanmax(rel[out]) <= bound and np.nanmax(deg[out]) < 2.0
     assert not (st[moving] == "slam").any()
-    if mode == "mono":  # the always-on map sees the disagreement: the static-world check fires
-        assert s["static_world_frames"] and a0 < min(s["static_world_frames"]) <= int(np.flatnonzero(moving)[-1])
+    if mode == "mono":
+        # the map's disagreement shows as contradicted frames (`lost`: the turning object's edge
+        # poses are refused by the health score before the gate; no map pose is output); the
+        # object at rest again in full view (its side turned 90 deg): re-acquired within 10 frames
+        k = _reacquired_within(st, truth)
+        assert k is not None and k <= 10
 
 
 @pytest.mark.slow
-def test_occluder_bridged_by_the_default(tmp_path_factory, tmp_path):
+def test_occluder_no_wrong_pose_and_back_within_10_frames(tmp_path_factory, tmp_path):
     seq = _synth(tmp_path_factory, "occluder", 60)
     s, st, rel, deg, truth = _track(seq, "auto", tmp_path / "t.txt")
     occ = np.array([float(r["occluded_fraction"]) > 0.02 for r in truth])
@@ -109,3 +132,51 @@ def test_blackout_relocalised_and_blur_bridged(tmp_path_factory, tmp_path):
     back = int(np.flatnonzero(black)[-1]) + 1
     assert "relocalised" in st[back:back + RelocConfig().every + 1]
     assert np.nanmax(rel[out]) <= 2.0 * np.nanmax(rel[:a0]) and np.nanmax(deg[out]) < 2.0
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("mode", ["auto", "mono"])
+def test_carried_no_map_pose_of_the_still_room(tmp_path_factory, tmp_path, mode):
+    """The object carried along a path while the room (the SLAM map) stays: before the image check
+    of map poses the default output 20 `slam` poses of the room up to 25 % / 18 deg off."""
+    seq = _synth(tmp_path_factory, "carried", 80)
+    s, st, rel, deg, truth = _track(seq, mode, tmp_path / "t.txt")
+    moving = np.array([r["object_moving"] == "1" for r in truth])
+    a0 = int(np.flatnonzero(moving)[0])
+    out = st != "lost"
+    assert (st[:a0] == "model").all()
+    assert np.nanmax(rel[out]) <= 2.0 * np.nanmax(rel[:a0]) and np.nanmax(deg[out]) < 2.0
+    assert not (st[moving] == "slam").any()
+    k = _reacquired_within(st, truth)
+    assert k is not None and k <= 10
+
+
+@pytest.fixture(scope="module")
+def leave(tmp_path_factory):
+    return _synth(tmp_path_factory, "leave", 90)
+
+
+@pytest.mark.slow
+def test_leave_moved_and_back_no_wrong_pose(leave, tmp_path):
+    """The object slides out of the view, is turned 30 deg and moved unseen, and slides back in:
+    the default outputs no pose while it is gone and only right poses after it is back.
+    (``--slam off`` re-acquires sooner, 0 frames after it is at rest, but outputs relocalised
+    poses up to 3.5 % off: beyond 2x its still-frame error.)"""
+    s, st, rel, deg, truth = _track(leave, "auto", tmp_path / "t.txt")
+    moving = np.array([r["object_moving"] == "1" for r in truth])
+    gone = np.array([float(r["in_view"]) == 0.0 for r in truth])
+    a0 = int(np.flatnonzero(moving)[0])
+    out = st != "lost"
+    assert (st[:a0] == "model").all()
+    assert (st[gone] == "lost").all()  # nothing of it in the view: no pose (a map pose of the room is none)
+    assert np.nanmax(rel[out]) <= 2.0 * np.nanmax(rel[:a0]) and np.nanmax(deg[out]) < 2.0
+    assert _reacquired_within(st, truth) is not None  # re-acquired (18 frames after it is at rest)
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="open (#12): the relocalised poses of the turned object are refined "
+                   "1-3.5 % off and refused by the health score for 18 frames; the issue asks for 10")
+def test_leave_reacquired_within_10_frames(leave, tmp_path):
+    s, st, rel, deg, truth = _track(leave, "auto", tmp_path / "t.txt")
+    k = _reacquired_within(st, truth)
+    assert k is not None and k <= 10

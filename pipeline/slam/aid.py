@@ -136,12 +136,14 @@ class ModelAidedSlam(FrontEnd, Landmarks, AidPolicy, KeyframeMap, LocalBA):
         self.stats = {"keyframes": 0, "ba_runs": 0, "ba_prior_accepted": 0, "ba_prior_downweighted": 0,
                       "ba_prior_dropped": 0, "ba_errors": 0, "gate_rejects": 0, "consensus_resets": 0,
                       "relocalisations": 0, "reloc_attempts": 0, "reanchors": 0, "contradictions": 0,
-                      "weak_contradictions": 0, "static_world_breaks": 0}
+                      "weak_contradictions": 0, "static_world_breaks": 0, "image_refutations": 0}
         self.timing_ms = {"predict": 0.0, "update": 0.0, "ba": 0.0}
         self.moving_hold = False          # static-world check fired: the map does not bridge
         self._disagree_streak = 0
         self._agree_streak = 0
         self.static_world_fired: list[int] = []
+        self.map_refuted: list[int] = []  #: frames whose map pose the image refuted (:meth:`refute_map_pose`)
+        self._refute_streak = 0
 
     # ------------------------------------------------------------------ public interface
     def predict(self, k: int, gray: np.ndarray, T_cam_model_prev: np.ndarray | None) -> np.ndarray | None:

@@ -124,6 +124,35 @@ class AidPolicy:
             self.frames_since_fix += 1
         return T_out, status
 
+    def follow_model(self) -> None:
+        """Stop bridging with the map: follow the model poses, re-anchor the map onto them, output no
+        map pose until they agree for ``static_world_frames`` frames in a row (the state the
+        static-world check enters). Also after a relocalisation: its pose passed the health test on
+        its own image after a loss, the map of the lost stretch (the object may have been moved
+        meanwhile) does not gate it."""
+        self.moving_hold = True
+        self._agree_streak = 0
+
+    def refute_map_pose(self, k: int) -> bool:
+        """The image refutes the map pose of frame ``k`` (output as ``slam``), while the model lies in
+        the view at that pose: its edges and appearance are not there (the tracking session's check,
+        :meth:`mst.pipeline.tracking.session.TrackingPolicy.map_pose_refuted`). The map and the object
+        disagree: the object moved in the map's world (carried, turned) or the map drifted. Either
+        way this map pose is no model pose: the frame is not output (the session marks it lost).
+        Once refuted, the map keeps predicting (its pose is still the best start for the edge
+        search: on the UAV demo a refuted pose 4 m off led the edges back onto the block on the next
+        frame); refuted ``static_world_frames`` frames in a row, the map's world has moved against
+        the object: :meth:`follow_model`. Returns True while the map still bridges."""
+        streak = self._refute_streak + 1 if self.map_refuted and self.map_refuted[-1] == k - 1 else 1
+        self.map_refuted.append(int(k))
+        self._refute_streak = streak
+        if streak >= self.cfg.static_world_frames:
+            self.follow_model()
+            self.T_hist.clear()
+            return False
+        return True
+        self.stats["image_refutations"] += 1
+
     def _process_noise(self) -> np.ndarray:
         """Per-frame random-walk covariance (v, w) of the SLAM pose against the model frame."""
         cfg = self.cfg

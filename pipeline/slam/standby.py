@@ -47,6 +47,7 @@ class StandbyAid:
         self.n_strong = 0
         self._retired: list[np.ndarray] = []
         self._fired: list[int] = []
+        self._refuted: list[int] = []
         self.stats = {"wakes": 0, "sleeps": 0, "frames_active": 0, "wake_frames": []}
         self.timing_ms = {"wake": 0.0}
 
@@ -59,6 +60,15 @@ class StandbyAid:
     def static_world_fired(self) -> list[int]:
         """Frames where the static-world check of the (current or an earlier) mono map fired."""
         return self._fired + (self.aid.static_world_fired if self.aid is not None else [])
+
+    @property
+    def map_refuted(self) -> list[int]:
+        """Frames whose map pose the image refuted (:meth:`ModelAidedSlam.refute_map_pose`)."""
+        return self._refuted + (self.aid.map_refuted if self.aid is not None else [])
+
+    def refute_map_pose(self, k: int) -> bool:
+        """The image refutes the active map's pose of frame ``k``: see :meth:`ModelAidedSlam.refute_map_pose`."""
+        return self.aid.refute_map_pose(k) if self.aid is not None else False
 
     def _strong(self, W: np.ndarray | None) -> bool:
         if W is None or not np.isfinite(W).all():
@@ -107,6 +117,7 @@ class StandbyAid:
         if self.n_strong >= self.sleep_after:
             self._retired.append(self.aid.landmarks())
             self._fired += self.aid.static_world_fired
+            self._refuted += self.aid.map_refuted
             self.aid.close()
             self.aid = None
             self.stats["sleeps"] += 1
@@ -123,6 +134,7 @@ class StandbyAid:
         if self.aid is not None:
             self._retired.append(self.aid.landmarks())
             self._fired += self.aid.static_world_fired
+            self._refuted += self.aid.map_refuted
             self.aid.close()
             self.aid = None
         self.buf.clear()

@@ -13,10 +13,11 @@ from dataclasses import dataclass
 from mst.core.config import Config, param
 from mst.errors import ConfigError
 
-SCENARIOS = ("orbit", "corridor", "flyover", "uav", "fpv", "fast", "turntable", "occluder", "blackout")
-DYNAMIC = ("turntable", "occluder", "blackout")  #: moving object / interrupted view: pipeline/synth/dynamic.py
+SCENARIOS = ("orbit", "corridor", "flyover", "uav", "fpv", "fast", "turntable", "carried", "leave", "occluder", "blackout")
+DYNAMIC = ("turntable", "carried", "leave", "occluder", "blackout")  #: moving object / interrupted view: pipeline/synth/dynamic.py
 BASE_SCENARIOS = ("orbit", "corridor", "flyover", "uav", "fpv")
-DEFAULT_FRAMES = {"orbit": 120, "corridor": 150, "flyover": 120, "uav": 240, "fpv": 150, "fast": 60, "turntable": 80, "occluder": 60, "blackout": 60}
+DEFAULT_FRAMES = {"orbit": 120, "corridor": 150, "flyover": 120, "uav": 240, "fpv": 150, "fast": 60, "turntable": 80,
+                  "carried": 80, "leave": 90, "occluder": 60, "blackout": 60}
 UP_AXES = {"z": (0, 0, 1), "-z": (0, 0, -1), "y": (0, 1, 0), "-y": (0, -1, 0), "x": (1, 0, 0), "-x": (-1, 0, 0)}
 
 #: fields added after scene.json format 1 was fixed: written into scene.json only when not at their

@@ -1,4 +1,4 @@
-"""``mst synth turntable|occluder|blackout``: sequences where the world is not static or the view fails.
+"""``mst synth turntable|carried|leave|occluder|blackout``: sequences where the world is not static or the view fails.
 
 Unlike :mod:`mst.pipeline.synth` (a static scene, a moving camera), the object here moves in the
 world or the view is interrupted, with ground truth for the object pose in the camera:
@@ -7,6 +7,11 @@ world or the view is interrupted, with ground truth for the object pose in the c
   turntable (90 deg in a quarter of the frames), then rests again, on a textured floor in front of
   a textured wall. The map of a SLAM aid is made of the still room: only the model tells the
   object's motion (the static-world check of ``mst track``).
+* ``carried``: the camera stands still (the turntable's shake); the object is carried along an
+  arc across the floor (sideways by 0.15 of the view and along the line of sight, turning 20 deg) and
+  put down again, while the room stays: as on the turntable, only the model tells the motion.
+* ``leave``: the camera stands still; the object slides out of the view, is turned by 30 deg and
+  moved while unseen, and slides back in to rest at another place (re-acquisition after loss).
 * ``occluder``: a slow orbit; a dark, hand-sized slab sweeps between the camera and the object.
 * ``blackout``: a slow orbit with 5 black frames (lens covered) and then a burst of 6 motion-blurred
   frames (fast shake, 8 sub-frame renders averaged).
@@ -15,8 +20,9 @@ The object has per-face shading plus a random checker texture fixed on its surfa
 grid: keypoints and no symmetry), the room a smooth procedural texture. Outputs (the layout of
 :mod:`mst.pipeline.synth`): ``rgb/%06d.png``, ``camera.json``, ``gt.txt`` (TUM: camera pose in the
 model frame, t = frame / fps), ``cMo/%06d.txt``, ``clicks.txt`` (frame 0: ``X Y Z u v``),
-``model.obj``, ``frames.csv`` (frame, object_moving, occluded_fraction, black, blur: the truth a
-test needs, e.g. "fully visible and at rest") and ``scene.json`` (the parameters).
+``model.obj``, ``frames.csv`` (frame, object_moving, occluded_fraction, black, blur, in_view: the
+truth a test needs, e.g. "fully visible and at rest"; in_view is the share of the model's bounding
+box corners in front of the camera and inside the image) and ``scene.json`` (the parameters).
 
 Frames: ``T_cam_model`` (model -> camera), the world z up with the floor at the model's lowest
 point. Metres, pixels, degrees. CPU ray casting (:class:`mst.pipeline.render.Renderer`).
@@ -34,8 +40,9 @@ import numpy as np
 from mst.core.camera import Camera
 from mst.core.poses import inv_T, look_at, make_T, transform_points
 
-DYNAMIC_SCENARIOS = ("turntable", "occluder", "blackout")
-DEFAULT_FRAMES_DYNAMIC = {"turntable": 80, "occluder": 60, "blackout": 60}
+DYNAMIC_SCENARIOS = ("turntable", "carried", "leave", "occluder", "blackout")
+DEFAULT_FRAMES_DYNAMIC = {"turntable": 80, "carried": 80, "leave": 90, "occluder": 60, "blackout": 60}
+STILL_CAMERA = ("turntable", "carried", "leave")  #: the camera stands still, the object moves
 
 
 def _rot_z(a: float) -> np.ndarray:
@@ -65,6 +72,7 @@ class DynamicScene:
         self.scenario, self.cfg, self.cam = scenario, cfg, cam
         self.n = int(cfg.frames if cfg.frames is not None else DEFAULT_FRAMES_DYNAMIC[scenario])
         lo, hi = V.min(0), V.max(0)
+        self.obj_lo_hi = (lo, hi)
         self.size = float(np.ptp(V, axis=0).max())
         self.c_model = 0.5 * (lo + hi)
         # world: object centre above the origin, floor at the model's lowest point
@@ -94,19 +102,51 @@ class DynamicScene:
 
     # ------------------------------------------------------------------ truth per frame
     def moving_span(self) -> tuple[int, int]:
+        """First and last frame of the object's motion (the whole excursion for ``leave``)."""
+        if self.scenario == "leave":
+            return int(0.25 * self.n), int(0.7 * self.n)
+        if self.scenario == "carried":
+            return int(0.3 * self.n), int(0.6 * self.n)
         return int(0.3 * self.n), int(0.55 * self.n)
 
+    def _right(self) -> np.ndarray:
+        """The camera's right direction on the floor (world, unit) at frame 0."""
+        r = inv_T(self.T_cam_world(0.0))[:3, 0].copy()
+        r[2] = 0.0
+        return r / np.linalg.norm(r)
+
     def T_world_model(self, k: float) -> np.ndarray:
-        if self.scenario != "turntable":
+        if self.scenario not in STILL_CAMERA:
             return self.T_world_model0
         a0, a1 = self.moving_span()
-        u = float(np.clip((k - a0) / max(a1 - a0, 1), 0.0, 1.0))
-        ang = math.radians(90.0) * (0.5 - 0.5 * math.cos(math.pi * u))  # smooth start and stop
-        return make_T(_rot_z(ang), np.zeros(3)) @ self.T_world_model0
+
+        def ease(k0, k1):  # 0 -> 1 over [k0, k1], smooth start and stop
+            u = float(np.clip((k - k0) / max(k1 - k0, 1), 0.0, 1.0))
+            return 0.5 - 0.5 * math.cos(math.pi * u)
+
+        if self.scenario == "turntable":
+            return make_T(_rot_z(math.radians(90.0) * ease(a0, a1)), np.zeros(3)) @ self.T_world_model0
+        right = self._right()
+        fwd = np.cross([0.0, 0.0, 1.0], right)  # away from the camera on the floor
+        fov_h = 2 * math.atan(0.5 * self.cam.width / self.cam.fx)
+        half_w = self.D * math.tan(0.5 * fov_h)  # half the view's width at the object (m)
+        if self.scenario == "carried":  # an arc: sideways by 0.15 of the view and along the line of sight, turning 20 deg
+            u = ease(a0, a1)
+            t = -right * 0.3 * half_w * u + fwd * 0.2 * self.D * math.sin(math.pi * u)
+            return make_T(_rot_z(math.radians(20.0) * u), t) @ self.T_world_model0
+        # leave: out to the right (beyond the image border by the object's size), turned and moved
+        # while unseen, back in to rest a quarter of the view left of the start
+        out = half_w + 1.5 * self.size
+        m = a0 + (a1 - a0) / 3.0
+        b = a0 + 2.0 * (a1 - a0) / 3.0
+        u_out, u_turn, u_in = ease(a0, m), ease(m, b), ease(b, a1)
+        x = out * u_out * (1.0 - u_in) - 0.25 * half_w * u_in
+        t = right * x + fwd * 0.1 * self.D * u_turn
+        return make_T(_rot_z(math.radians(30.0) * u_turn), t) @ self.T_world_model0
 
     def T_cam_world(self, k: float) -> np.ndarray:
         el = math.radians(25.0)
-        if self.scenario == "turntable":
+        if self.scenario in STILL_CAMERA:
             az = math.radians(-70.0) + 0.002 * math.sin(0.9 * k)
         else:
             az = math.radians(-70.0 + 0.5 * k)
@@ -133,6 +173,16 @@ class DynamicScene:
 
     def is_blur(self, k: int) -> bool:
         return self.scenario == "blackout" and int(0.6 * self.n) <= k < int(0.6 * self.n) + 6
+
+    def in_view(self, k: int) -> float:
+        """Share of the model's 8 bounding-box corners in front of the camera and inside the image."""
+        lo, hi = self.obj_lo_hi
+        C = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+        Xc = transform_points(self.T_cam_model(k), C)
+        front = Xc[:, 2] > 0
+        uv = self.cam.project(np.where(front[:, None], Xc, 1.0))
+        ok = front & (uv[:, 0] >= 0) & (uv[:, 0] <= self.cam.width - 1) & (uv[:, 1] >= 0) & (uv[:, 1] <= self.cam.height - 1)
+        return float(ok.mean())
 
     def T_cam_model(self, k: float) -> np.ndarray:
         return self.T_cam_world(k) @ self.T_world_model(k)
@@ -225,12 +275,12 @@ def synthesize_dynamic(scenario: str, model_path: str | os.PathLike, out_dir: st
             T = sc.T_cam_model(k)
             write_pose_file(tmp / "cMo" / f"{k:06d}.txt", T, k / cfg.fps)
             T_mc.append(inv_T(T))
-            moving = scenario == "turntable" and a0 <= k <= a1
-            rows.append(f"{k},{int(moving)},{occ:.4f},{int(sc.is_black(k))},{int(sc.is_blur(k))}")
+            moving = scenario in STILL_CAMERA and a0 <= k <= a1
+            rows.append(f"{k},{int(moving)},{occ:.4f},{int(sc.is_black(k))},{int(sc.is_blur(k))},{sc.in_view(k):.3f}")
             if progress is not None:
                 progress(1)
         (tmp / "gt.txt").write_text(format_tum(np.arange(sc.n) / cfg.fps, np.array(T_mc)))
-        (tmp / "frames.csv").write_text("frame,object_moving,occluded_fraction,black,blur\n" + "\n".join(rows) + "\n")
+        (tmp / "frames.csv").write_text("frame,object_moving,occluded_fraction,black,blur,in_view\n" + "\n".join(rows) + "\n")
         write_camera(tmp / "camera.json", cam)
         save_triangles(tmp / "model.obj", V, F)
         corners = V[model_corners(V, F)]
@@ -241,7 +291,7 @@ def synthesize_dynamic(scenario: str, model_path: str | os.PathLike, out_dir: st
         clk = [f"{x:.6f} {y:.6f} {z:.6f} {u:.3f} {v:.3f}" for (x, y, z), (u, v) in zip(corners[inside], uv[inside])][:8]
         (tmp / "clicks.txt").write_text("\n".join(clk) + "\n")
         params = {"scenario": scenario, "frames": sc.n, "fps": cfg.fps, "width": cfg.width, "height": cfg.height,
-                  "focal_px": f, "distance": sc.D, "seed": cfg.seed, "moving_frames": [a0, a1] if scenario == "turntable" else None,
+                  "focal_px": f, "distance": sc.D, "seed": cfg.seed, "moving_frames": [a0, a1] if scenario in STILL_CAMERA else None,
                   "model": str(model_path)}
         (tmp / "scene.json").write_text(json.dumps({"dynamic": params}, indent=2) + "\n")
     except BaseException:

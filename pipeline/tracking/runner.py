@@ -86,7 +86,7 @@ class TrackSummary:
     ``frames`` processed, ``tracked`` (an output pose: model + slam + relocalised), per-status
     counts, timing (ms per frame), residual/health statistics, the aid used and its wake-ups, the
     effective ``config`` (``--config`` of it repeats the run) and the output paths. Optional parts
-    (``render_edges``, ``landmarks``, ``relocalisation``, ``static_world_frames``, ``aid_wake*``)
+    (``render_edges``, ``landmarks``, ``relocalisation``, ``static_world_frames``, ``map_refuted_frames``, ``aid_wake*``)
     are left out of the JSON when they do not apply. Indexable like its JSON (``s["tracked"]``).
     """
 
@@ -155,6 +155,10 @@ def _summary(records: list[FrameRecord], session: TrackingSession, aid_mode: str
     fired = getattr(aid, "static_world_fired", None) if aid is not None else None
     if fired is not None:
         opt["static_world_frames"] = [int(f) for f in fired]
+    refuted = getattr(aid, "map_refuted", None) if aid is not None else None
+    if refuted is not None:
+        # frames whose map pose the image refuted with the model in view (not output: lost)
+        opt["map_refuted_frames"] = [int(f) for f in refuted]
     if aid is not None and "wakes" in getattr(aid, "stats", {}):
         # the default aid: how often (and where) the mono SLAM was switched on, its replay cost
         opt["aid_wakes"] = int(aid.stats["wakes"])

@@ -27,6 +27,12 @@ from mst.pipeline.tracking.health import HealthMonitor
 #: onto floor/texture edges 0.52-0.66; the real teabox: 0.66-0.73)
 REACQUIRE_SUPPORT_RATIO = 0.8
 
+#: a map (``slam``) pose is checked against the image only where the model lies mostly in the view
+#: at that pose: at least this fraction of the usual number of visible edge samples of the accepted
+#: model frames (fewer: the model is leaving or out of the view, where the map must bridge and the
+#: health score's binomial floors are wide)
+MAP_CHECK_MIN_VIEW = 0.5
+
 #: statuses of a frame's output pose
 OUTPUT_STATUSES = ("model", "slam", "relocalised", "lost")
 
@@ -95,6 +101,7 @@ class TrackingPolicy:
         self.constant_velocity = constant_velocity
         self.monitor = monitor
         self.n_score_rejects = 0
+        self.n_ref: float | None = None  #: running mean of the visible edge samples of model frames
 
     # -------------------------------------------------------------- before the edge tracker
     def start_pose(self, T_pred: np.ndarray | None, aided: bool, shift_px) -> np.ndarray:
@@ -148,6 +155,19 @@ class TrackingPolicy:
             self.n_score_rejects += 1
         return fr
 
+    def map_pose_refuted(self, ev) -> str:
+        """Why the image refutes a map (``slam``) pose, from its evidence ``ev`` at that pose ('' when
+        it does not, or cannot judge: no health score, or the model mostly out of the view there).
+
+        The same calibrated score as for an edge pose (:meth:`judge`), without KLT: with the model
+        in the view at the map's pose, its edges of the learned polarity and its learned
+        appearance must be there. A map of a still room while the object is carried, or a drifted
+        mono map on the model's return, puts the model where the image shows none of it."""
+        if self.monitor is None or ev is None or self.n_ref is None or ev.n < MAP_CHECK_MIN_VIEW * self.n_ref:
+            return ""
+        score, worst = self.monitor.score(self.monitor.features(ev, None, 0))
+        return f"map pose refuted by the image: score {score:.2f} ({worst})" if score <= 0 else ""
+
     def gate_recovery(self, fr: FrameResult, reacq: bool) -> bool:
         """Whether the frame's edge pose counts as healthy. After a re-acquisition or a loss (edges
         only, or the aid lost too), a pose found by the widened search on its first frame back has
@@ -170,6 +190,8 @@ class TrackingPolicy:
         """An accepted model frame teaches the health monitor."""
         if self.monitor is not None and status in ("model", "relocalised") and healthy and fr.evidence is not None:
             self.monitor.learn(fr.evidence, fr.features)
+            n = float(fr.evidence.n)
+            self.n_ref = n if self.n_ref is None else 0.9 * self.n_ref + 0.1 * n
 
     def should_learn_appearance(self, fr: FrameResult, status: str, healthy: bool) -> bool:
         """A model frame confident enough to teach the relocaliser (the first, or a score >= 0.5)."""
@@ -268,19 +290,40 @@ class TrackingSession:
         fr, relocalised = self._edge_pose(idx, gray, T_start, reacq)
         healthy = p.gate_recovery(fr, reacq)
         recovering = reacq or p.lost_streak > 0
+        if aid is not None and relocalised:
+            # a relocalised pose passed the health test on its own image after a loss: the map of
+            # the lost stretch (the object may have been moved meanwhile) does not gate it
+            if _standby(aid) is False:
+                aid.close()  # the default's map belongs to the lost stretch: back to standby
+            elif _standby(aid) is None:
+                aid.follow_model()
         if aid is not None:
             # an edge pose refused only by the health score still says where the image
             # puts the object: the aid outputs no map pose that contradicts it
             weak = (fr.T_cam_model if not healthy and fr.T_cam_model is not None
                     and (fr.reason or "").startswith("health score") else None)
             T_out, status = aid.update(idx, gray, fr.T_cam_model, fr.W, healthy, weak_edge_pose=weak)
+            if status == "slam" and T_out is not None and p.monitor is not None:
+                # a map pose is output only while the image does not refute it (the model in view)
+                why = p.map_pose_refuted(tr.evidence(gray, T_out))
+                if why:
+                    fr.reason = why
+                    if aid.refute_map_pose(idx):
+                        # not output, but the map still bridges: the next frame goes on from its
+                        # pose as from a slam frame (only the output is withheld)
+                        tr.accept(gray, T_out)
+                        p.accepted(T_out)
+                        p.update_support("slam", recovering, fr.support)
+                        p.prev_status = "slam"
+                        p.frame_done(fr)
+                        ms = (time.perf_counter() - t0) * 1000.0
+                        return FrameRecord(idx, time_s, "lost", None, fr, self._aid_state(idx), ms)
+                    T_out, status = None, "lost"
         else:
             T_out, status = (fr.T_cam_model, "model") if healthy else (None, "lost")
         p.update_support(status, recovering, fr.support)
         if relocalised and status == "model":
             status = "relocalised"
-            if aid is not None and _standby(aid) is False:
-                aid.close()  # the default's map belongs to the lost stretch: back to standby
         p.prev_status = status
         p.slam_streak = p.slam_streak + 1 if status == "slam" else 0
         p.learn(fr, status, healthy)
@@ -302,6 +345,9 @@ class TrackingSession:
             return ""
         state = "standby" if _standby(aid) else "on"
         fired = getattr(aid, "static_world_fired", None)
+        refuted = getattr(aid, "map_refuted", None)
         if fired and fired[-1] == idx:
             state = "static-world-broken"  # the map's world moved against the object here
+        elif refuted and refuted[-1] == idx:
+            state = "map-refuted"  # the image refuted the map pose here: the map stops bridging
         return state
