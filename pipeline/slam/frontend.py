@@ -14,7 +14,7 @@ import math
 import numpy as np
 
 from mst.core.klt import track_forward_backward
-from mst.core.poses import inv_T, pnp_ransac, transform_points
+from mst.core.poses import inv_T, pnp_ransac, refine_pnp, transform_points
 from mst.pipeline.slam.geometry import pose_information
 
 
@@ -98,10 +98,7 @@ class FrontEnd:
         if not ok or inl is None or len(inl) < 6:
             return None, None, 0
         inl = inl.ravel()
-        rvec, tvec = cv2.solvePnPRefineLM(Xh[inl], uvh[inl], self.K, self.dist, rvec, tvec)
-        R, _ = cv2.Rodrigues(rvec)
-        T = np.eye(4)
-        T[:3, :3], T[:3, 3] = R, tvec.ravel()
+        T = refine_pnp(Xh[inl], uvh[inl], self.K, self.dist, rvec, tvec)
         uv, z = self._project(T, Xh)
         err = np.linalg.norm(uv - uvh, axis=1)
         good = (err < self.cfg.pnp_reproj_px) & (z > 0)
@@ -111,7 +108,8 @@ class FrontEnd:
         for t in self.tid[has[~good]]:
             self.lm.pop(int(t), None)
         self._keep_tracks(keep)
-        Xc = Xh[good] @ R.T + T[:3, 3]  # R itself, not T's view: the product's last bits as they were
+        R = np.ascontiguousarray(T[:3, :3])  # a contiguous copy, not T's view: the product's last bits as they were
+        Xc = Xh[good] @ R.T + T[:3, 3]
         if len(Xc):
             self.scene_depth = float(np.median(Xc[:, 2]))
         return T, pose_information(self.K, Xc), int(good.sum())

@@ -124,7 +124,7 @@ class Relocaliser:
         qi, ti = np.array(pairs).T
         uv = np.array([kps[i].pt for i in qi], np.float64)
         X = X_kf[ti].astype(np.float64)
-        from mst.core.poses import pnp_ransac
+        from mst.core.poses import pnp_ransac, refine_pnp
 
         ok, rvec, tvec, inl = pnp_ransac(X, uv, self.tr.K, None, self.cfg.ransac_iters, self.cfg.reproj_px,
                                          cv2.SOLVEPNP_EPNP)
@@ -133,9 +133,7 @@ class Relocaliser:
         inl = inl.ravel()
         if len(inl) < max(self.cfg.min_inliers, self.cfg.min_consensus * len(pairs)):
             return None
-        rvec, tvec = cv2.solvePnPRefineLM(X[inl], uv[inl], self.tr.K, None, rvec, tvec)
-        T = np.eye(4)
-        T[:3, :3], T[:3, 3] = cv2.Rodrigues(rvec)[0], tvec.ravel()
+        T = refine_pnp(X[inl], uv[inl], self.tr.K, None, rvec, tvec)
         if not np.isfinite(T).all() or (X[inl] @ T[:3, :3].T + T[:3, 3])[:, 2].min() <= 0:
             return None
         return T
