@@ -66,7 +66,7 @@ def _floats(ctx, param, value: str | None) -> tuple[float, ...] | None:
 @click.option("--scheduler", default=None, metavar="ADDRESS",
               help="Distribute the chunks on an existing dask cluster (tcp://host:8786).")
 @click.option("--chunks-per-task", type=click.IntRange(1), default=None,
-              help="With --workers/--scheduler: chunks of a LAS/LAZ/binary PLY file per dask task  [default: 4].")
+              help="With --workers/--scheduler: chunks of a LAS/LAZ/binary PLY file per dask task  [default: 2].")
 @click.option("--exact-median", is_flag=True, default=None,
               help="With --workers/--scheduler: a second pass for the exact median (default: from the merged "
               "histogram, within median_bound_m).")
@@ -125,7 +125,7 @@ def c2m(clouds, mesh, thresholds, signed, max_dist, output, as_csv, markdown, pl
             if val is not None:
                 raise click.UsageError(f"{opt} needs the distances in one process; with --workers/--scheduler use "
                                        "--output-dir (one distance cloud per file) and --json/--markdown/--csv")
-        run_distributed(mesh, clouds, cfg, workers=workers, scheduler=scheduler, chunks_per_task=chunks_per_task or 4,
+        run_distributed(mesh, clouds, cfg, workers=workers, scheduler=scheduler, chunks_per_task=chunks_per_task or 2,
                         exact_median=bool(exact_median), output_dir=output_dir, markdown=markdown, as_csv=as_csv,
                         as_json=as_json, quiet=quiet)
         return

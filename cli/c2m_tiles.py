@@ -28,7 +28,7 @@ FLAGS = {"thresholds_m": "--thresholds", "max_dist_m": "--max-dist", "chunk_poin
                                                  "[default: 0.1,0.2,0.5,1.0].")
 @click.option("--max-dist", type=float, default=None, help="Points farther than this [m] are counted as beyond it.")
 @click.option("--chunk", type=int, default=None, help="Points per chunk [default: 1000000].")
-@click.option("--chunks-per-task", type=click.IntRange(1), default=4, show_default=True,
+@click.option("--chunks-per-task", type=click.IntRange(1), default=2, show_default=True,
               help="Chunks of a LAS/LAZ/binary PLY file per dask task.")
 @click.option("--workers", type=click.IntRange(1), default=2, show_default=True, help="Local worker processes.")
 @click.option("--scheduler", default=None, metavar="ADDRESS", help="An existing dask cluster (tcp://host:8786).")
