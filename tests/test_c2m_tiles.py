@@ -180,3 +180,44 @@ def test_c2m_distributed_bad_input_one_line_nothing_written(tiles, tmp_path):
     assert list(tmp_path.iterdir()) == []
     r = run_mst("c2m", d, d / "box.obj", check=False)  # a folder without --workers: as before, a usage error
     assert r.returncode == 1 and "CLOUD" in r.stderr
+
+
+@pytest.mark.slow
+def test_c2m_on_a_real_scheduler_and_workers_as_processes(tiles):
+    """`dask scheduler` and `dask worker --nworkers 2` as separate processes: `mst c2m --scheduler` gives the
+    single-process statistics (exact fields bit-identical, the median within its bound)."""
+    import json
+    import os
+    import socket
+    import subprocess
+    import sys
+
+    from conftest import run_mst
+
+    d, paths = tiles
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    addr = f"tcp://127.0.0.1:{port}"
+    common = ["--chunk", "1000", "--thresholds", "0.05,0.2,0.5", "--json", "-q"]
+    procs = [subprocess.Popen([sys.executable, "-m", "distributed.cli.dask_scheduler", "--host", "127.0.0.1", "--port",
+                               str(port), "--dashboard-address", ":0"], env=dict(os.environ),
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)]
+    try:
+        procs.append(subprocess.Popen([sys.executable, "-m", "distributed.cli.dask_worker", addr, "--nthreads", "1",
+                                       "--nworkers", "2", "--no-dashboard"], env=dict(os.environ),
+                                      stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=d))
+        from dask.distributed import Client
+
+        with Client(addr, timeout=60) as c:
+            c.wait_for_workers(2, timeout=60)
+        res = json.loads(run_mst("c2m", *paths, d / "box.obj", *common, "--scheduler", addr).stdout)
+    finally:
+        for p in reversed(procs):
+            p.terminate()
+        for p in procs:
+            p.wait(timeout=30)
+    single = json.loads(run_mst("c2m", d / "all.las", d / "box.obj", *common).stdout)
+    assert res["scheduler"] == addr and len(res["workers"]) == 2 and res["thresholds"] == single["thresholds"]
+    assert all(res["unsigned"][k] == single["unsigned"][k] for k in EXACT)
+    assert abs(res["unsigned"]["median"] - single["unsigned"]["median"]) <= res["median_bound_m"]
