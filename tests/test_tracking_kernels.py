@@ -116,3 +116,17 @@ def test_vvs_kernels_solve_the_numpy_pose(seed, klt):
         assert a.rms_px == pytest.approx(b.rms_px, rel=1e-9) and a.sigma_px == pytest.approx(b.sigma_px, rel=1e-9)
         if klt:
             assert np.array_equal(a.klt_inlier, b.klt_inlier)
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.float32])
+def test_sobel_kernel_is_identical_to_numpy(dtype):
+    from mst.pipeline.tracking.health import sobel_at, sobel_at_numpy
+
+    img, uv, *_ = _scene(5)
+    img = img.astype(dtype) * (np.float32(1.37) if dtype == np.float32 else 1)
+    uv = np.concatenate([uv, [[-5.0, 3.0], [700.0, 500.0], [0.5, 478.5], [np.nan, 10.0]]])  # outside: clipped
+    a = sobel_at(img, uv)
+    with np.errstate(invalid="ignore"):  # numpy's cast of the NaN position
+        b = sobel_at_numpy(img, uv)
+    assert a.dtype == b.dtype == np.float32
+    np.testing.assert_array_equal(a, b)

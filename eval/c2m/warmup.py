@@ -45,6 +45,7 @@ def warm_c2m() -> None:
 def warm_tracking() -> None:
     """Run the edge tracker's kernels (moving edges, VVS) with the argument types tracking uses."""
     from mst.core.poses import se3_exp
+    from mst.pipeline.tracking.health import sobel_at
     from mst.pipeline.tracking.moving_edges import canonical_normals, reference_contrast, search_edges
     from mst.pipeline.tracking.vvs import solve_pose
 
@@ -54,6 +55,7 @@ def warm_tracking() -> None:
     uv = np.column_stack([40.0 + 0.3 * np.sin(k), 8.0 + 4.0 * k])
     normal, midx = canonical_normals(np.tile([1.0, 0.0], (len(k), 1)), 180)
     edge = (k // 4).astype(np.int64)
+    sobel_at(img, uv)
     for im in (img, img.astype(np.float32)):  # full resolution (uint8), pyramid levels (float32 after pyrDown)
         ref = reference_contrast(im, uv, normal, midx, 5, 180)
         for r in (None, ref):

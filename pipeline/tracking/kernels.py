@@ -7,12 +7,13 @@
   and likelihood tests, the polarity vote of each model edge, local maxima, the best candidates and
   their parabolic sub-pixel refinement (float32 where the numpy formulation is float32, thresholds
   rounded to float32 as numpy's weak Python scalars are, float64 elsewhere).
-* :func:`vvs_residuals`, :func:`vvs_cost`, :func:`vvs_normal_equations`: one VVS iteration's
-  residuals at a pose (each sample's candidates against its projected model line), the weighted
-  cost of a candidate choice, and the Tukey + edge-spread weights with ``J^T W J`` and ``J^T W r``
-  accumulated per sample (no Jacobian array). Residuals and weights are the numpy formulation's
+* :func:`vvs_residuals`, :func:`vvs_cost`, :func:`vvs_linearise`: one VVS iteration's residuals at
+  a pose (each sample's candidates against its projected model line), the weighted cost of a
+  candidate choice, and the linearisation: candidate choice, Tukey weights on the MAD scale, the
+  edge-spread re-weighting, ``J^T W J`` and ``J^T W r`` accumulated per sample (no Jacobian array). Residuals and weights are the numpy formulation's
   to the last bit except for the order of the 3-term sums of the rigid transform and of the
   6x6 accumulation (BLAS's order; rounding level, 1e-16 relative).
+* :func:`sobel_at`: the Sobel gradient at sample positions (the health tests).
 
 No fastmath (reproducible bit for bit), single-threaded (the tracker's one-core budget).
 Units: pixels, metres; ``R``, ``t`` the rotation and translation of ``T_cam_model``.
@@ -213,7 +214,7 @@ def vvs_cost(r_all, ch, w):
     return s
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def vvs_choose(r_all, ch, r):
     """Per sample the candidate nearest its model line (first on ties): ``ch`` and ``r`` in place."""
     C = r_all.shape[1]
@@ -226,7 +227,7 @@ def vvs_choose(r_all, ch, r):
         r[i] = r_all[i, j]
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def vvs_normal_equations(r, w, sigma, e, nE, spread, spread_k, nx, ny, x, y, iz, fx, fy, H, g):
     """Edge-spread re-weighting of the Tukey weights ``w`` (in place, when ``spread``), then
     ``H = J^T W J`` (6x6) and ``g = J^T W r`` (6,) of the point-to-line residuals, accumulated per
@@ -278,3 +279,63 @@ def vvs_normal_equations(r, w, sigma, e, nE, spread, spread_k, nx, ny, x, y, iz,
         for k in range(p):
             H[p, k] = H[k, p]
     return cost
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _median(a):
+    """The median of ``a`` (the middle value, or the mean of the two middle values): a selection, so
+    exactly :func:`mst.pipeline.tracking.vvs._median`'s value."""
+    n = a.shape[0]
+    s = np.sort(a)
+    h = n // 2
+    if n % 2 == 0 and n > 1:
+        return 0.5 * (s[h - 1] + s[h])
+    return s[h]
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def vvs_linearise(r_all, ch, r, w, w_tukey, min_scale, tukey_c, e, nE, spread, spread_k, nx, ny, x, y, iz, fx, fy,
+                  H, g):
+    """One VVS linearisation at the residuals ``r_all`` of :func:`vvs_residuals`: the candidate
+    choice (``ch``, ``r``), Tukey weights on the MAD scale floored at ``min_scale`` (``w_tukey``, and
+    ``w`` after the edge-spread re-weighting when ``spread``), ``H = J^T W J`` and ``g = J^T W r``
+    (all in place). Returns ``(sigma px, weighted cost sum w r^2)``."""
+    vvs_choose(r_all, ch, r)
+    n = r.shape[0]
+    sigma = min_scale
+    if n:
+        med = _median(r)
+        sigma = max(1.4826 * _median(np.abs(r - med)), min_scale)
+    cs = tukey_c * sigma
+    for i in range(n):
+        u = r[i] / cs
+        w[i] = (1.0 - u * u) ** 2 if abs(u) < 1.0 else 0.0
+        w_tukey[i] = w[i]
+    cost = vvs_normal_equations(r, w, sigma, e, nE, spread and n > 0, spread_k, nx, ny, x, y, iz, fx, fy, H, g)
+    return sigma, cost
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def sobel_at(img, uv):
+    """(N, 2) float32 Sobel gradient (gx, gy) of the 8-bit or float32 ``img`` at the nearest pixels
+    of ``uv`` (clipped to the 1-px inner border; a non-finite position reads the corner pixel
+    (1, 1), as numpy's conversion does): :func:`mst.pipeline.tracking.health.sobel_at` to the bit."""
+    H, W = img.shape
+    n = uv.shape[0]
+    out = np.empty((n, 2), np.float32)
+    two = F32(2.0)
+    for i in range(n):
+        u, v = uv[i, 0], uv[i, 1]
+        ix = min(max(int(np.rint(u)), 1), W - 2) if np.isfinite(u) else 1
+        iy = min(max(int(np.rint(v)), 1), H - 2) if np.isfinite(v) else 1
+        p0 = F32(img[iy - 1, ix - 1])
+        p1 = F32(img[iy - 1, ix])
+        p2 = F32(img[iy - 1, ix + 1])
+        p3 = F32(img[iy, ix - 1])
+        p5 = F32(img[iy, ix + 1])
+        p6 = F32(img[iy + 1, ix - 1])
+        p7 = F32(img[iy + 1, ix])
+        p8 = F32(img[iy + 1, ix + 1])
+        out[i, 0] = (p2 + two * p5 + p8) - (p0 + two * p3 + p6)
+        out[i, 1] = (p6 + two * p7 + p8) - (p0 + two * p1 + p2)
+    return out

@@ -165,7 +165,7 @@ def solve_pose(T0: np.ndarray, K: np.ndarray, X_model: np.ndarray, edge: np.ndar
     Jacobian array, into buffers allocated once per solve); the same arithmetic as
     :func:`solve_pose_numpy` up to the summation order of the 6x6 system.
     """
-    from mst.pipeline.tracking.kernels import vvs_choose, vvs_cost, vvs_normal_equations, vvs_residuals
+    from mst.pipeline.tracking.kernels import vvs_cost, vvs_linearise, vvs_residuals
 
     fx, fy, cx, cy = float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2])
     has = np.isfinite(cand_uv[..., 0]).any(axis=1)
@@ -190,6 +190,8 @@ def solve_pose(T0: np.ndarray, K: np.ndarray, X_model: np.ndarray, edge: np.ndar
     nx, ny, x, y, iz = (np.empty(n) for _ in range(5))
     ch_buf = [np.empty(n, np.int64), np.empty(n, np.int64)]  # the current and the accepted choice
     r_buf = [np.empty(n), np.empty(n)]
+    w_buf = [np.zeros(n), np.zeros(n)]
+    w_tukey = np.zeros(n)
     H_buf = [np.zeros((6, 6)), np.zeros((6, 6))]
     g_buf = [np.zeros(6), np.zeros(6)]
     slot = 0
@@ -208,8 +210,7 @@ def solve_pose(T0: np.ndarray, K: np.ndarray, X_model: np.ndarray, edge: np.ndar
 
     prev = None  # (T, cost, ch, w, wk, H, g) of the last accepted linearisation
     it = 0
-    w = np.zeros(n)
-    w_tukey = w
+    w = w_buf[0]
     wk = np.zeros(2 * nk)
     sigma = min_mad_px
     H = np.zeros((6, 6))
@@ -234,13 +235,10 @@ def solve_pose(T0: np.ndarray, K: np.ndarray, X_model: np.ndarray, edge: np.ndar
                 T = se3_exp(xi) @ T_prev
                 continue
             mu = max(mu / 10.0, 1e-7)
-        ch, r, H, g = ch_buf[slot], r_buf[slot], H_buf[slot], g_buf[slot]
+        ch, r, w, H, g = ch_buf[slot], r_buf[slot], w_buf[slot], H_buf[slot], g_buf[slot]
         slot = 1 - slot  # the other slot holds the accepted linearisation (prev) until the next one
-        vvs_choose(r_all, ch, r)
-        w, sigma = tukey_weights(r, min_mad_px, tukey_c)
-        w_tukey = w.copy() if edge_spread_weight else w
-        cost = float(vvs_normal_equations(r, w, sigma, e, nE, bool(edge_spread_weight) and n > 0, SPREAD_K, nx, ny,
-                                          x, y, iz, fx, fy, H, g))
+        sigma, cost = vvs_linearise(r_all, ch, r, w, w_tukey, float(min_mad_px), float(tukey_c), e, nE,
+                                    bool(edge_spread_weight), SPREAD_K, nx, ny, x, y, iz, fx, fy, H, g)
         if nk:
             wk, _ = tukey_weights(rk, min_mad_px, tukey_c)
             wk = wk * klt_weight
