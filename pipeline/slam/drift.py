@@ -1,30 +1,29 @@
 """The drift budget of the SLAM aid: how far a map (``slam``) pose may be off, propagated from the
 last model-verified poses through the landmarks (no threshold fitted to a run).
 
-Every landmark carries two 1-sigma position uncertainties (metres, model frame):
+Every landmark carries three 1-sigma uncertainties (model frame):
 
-* ``corr``: the error it inherits from the poses it was made under (the camera-centre sigma of the
-  view plus depth x its rotation sigma; the larger of the two views of a triangulation). It is
-  common to the landmarks of one stretch, so it does **not** average out in a PnP pose: a map
-  triangulated from drifted map poses passes the drift on (mono scale drift).
-* ``ind``: its own measurement noise, independent between landmarks: two-view triangulation
-  ``z (sigma_px / f) sqrt(2) / sin(parallax)`` (a map built with little parallax is uncertain in
-  depth), or the depth sensor's noise (rgbd).
+* ``corr`` (m): the error it inherits from the poses it was made under: each view's own error at
+  the point (``J C J^T`` with ``J = [I, -[X]x]``, so the correlation of a pose's translation and
+  rotation counts) plus the view's inherited map error, the larger of the two views; for a mono
+  triangulation also the two views' *relative* error over the sine of the parallax,
+  ``(sigma_centre + z sigma_rot) / sin(parallax)``, which scales every landmark of that baseline
+  alike (the mono scale drift). It is common to the landmarks of one stretch, so it does **not**
+  average out in a PnP pose.
+* ``ind`` (m): its own measurement noise, independent between landmarks: two-view triangulation
+  ``z (sigma_px / f) sqrt(2) / sin(parallax)`` or the depth sensor's (rgbd).
+* ``rot`` (rad): the rotation error of the views it was made under.
 
-A map pose found by PnP on ``n`` landmarks then has the camera-centre sigma
-``mean(corr) + sqrt(mean(ind^2) / n) + sigma_pnp`` (``sigma_pnp`` from ``slam_sigma_px^2 (J^T J)^-1``:
-the inlier count and their spread in the image) and the rotation sigma
-``(mean(corr) + ...) / scene_depth + sigma_pnp_rot``; a model pose has its edge covariance
-``edge_sigma_px^2 W^-1``. New landmarks made under a pose take its sigma: the uncertainty grows with
-every generation of landmarks away from the last model anchor (distance and rotation travelled
-into unmapped space, parallax of each generation) and stays put while the camera re-observes the
-same landmarks. The bound of a map pose is ``drift_sigmas`` x these sigmas; it is output only while
+A map pose found by PnP on ``n`` landmarks inherits ``sm = mean(corr) + sqrt(mean(ind^2) / n)`` and
+``sr = mean(rot)``, and adds its fit's covariance ``rms^2 (J^T J)^-1`` (``rms`` its reprojection RMS:
+the inlier count and their spread in the image count); a model pose anchors with the edge tracker's
+covariance (its residual RMS^2 x W^-1), no map part. New landmarks made under a pose take its
+uncertainty: it grows with every generation of landmarks away from the last model anchor (distance
+and rotation travelled into unmapped space, the parallax of each generation) and stays put while the
+camera re-observes the same landmarks. The bound of a map pose is ``drift_sigmas`` x (camera centre
+``sm + sqrt(tr C_vv)``; rotation ``sr + sqrt(tr C_ww) + sm / scene_depth``); it is output only while
 the bound is within ``drift_budget_rel`` x its distance to the model and ``drift_budget_deg``
-(:meth:`DriftBudget.drift_bound`, checked by the tracking session).
-
-:class:`DriftBudget` is one part of :class:`mst.pipeline.slam.aid.ModelAidedSlam` (a mixin on its
-landmark sigmas ``lm_sig``, the tracks' first-view pose uncertainty ``first_sig``/``first_C`` and
-the uncertainty ``(sm, sr, C)`` of the pose under which the map is extended, ``_pose_sig``).
+(:meth:`DriftBudget.within_budget`, called by the tracking session).
 """
 
 from __future__ import annotations
@@ -135,7 +134,10 @@ class DriftBudget:
         sm, sr, C = self._out_sig
         sc, sr_fit = pose_sigmas(C)
         k = self.cfg.drift_sigmas
-        return k * (sm + sc), k * math.degrees(sr + sr_fit)
+        # rotation: the views' rotation passed on, the fit's, and the landmarks' common error seen
+        # across the scene depth (errors that differ over the image turn the camera: on the 40 m
+        # UAV pass the map poses were 0.2 deg off with an anchor rotation sigma of 0.05 deg)
+        return k * (sm + sc), k * math.degrees(sr + sr_fit + sm / max(self.scene_depth, 1e-9))
 
     def within_budget(self, k: int, distance_m: float) -> bool:
         """Whether the map pose of frame ``k`` (the last output) is within the drift budget at
