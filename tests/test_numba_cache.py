@@ -24,30 +24,33 @@ def _warmup_json() -> dict:
 
 
 def _cached_kernels() -> set[str]:
-    """Names of the module-level ``cache=True`` dispatchers of mst.eval.c2m.kernels that Python calls
-    (the ``inline="always"`` helpers are compiled into their callers)."""
+    """Names of the module-level ``cache=True`` dispatchers of mst.eval.c2m.kernels and
+    mst.pipeline.tracking.kernels (prefixed ``tracking.``) that Python calls (the ``inline="always"``
+    helpers are compiled into their callers)."""
     import numba.core.registry
 
     from mst.eval.c2m import kernels
+    from mst.pipeline.tracking import kernels as tracking_kernels
 
     out = set()
-    for name in dir(kernels):
-        d = getattr(kernels, name)
-        if isinstance(d, numba.core.registry.CPUDispatcher) and d.targetoptions.get("inline") != "always":
-            assert d._cache.__class__.__name__ == "FunctionCache", f"{name} is not cache=True"
-            out.add(name)
+    for mod, prefix in ((kernels, ""), (tracking_kernels, "tracking.")):
+        for name in dir(mod):
+            d = getattr(mod, name)
+            if isinstance(d, numba.core.registry.CPUDispatcher) and d.targetoptions.get("inline") != "always":
+                assert d._cache.__class__.__name__ == "FunctionCache", f"{name} is not cache=True"
+                out.add(prefix + name)
     return out
 
 
-def test_second_process_loads_every_c2m_kernel_from_the_cache():
+def test_second_process_loads_every_c2m_and_tracking_kernel_from_the_cache():
     _warmup_json()  # first process: may compile (writes the cache)
     second = _warmup_json()["kernels"]
-    # the warm-up reaches every kernel mst c2m calls
+    # the warm-up reaches every kernel mst c2m and the edge tracker call
     assert set(second) == _cached_kernels()
     for name, st in second.items():
         assert st["cache_misses"] == 0, f"{name} recompiled in the second process"
         assert st["cache_hits"] >= 1, name
-        idx = list(Path(st["cache_path"]).glob(f"kernels.{name}-*.nbi"))
+        idx = list(Path(st["cache_path"]).glob(f"kernels.{name.removeprefix('tracking.')}-*.nbi"))
         assert idx, f"no cache index file for {name} in {st['cache_path']}"
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import re
+import shlex
 import shutil
 import subprocess
 from pathlib import Path
@@ -52,11 +53,14 @@ def run_dir(tmp_path_factory) -> Path:
     P = rng.uniform([-1, -0.75, 0], [1, 0.75, 1.2], (4000, 3))
     P[:, 2] = np.where(rng.random(4000) < 0.5, 1.2, P[:, 2]) + rng.normal(0, 0.01, 4000)
     write_cloud(d / "cloud.ply", P)
-    c2m = run_mst("c2m", d / "cloud.ply", d / "box.obj", "--thresholds", "0.01,0.05", "--json", "-q",
-                  "--plot", d.parent / "cli_hist.png").stdout
-    (d / "c2m.json").write_text(c2m)
-    ev = run_mst("eval", "traj", d / "traj.txt", d / "gt.txt", "--align", "none", "--json", "-q").stdout
-    (d / "eval.json").write_text(ev)
+    c2m_args = ["c2m", d / "cloud.ply", d / "box.obj", "--thresholds", "0.01,0.05", "--json", "-q",
+                "--plot", d.parent / "cli_hist.png"]
+    (d / "c2m.json").write_text(run_mst(*c2m_args).stdout)
+    ev_args = ["eval", "traj", d / "traj.txt", d / "gt.txt", "--align", "none", "--json", "-q"]
+    (d / "eval.json").write_text(run_mst(*ev_args).stdout)
+    # the run log, as samples/demo.sh writes it: the exact command lines, in order, with their stdout file
+    (d / "commands.sh").write_text("".join(f"{shlex.join(['mst', *map(str, a)])} > {f}\n"
+                                           for a, f in ((c2m_args, "c2m.json"), (ev_args, "eval.json"))))
     return d
 
 
@@ -75,7 +79,7 @@ def report(run_dir) -> tuple[Path, str, dict]:
     return (out, *_report(run_dir, out, *_overlay_args(run_dir)))
 
 
-def test_run_folder_report_sections_and_self_contained(report):
+def test_run_folder_report_sections_and_self_contained(report, run_dir):
     _, html, res = report
     for title in SECTIONS:
         assert title in html, title
@@ -85,6 +89,14 @@ def test_run_folder_report_sections_and_self_contained(report):
     assert srcs and all(s.startswith("data:image/png;base64,") for s in srcs)
     assert "<script" not in html and not re.search(r"(href|src)=\"(https?:)?//", html)
     assert '"thresholds_m": [\n    0.01,\n    0.05\n  ]' in html  # the c2m configuration, as recorded
+    # the commands section: every line of the run log, in order, each stage's config beside it
+    from html import escape
+
+    block = html[html.index("Commands (commands.sh, in the order they ran)"):]
+    lines = (run_dir / "commands.sh").read_text().splitlines()
+    pos = [block.index(escape(line, quote=False)) for line in lines]
+    assert len(lines) == 2 and pos == sorted(pos) and "mst c2m " in lines[0]
+    assert block.index("c2m configuration") > pos[-1] and "eval configuration" in block
     assert res["config"]["overlay_frames"] == 6
     # the histogram is the image `mst c2m --plot` writes (the same function on the same distances)
     import base64

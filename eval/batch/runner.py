@@ -70,6 +70,7 @@ def connect(cfg: BatchConfig):
     from dask.distributed import Client, LocalCluster
 
     if cfg.scheduler is not None:
+        _probe(cfg.scheduler, cfg.connect_timeout_s)
         try:
             return Client(cfg.scheduler, timeout=cfg.connect_timeout_s)
         except (OSError, TimeoutError, ValueError) as e:
@@ -79,6 +80,27 @@ def connect(cfg: BatchConfig):
     cluster = LocalCluster(n_workers=cfg.workers, threads_per_worker=cfg.threads_per_worker, processes=True,
                            dashboard_address=None, silence_logs=logging.ERROR)
     return Client(cluster)
+
+
+def _probe(address: str, timeout_s: float) -> None:
+    """A refused or unresolvable ``tcp://host:port`` fails at once (dask's own connect retries until its
+    timeout); anything else (other protocols, a slow network) is left to dask."""
+    import socket
+    from urllib.parse import urlsplit
+
+    try:
+        u = urlsplit(address if "://" in address else f"tcp://{address}")
+        host, port = u.hostname, u.port
+    except ValueError:
+        return
+    if u.scheme != "tcp" or not host or port is None:
+        return
+    try:
+        socket.create_connection((host, port), timeout=min(timeout_s, 5.0)).close()
+    except (ConnectionRefusedError, socket.gaierror) as e:
+        raise SchedulerError(f"cannot reach the dask scheduler at {address}: {e.strerror or e}") from None
+    except OSError:
+        return
 
 
 def close_client(client) -> None:

@@ -1,11 +1,14 @@
-"""Warm numba's on-disk cache of the C2M kernels (``make setup`` runs it once after the install).
+"""Warm numba's on-disk cache of the C2M and tracking kernels (``make setup`` runs it once after the install).
 
 The kernels of :mod:`mst.eval.c2m.kernels` are ``cache=True``: the first process that calls them
 compiles them (10-30 s on 2 cores) and writes the machine code next to the module (``__pycache__``,
 or numba's user-wide cache directory when that is read-only, or ``$NUMBA_CACHE_DIR``); every later
 process loads it (a few ms per kernel). This module calls every kernel on a tiny input with the
 argument types ``mst c2m`` uses (dense grid and binned grid, signed and unsigned, ``--max-dist``,
-points far outside the grid), so that the first real ``mst c2m`` does not compile.
+points far outside the grid), so that the first real ``mst c2m`` does not compile; and the edge
+tracker's kernels (:mod:`mst.pipeline.tracking.kernels`: moving edges on 8-bit and float32 images,
+with and without a contrast reference, VVS with and without KLT points), so that ``mst track``
+does not compile either.
 
 ``python -m mst.eval.c2m.warmup --json`` prints, per kernel, the signatures loaded from the cache
 (``cache_hits``) and compiled in this process (``cache_misses``): a second run must show no misses.
@@ -39,20 +42,59 @@ def warm_c2m() -> None:
                 c2m(P, idx, C2MConfig(signed=signed, max_dist_m=md))
 
 
+def warm_tracking() -> None:
+    """Run the edge tracker's kernels (moving edges, VVS) with the argument types tracking uses."""
+    from mst.core.poses import se3_exp
+    from mst.pipeline.tracking.health import sobel_at
+    from mst.pipeline.tracking.moving_edges import canonical_normals, reference_contrast, search_edges
+    from mst.pipeline.tracking.vvs import solve_pose
+
+    img = np.zeros((60, 80), np.uint8)
+    img[:, 40:] = 200
+    k = np.arange(12, dtype=np.float64)
+    uv = np.column_stack([40.0 + 0.3 * np.sin(k), 8.0 + 4.0 * k])
+    normal, midx = canonical_normals(np.tile([1.0, 0.0], (len(k), 1)), 180)
+    edge = (k // 4).astype(np.int64)
+    sobel_at(img, uv)
+    for im in (img, img.astype(np.float32)):  # full resolution (uint8), pyramid levels (float32 after pyrDown)
+        ref = reference_contrast(im, uv, normal, midx, 5, 180)
+        for r in (None, ref):
+            search_edges(im, uv, normal, r, search_range=4, threshold=10.0, mu1=0.5, mu2=0.5, size=5, n_masks=180,
+                         n_candidates=2, mask_idx=midx, edge=edge)
+    # VVS: a cube's edges seen from 5 m, candidates on the true projection, a perturbed start
+    K = np.array([[500.0, 0, 40], [0, 500.0, 30], [0, 0, 1]])
+    A = np.array([[-.5, -.5, 0], [.5, -.5, 0], [.5, .5, 0], [-.5, .5, 0]])
+    B = np.roll(A, -1, axis=0)
+    t = np.linspace(0.1, 0.9, 8)
+    X = np.concatenate([A[i] + t[:, None] * (B[i] - A[i]) for i in range(4)])
+    e = np.repeat(np.arange(4), len(t))
+    T = np.eye(4)
+    T[2, 3] = 5.0
+    Xc = X @ T[:3, :3].T + T[:3, 3]
+    uvX = Xc[:, :2] / Xc[:, 2:3] * 500.0 + [40, 30]
+    cand = np.stack([uvX, uvX + 3.0], 1)
+    T0 = se3_exp(np.array([0.01, 0, 0, 0, 0.01, 0])) @ T
+    for klt in (False, True):
+        kw = {"klt_X_model": X[::4], "klt_uv": uvX[::4]} if klt else {}
+        solve_pose(T0, K, X, e, A, B, cand, **kw)
+
+
 def kernel_stats() -> dict[str, dict]:
-    """Per compiled kernel of :mod:`mst.eval.c2m.kernels`: signatures loaded from the cache and
-    compiled in this process, and the cache folder."""
+    """Per compiled kernel of :mod:`mst.eval.c2m.kernels` and :mod:`mst.pipeline.tracking.kernels`:
+    signatures loaded from the cache and compiled in this process, and the cache folder."""
     import numba.core.registry
 
     from mst.eval.c2m import kernels
+    from mst.pipeline.tracking import kernels as tracking_kernels
 
     out = {}
-    for name in dir(kernels):
-        d = getattr(kernels, name)
-        if isinstance(d, numba.core.registry.CPUDispatcher) and d.signatures:
-            st = d.stats
-            out[name] = {"cache_hits": sum(st.cache_hits.values()), "cache_misses": sum(st.cache_misses.values()),
-                         "cache_path": st.cache_path}
+    for mod, prefix in ((kernels, ""), (tracking_kernels, "tracking.")):
+        for name in dir(mod):
+            d = getattr(mod, name)
+            if isinstance(d, numba.core.registry.CPUDispatcher) and d.signatures:
+                st = d.stats
+                out[prefix + name] = {"cache_hits": sum(st.cache_hits.values()),
+                                      "cache_misses": sum(st.cache_misses.values()), "cache_path": st.cache_path}
     return out
 
 
@@ -62,13 +104,14 @@ def main(argv: list[str] | None = None) -> int:
     a = ap.parse_args(argv)
     t0 = time.perf_counter()
     warm_c2m()
+    warm_tracking()
     stats = kernel_stats()
     dt = time.perf_counter() - t0
     if a.json:
         print(json.dumps({"seconds": dt, "kernels": stats}))
     else:
         compiled = sum(s["cache_misses"] for s in stats.values())
-        print(f"mst warm-up: {len(stats)} C2M kernels ready in {dt:.1f} s ({compiled} compiled now, "
+        print(f"mst warm-up: {len(stats)} C2M and tracking kernels ready in {dt:.1f} s ({compiled} compiled now, "
               f"the rest loaded from the cache)", file=sys.stderr)
     return 0
 

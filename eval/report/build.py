@@ -127,11 +127,15 @@ def _traj_parts(p: _Parts) -> list[tuple[str, list[str]]]:
 def _provenance(p: _Parts) -> list[tuple[str, list[str]]]:
     def parts() -> list[str]:
         out = []
-        if p.run.commands:
+        batch = any(e.get("argv") for e in p.run.states.values())  # a batch sequence: its state is the record
+        if p.run.command_lines and not batch:
+            out += ["<h3>Commands (commands.sh, in the order they ran)</h3>", pre("\n".join(p.run.command_lines))]
+        elif p.run.commands:
             lines = [shlex.join(["mst", *p.run.commands[s]]) for s in SUMMARIES if s in p.run.commands]
             out += ["<h3>Commands</h3>", pre("\n".join(lines))]
         else:
-            out.append(note("the commands are recorded by mst batch (batch-state.json); this run has none"))
+            out.append(note("no commands recorded: mst batch records them (batch-state.json), make demo in "
+                            "commands.sh; this run has neither"))
         for stage in SUMMARIES:
             cfg = (p.run.summaries.get(stage) or {}).get("config")
             if cfg is not None:

@@ -2,8 +2,9 @@
 
 A *run folder* is the output of one chain (the demo's ``demo-out/``, or one sequence of a batch):
 ``c2m.json``, ``eval.json``, ``traj.txt``/``traj.csv``, ``traj.json``, ``fuse.json``, ``init.json``,
-``convert-model.json``, images written by ``--plot`` (``c2m_hist.png``, ``eval_traj.png``) and, for a
-batch, ``batch-state.json`` with the exact command of every stage. A *batch folder* holds run
+``convert-model.json``, images written by ``--plot`` (``c2m_hist.png``, ``eval_traj.png``), the exact
+commands: ``commands.sh`` (the run log ``make demo`` writes: one shell-quoted command line per line, in
+the order run, ``> FILE`` where its stdout went) or, for a batch, ``batch-state.json``. A *batch folder* holds run
 folders (each with a ``batch-state.json``) and ``models/``.
 """
 
@@ -25,7 +26,8 @@ class RunFiles:
     folder: Path
     name: str
     summaries: dict[str, dict[str, Any]] = field(default_factory=dict)  #: stage -> its --json summary
-    commands: dict[str, list[str]] = field(default_factory=dict)        #: stage -> the exact argv (batch)
+    commands: dict[str, list[str]] = field(default_factory=dict)        #: stage -> the exact argv (no "mst")
+    command_lines: list[str] = field(default_factory=list)              #: commands.sh, in the order run
     states: dict[str, dict[str, Any]] = field(default_factory=dict)     #: stage -> batch state entry
     traj: Path | None = None
     traj_csv: Path | None = None
@@ -78,6 +80,11 @@ def read_run(folder: Path, frames: str | None = None, model: str | None = None,
         run.states[stage] = entry
         if entry.get("argv"):
             run.commands[stage] = list(entry["argv"])
+    log = folder / "commands.sh"
+    if log.is_file():
+        run.command_lines, argvs = read_command_log(log)
+        for argv in argvs:
+            run.commands.setdefault(argv[0], argv)  # the batch state's record first; else the first such command
     run.traj = run.file("traj.txt")
     run.traj_csv = run.file("traj.csv")
     argv = run.commands.get("track", [])
@@ -89,8 +96,30 @@ def read_run(folder: Path, frames: str | None = None, model: str | None = None,
     return run
 
 
+def read_command_log(path: Path) -> tuple[list[str], list[list[str]]]:
+    """A run log: (its command lines as written, the argv after ``mst`` of each mst command, without its
+    ``> FILE`` redirection). Blank lines and ``#`` comments are skipped; an unparsable line is shown only."""
+    import shlex
+
+    lines, argvs = [], []
+    for line in path.read_text(errors="replace").splitlines():
+        if not line.strip() or line.lstrip().startswith("#"):
+            continue
+        lines.append(line)
+        try:
+            tok = shlex.split(line)
+        except ValueError:
+            continue
+        if ">" in tok:
+            tok = tok[: tok.index(">")]
+        if len(tok) > 1 and Path(tok[0]).name == "mst":
+            argvs.append(tok[1:])
+    return lines, argvs
+
+
 def is_run(folder: Path) -> bool:
-    return any((folder / n).is_file() for n in ("traj.txt", "c2m.json", "eval.json", "batch-state.json"))
+    return any((folder / n).is_file() for n in ("traj.txt", "c2m.json", "eval.json", "batch-state.json",
+                                                 "commands.sh"))
 
 
 def find_runs(root: str | os.PathLike) -> tuple[list[RunFiles], bool]:

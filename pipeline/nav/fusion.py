@@ -88,6 +88,9 @@ class FusionConfig(Config):
                                                    "around time_offset_s)")
     max_time_offset_s: float = param(1.0, min=0, min_open=True, max=30,
                                      help="the search spans time_offset_s +- this, s")
+    adapt_motion_noise: bool = param(False, help="scale the motion models' white noise (jerk_sigma_mps3 / "
+                                                "accel_sigma_mps2, ang_accel_sigma_dps2: x 1/16 .. x 65536 in steps "
+                                                "of 4) to the one of highest innovation likelihood of the data")
 
 
 @dataclass
@@ -146,6 +149,41 @@ def _ca_model(dt: np.ndarray, q_jerk: float, q_extra: float) -> tuple[np.ndarray
             Q[:, 3 * a + i3, 3 * b + i3] = (q_jerk * blk[a, b])[:, None]
     Q[:, 9 + i3, 9 + i3] = (q_extra * dt)[:, None]
     return F, Q
+
+
+#: process-noise scales (of the PSD, i.e. sigma^2) tried by ``adapt_motion_noise``
+MOTION_NOISE_SCALES = 4.0 ** np.arange(-2, 9)
+
+
+def _innovation_loglik(F, Q, x0, P0, step, z, H, R, gate_k: float = 3.0) -> float:
+    """Log-likelihood of the measurements under the model (F, Q): the sum over measurements of
+    ``log N(nu; 0, S)`` with the innovations ``nu`` of a causal filter run (Huber-robust: beyond
+    ``gate_k`` the Mahalanobis distance counts linearly; measurements of one step each against the
+    step's prediction). The prediction error decomposition of the likelihood, used to choose Q."""
+    K = F.shape[0]
+    order = np.argsort(step, kind="stable")
+    st, zz, HH, RR = step[order], np.ascontiguousarray(z[order]), np.ascontiguousarray(H[order]), np.ascontiguousarray(R[order])
+    ptr = np.searchsorted(st, np.arange(K + 1)).astype(np.int64)
+    x, P, _ = _kf_rts(F, Q, x0, P0, ptr, zz, HH, RR, np.ones(len(st)), gate_k, False)
+    xp = x.copy()
+    Pp = P.copy()
+    xp[1:] = np.einsum("kij,kj->ki", F[1:], x[:-1])
+    Pp[1:] = F[1:] @ P[:-1] @ np.swapaxes(F[1:], 1, 2) + Q[1:]
+    Pp[0] = P0
+    xp[0] = x0
+    nu = zz - np.einsum("lmn,ln->lm", HH, xp[st])
+    S = HH @ Pp[st] @ np.swapaxes(HH, 1, 2) + RR
+    sign, logdet = np.linalg.slogdet(S)
+    d = np.sqrt(np.maximum(np.einsum("lm,lm->l", nu, np.linalg.solve(S, nu[..., None])[..., 0]), 0.0))
+    rho = np.where(d <= gate_k, d**2, 2 * gate_k * d - gate_k**2)  # Huber: outliers count linearly
+    return float(-0.5 * np.sum(rho + logdet))
+
+
+def _best_noise_scale(model, x0, P0, step, z, H, R) -> float:
+    """The scale of :data:`MOTION_NOISE_SCALES` whose ``model(scale) -> (F, Q)`` gives the data the
+    highest innovation likelihood."""
+    ll = [_innovation_loglik(*model(s), x0, P0, step, z, H, R) for s in MOTION_NOISE_SCALES]
+    return float(MOTION_NOISE_SCALES[int(np.argmax(ll))])
 
 
 def _run_kf(F, Q, x0, P0, step, z, H, R, gate_k, smooth, robust_refit):
@@ -319,7 +357,8 @@ def _calibrate(al: _Aligned, cfg: FusionConfig, R_body_cam, T_world_model, nav_n
 
 def _fuse_attitude(al: _Aligned, T_vis, cov_vis, R_wm, R_bc, cfg: FusionConfig):
     """Per-frame camera rotations from vision + AHRS: batch smoother (+ KF/RTS covariances), or the
-    causal multiplicative EKF. Returns ``(R (K, 3, 3), covariances, measurement weights)``."""
+    causal multiplicative EKF. Returns ``(R (K, 3, 3), covariances, measurement weights, the scale of
+    the angular-acceleration PSD chosen by adapt_motion_noise)``."""
     t_grid, vidx, K, dt_f, has_vis, Tg = al.t_grid, al.vidx, al.K, al.dt_f, al.has_vis, al.Tg
     tn, R_wb, k_a, dtau_a, dts = al.tn, al.R_wb, al.k_a, al.dtau_a, al.dts
     s_ahrs = np.radians(cfg.ahrs_sigma_deg)
@@ -344,10 +383,21 @@ def _fuse_attitude(al: _Aligned, T_vis, cov_vis, R_wm, R_bc, cfg: FusionConfig):
             nearest = known[np.clip(np.searchsorted(known, np.arange(K)), 0, len(known) - 1)]
             R0[fill] = R_mc_ahrs[src[nearest[fill]]]
     smooth = cfg.mode == "smoother"
+    sig_alpha = np.radians(cfg.ang_accel_sigma_dps2)
+    x0 = np.zeros(6)
+    P0 = np.diag([np.radians(10.0) ** 2] * 3 + [np.radians(10.0) ** 2] * 3)
+    scale = 1.0
+    if cfg.adapt_motion_noise or smooth:
+        R_ref = smooth_rotations_gn(t_grid, R0, t_meas_r, R_meas, C_r, sig_alpha, cfg.huber_k)
+    if cfg.adapt_motion_noise:  # the likelihood of the linearised problem about the smooth solution
+        z_r = so3_log(R_meas @ np.swapaxes(_interp_R(t_grid, R_ref, t_meas_r), -1, -2))
+        scale = _best_noise_scale(lambda s: _cv_model(dts, s * sig_alpha**2), x0, P0, steps_r, z_r, H_r, C_r)
+        if scale != 1.0:
+            sig_alpha *= np.sqrt(scale)
+            F6, Q6 = _cv_model(dts, sig_alpha**2)
+            if smooth:
+                R_ref = smooth_rotations_gn(t_grid, R0, t_meas_r, R_meas, C_r, sig_alpha, cfg.huber_k)
     if smooth:
-        R_ref = smooth_rotations_gn(t_grid, R0, t_meas_r, R_meas, C_r, np.radians(cfg.ang_accel_sigma_dps2), cfg.huber_k)
-        x0 = np.zeros(6)
-        P0 = np.diag([np.radians(10.0) ** 2] * 3 + [np.radians(10.0) ** 2] * 3)
         # about the smooth batch solution the linear KF + RTS is exact to first order in its (small)
         # correction; it gives the covariances
         z_r = so3_log(R_meas @ np.swapaxes(_interp_R(t_grid, R_ref, t_meas_r), -1, -2))
@@ -358,17 +408,18 @@ def _fuse_attitude(al: _Aligned, T_vis, cov_vis, R_wm, R_bc, cfg: FusionConfig):
         ptr = np.searchsorted(steps_r[order], np.arange(K + 1)).astype(np.int64)
         dtau_r = np.concatenate([np.zeros(len(vidx)), dtau_a])
         first = R_meas[order[0]]
-        R_ref, _, Pr, w_o = _mekf(dts, np.radians(cfg.ang_accel_sigma_dps2) ** 2, first, ptr,
+        R_ref, _, Pr, w_o = _mekf(dts, sig_alpha**2, first, ptr,
                                   np.ascontiguousarray(R_meas[order]), dtau_r[order], np.ascontiguousarray(C_r[order]),
                                   cfg.huber_k)
         wr = np.empty_like(w_o)
         wr[order] = w_o
-    return R_ref, Pr, wr
+    return R_ref, Pr, wr, scale
 
 
 def _fuse_position(al: _Aligned, T_vis, cov_vis, R_fused, R_wm, t_wm, R_bc, cfg: FusionConfig):
     """Per-frame camera positions and the GPS bias from vision + GPS (smoother or causal filter).
-    Returns ``(states (K, n), covariances, measurement weights, used GPS rows)``: ``[p, v, b]`` (n = 9)
+    Returns ``(states (K, n), covariances, measurement weights, used GPS rows, the scale of the
+    motion model's PSD chosen by adapt_motion_noise)``: ``[p, v, b]`` (n = 9)
     or, with the constant-acceleration model, ``[p, v, a, b]`` (n = 12); the bias is the last three."""
     fix, g_w, k_a, dtau_a, dts, vidx = al.fix, al.g_w, al.k_a, al.dtau_a, al.dts, al.vidx
     lever, sig, _ = _noise(cfg)
@@ -394,8 +445,14 @@ def _fuse_position(al: _Aligned, T_vis, cov_vis, R_fused, R_wm, t_wm, R_bc, cfg:
     x0 = np.zeros(n)
     x0[:3] = T_vis[0, :3, 3] if vidx[0] == 0 else (g_cam[0] if len(gi) else T_vis[0, :3, 3])
     P0 = np.diag([100.0**2] * 3 + [30.0**2] * 3 + ([10.0**2] * 3 if ca else []) + [cfg.gps_bias_sigma_m**2] * 3)
+    scale = 1.0
+    if cfg.adapt_motion_noise:
+        q = cfg.jerk_sigma_mps3**2 if ca else cfg.accel_sigma_mps2**2
+        scale = _best_noise_scale(lambda s: _ca_model(dts, s * q, q_b) if ca else _cv_model(dts, s * q, 1, q_b),
+                                  x0, P0, steps_p, z_p, H_p, C_p)
+        F, Q = _ca_model(dts, scale * q, q_b) if ca else _cv_model(dts, scale * q, 1, q_b)
     xp_, Pp_, wp = _run_kf(F, Q, x0, P0, steps_p, z_p, H_p, C_p, cfg.huber_k, smooth, smooth)
-    return xp_, Pp_, wp, gi
+    return xp_, Pp_, wp, gi, scale
 
 
 def _shifted(nav: NavLog, delta: float, keep: np.ndarray | None = None) -> NavLog:
@@ -443,8 +500,8 @@ def fuse_navigation(t_vis: np.ndarray, T_vis: np.ndarray, cov_vis: np.ndarray | 
             cfg = replace(cfg, lever_arm_m=tuple(float(v) for v in lev))
             T_wm, R_bc, yaw_std, mount_std, w_g, w_a = _calibrate(al, cfg, R_body_cam, T_world_model, nav_name)
     R_wm, t_wm = T_wm[:3, :3], T_wm[:3, 3]
-    R_fused, Pr, wr = _fuse_attitude(al, T_vis, cov_vis, R_wm, R_bc, cfg)
-    xp_, Pp_, wp, gi = _fuse_position(al, T_vis, cov_vis, R_fused, R_wm, t_wm, R_bc, cfg)
+    R_fused, Pr, wr, scale_r = _fuse_attitude(al, T_vis, cov_vis, R_wm, R_bc, cfg)
+    xp_, Pp_, wp, gi, scale_p = _fuse_position(al, T_vis, cov_vis, R_fused, R_wm, t_wm, R_bc, cfg)
     lever = np.asarray(cfg.lever_arm_m, float)
     K, vidx, tn, t_grid, has_vis = al.K, al.vidx, al.tn, al.t_grid, al.has_vis
     T_out = np.tile(np.eye(4), (K, 1, 1))
@@ -478,6 +535,7 @@ def fuse_navigation(t_vis: np.ndarray, T_vis: np.ndarray, cov_vis: np.ndarray | 
         "calibration_gps_outliers": int((w_g < 0.5).sum()), "calibration_ahrs_outliers": int((w_a < 0.5).sum()),
         "pos_sigma_median_m": float(np.median(np.sqrt(np.trace(cov[:, :3, :3], axis1=1, axis2=2)))),
         "rot_sigma_median_deg": float(np.degrees(np.median(np.sqrt(np.trace(cov[:, 3:, 3:], axis1=1, axis2=2))))),
+        "motion_noise_scale_position": scale_p, "motion_noise_scale_attitude": scale_r,
     }
     return FusionResult(t=t_grid, T_model_cam=T_out, cov=cov, has_vision=has_vis, gps_bias_m=xp_[:, -3:].copy(),
                         T_world_model=T_wm, R_body_cam=R_bc, calib=calib, stats=stats)

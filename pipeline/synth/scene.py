@@ -47,17 +47,62 @@ def plane_ids(V: np.ndarray, F: np.ndarray) -> np.ndarray:
     return row_ids(key)
 
 
+#: closed curved meshes: triangles meeting at less than this dihedral angle share a colour (a smooth patch)
+SMOOTH_PATCH_DEG = 20.0
+
+
+def smooth_patch_ids(V: np.ndarray, F: np.ndarray, pid: np.ndarray) -> np.ndarray:
+    """Plane groups of a closed curved mesh merged into smooth patches, else ``pid`` unchanged.
+
+    A tessellated smooth surface (a torus, a vase, a scanned sculpture) has one "plane" per triangle;
+    colouring each from the palette made a high-contrast mosaic of facets, foreshortened into thin strips
+    parallel to the silhouette (the facets there are seen edge-on): a texture no smooth object has, and
+    one that biased every contour measurement by a fraction of a pixel (blob orbit: silhouette edges found
+    0.13 px outside the true contour on average, 0.32 px spread). On a *closed* mesh (every edge shared by
+    exactly two triangles) whose bent interior edges are mostly smooth (more than 5 % of them under the
+    crease angle of 40 deg: the curved-mesh rule of ``--edges auto``), triangles meeting at less than
+    ``SMOOTH_PATCH_DEG`` share a group: the object is coloured per smooth patch (a vase's body and its
+    caps differ, as planes did), its shading still per face. Polyhedral models and open TINs (terrain)
+    keep their per-plane groups: their outputs are unchanged.
+    """
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import connected_components
+
+    from mst.pipeline.render import face_normals
+
+    key = np.round(V / (1e-7 * (np.abs(V).max() + 1.0))).astype(np.int64)
+    Fw = row_ids(key)[F]
+    e = np.sort(np.concatenate([Fw[:, [0, 1]], Fw[:, [1, 2]], Fw[:, [2, 0]]]), axis=1)
+    tri = np.tile(np.arange(len(F)), 3)
+    eid = row_ids(e)
+    count = np.bincount(eid)
+    if not len(count) or (count != 2).any():
+        return pid  # open or non-manifold: not a closed object
+    order = np.argsort(eid, kind="stable")
+    a, b = tri[order[0::2]], tri[order[1::2]]
+    n = face_normals(V, F)
+    ang = np.degrees(np.arccos(np.clip((n[a] * n[b]).sum(1), -1.0, 1.0)))
+    bent = ang > 1.0
+    if not bent.any() or (ang[bent] < 40.0).mean() <= 0.05:
+        return pid
+    smooth = ang < SMOOTH_PATCH_DEG
+    P = int(pid.max()) + 1
+    g = sp.coo_matrix((np.ones(int(smooth.sum())), (pid[a[smooth]], pid[b[smooth]])), shape=(P, P))
+    return connected_components(g, directed=False)[1][pid].astype(np.int64)
+
+
 def face_albedo(V: np.ndarray, F: np.ndarray, lighting, base=(0.80, 0.78, 0.74)) -> np.ndarray:
     """(M, 3) albedo per model triangle so that planes sharing an edge differ in shaded brightness.
 
     Directional lighting alone cannot separate every pair of adjacent faces (some orientation always
     ties), so each plane gets a grey level from a small palette, chosen greedily (largest planes
     first) to maximise the smallest shaded-brightness difference to its already-coloured neighbours.
+    A closed curved mesh is coloured per smooth patch instead of per plane (:func:`smooth_patch_ids`).
     """
     from mst.pipeline.render import _unit, face_normals
 
     M = len(F)
-    pid = plane_ids(V, F)
+    pid = smooth_patch_ids(V, F, plane_ids(V, F))
     P = pid.max() + 1
     n = face_normals(V, F)
     area = 0.5 * np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1)

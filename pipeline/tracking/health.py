@@ -15,7 +15,17 @@ import numpy as np
 
 
 def sobel_at(img: np.ndarray, uv: np.ndarray) -> np.ndarray:
-    """(N,2) Sobel gradient (gx, gy) of ``img`` at the nearest pixels of ``uv``."""
+    """(N,2) Sobel gradient (gx, gy) of ``img`` at the nearest pixels of ``uv`` (a numba kernel,
+    :func:`mst.pipeline.tracking.kernels.sobel_at`: :func:`sobel_at_numpy`'s values to the bit)."""
+    from mst.pipeline.tracking.kernels import sobel_at as _kernel
+
+    if img.dtype != np.uint8 and img.dtype != np.float32:
+        img = img.astype(np.float32)
+    return _kernel(np.ascontiguousarray(img), np.ascontiguousarray(uv, np.float64))
+
+
+def sobel_at_numpy(img: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """The numpy formulation of :func:`sobel_at` (the reference of the kernel's test)."""
     H, W = img.shape
     ix = np.clip(np.rint(uv[:, 0]).astype(np.int64), 1, W - 2)
     iy = np.clip(np.rint(uv[:, 1]).astype(np.int64), 1, H - 2)

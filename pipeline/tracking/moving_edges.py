@@ -100,9 +100,42 @@ class EdgeMatches:
         return uv[:, None, :] + self.offset[..., None] * self.normal[:, None, :]
 
 
+def _image(img: np.ndarray) -> np.ndarray:
+    """The image as the kernels read it: C-contiguous uint8 or float32 (other dtypes as float32)."""
+    if img.dtype != np.uint8 and img.dtype != np.float32:
+        img = img.astype(np.float32)
+    return np.ascontiguousarray(img)
+
+
+def _convolve(img: np.ndarray, uv: np.ndarray, normal: np.ndarray, ks: np.ndarray, mask_idx: np.ndarray,
+              masks: np.ndarray, moff: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`convolve_along` with the pixel gathering in a numba kernel
+    (:func:`mst.pipeline.tracking.kernels.me_gather`) and the same float32 matrix product, so that
+    the convolutions are those of :func:`convolve_along` to the bit."""
+    from mst.pipeline.tracking.kernels import me_gather
+
+    N, M, S = len(uv), len(ks), len(moff)
+    patches = np.empty((N, M, S), np.float32)
+    k_eff = np.empty((N, M))
+    me_gather(_image(img), np.ascontiguousarray(uv, np.float64), np.ascontiguousarray(normal, np.float64), ks, moff,
+              patches, k_eff)
+    conv = np.matmul(patches, masks[mask_idx][:, :, None])[..., 0]
+    return conv, k_eff
+
+
 def reference_contrast(img_prev: np.ndarray, uv_prev: np.ndarray, normal: np.ndarray, mask_idx: np.ndarray,
                        size: int, n_masks: int, reach: int = 2) -> np.ndarray:
     """Convolution of the strongest response within ``+-reach`` px of each sample in the previous image."""
+    masks, moff = make_masks(size, n_masks)
+    conv, _ = _convolve(img_prev, uv_prev, normal, np.arange(-reach, reach + 1, dtype=np.float64), mask_idx, masks,
+                        moff)
+    j = np.argmax(np.abs(conv), axis=1)
+    return conv[np.arange(len(conv)), j]
+
+
+def reference_contrast_numpy(img_prev: np.ndarray, uv_prev: np.ndarray, normal: np.ndarray, mask_idx: np.ndarray,
+                             size: int, n_masks: int, reach: int = 2) -> np.ndarray:
+    """The numpy formulation of :func:`reference_contrast` (the reference of the kernel's tests)."""
     masks, moff = make_masks(size, n_masks)
     k = np.arange(-reach, reach + 1, dtype=np.float64)
     conv, _ = convolve_along(img_prev, uv_prev, normal, k, mask_idx, masks, moff)
@@ -115,6 +148,35 @@ def search_edges(img: np.ndarray, uv: np.ndarray, normal: np.ndarray, ref: np.nd
                  n_candidates: int = 2, mask_idx: np.ndarray | None = None,
                  edge: np.ndarray | None = None) -> EdgeMatches:
     """Search ``+-search_range`` px along each normal; keep up to ``n_candidates`` positions.
+
+    The pixels are gathered and the decisions taken (contrast test, polarity vote, local maxima,
+    candidates, sub-pixel refinement) in numba kernels (:mod:`mst.pipeline.tracking.kernels`), the
+    convolutions by the same float32 matrix product as :func:`search_edges_numpy` (see there for the
+    tests and the vote): the same outputs to the bit.
+    """
+    from mst.pipeline.tracking.kernels import me_select
+
+    if mask_idx is None:
+        normal, mask_idx = canonical_normals(normal, n_masks)
+    masks, moff = make_masks(size, n_masks)
+    R = int(search_range)
+    ks = np.arange(-R, R + 1, dtype=np.float64)
+    conv, k_eff = _convolve(img, uv, normal, ks, mask_idx, masks, moff)
+    C = min(int(n_candidates), len(ks))
+    has_ref = ref is not None
+    ref32 = np.ascontiguousarray(ref, np.float32) if has_ref else np.zeros(0, np.float32)
+    vote = (not has_ref) and edge is not None and len(edge) > 0
+    e = np.ascontiguousarray(edge, np.int64) if vote else np.zeros(0, np.int64)
+    off, like, cb = me_select(np.ascontiguousarray(conv), k_eff, ks, R, ref32, has_ref, float(threshold), float(mu1),
+                              float(mu2), e, vote, C)
+    return EdgeMatches(off, like, normal, cb)
+
+
+def search_edges_numpy(img: np.ndarray, uv: np.ndarray, normal: np.ndarray, ref: np.ndarray | None, *,
+                       search_range: int, threshold: float, mu1: float, mu2: float, size: int, n_masks: int,
+                       n_candidates: int = 2, mask_idx: np.ndarray | None = None,
+                       edge: np.ndarray | None = None) -> EdgeMatches:
+    """The numpy formulation of :func:`search_edges` (the reference of the kernel's tests). Search ``+-search_range`` px along each normal; keep up to ``n_candidates`` positions.
 
     ``normal`` must be canonical (see :func:`canonical_normals`) when ``ref`` is given, and
     ``mask_idx`` the matching mask indices (computed here when None). Without a reference and

@@ -18,9 +18,16 @@ Steps for one pose (:func:`visible_samples`):
    numba scanline fill of every face's plane, at reduced resolution); a sample survives when it
    is not farther than the nearest surface in its 3x3 neighbourhood. Convex models skip this step.
 
+Models with >= 1000 faces (a city) have a :class:`~.spatial_index.FaceIndex`: step 1 then looks only at
+the faces of the grid cells in the view frustum (a query reused while the camera barely moves), and
+the per-vertex and per-edge work covers the front faces in view only; the samples are bit-identical
+to those of the all-faces path (tests/test_visibility_index.py). Such a model's face hysteresis is
+kept for the faces in the view frustum (a face entering the view must be within ``angle_appear``).
+
 Length: :func:`visible_samples` is one numeric pass over all samples, longer than 80 lines by design: it was moved, not
 rewritten, when the tracking package was formed (issue #10), so that the order of its floating-point
-operations, and the outputs, stay bit-identical. The module (~530 lines) keeps the visibility steps and their shared clipping helpers together.
+operations, and the outputs, stay bit-identical. The depth buffer and the shared vectorised helpers are in
+:mod:`.depth_buffer`, the face grid and the reuse rule for large models in :mod:`.spatial_index`.
 """
 
 from __future__ import annotations
@@ -29,18 +36,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from mst.pipeline.tracking.depth_buffer import _loops_of, _mat3, inverse_depth_buffer
 from mst.pipeline.tracking.edge_joints import flat_t_junctions
+from mst.pipeline.tracking.spatial_index import INDEX_MIN_FACES, FaceIndex, csr_gather, frustum_planes
 
 CREASE_DEG = 5.0  # edges whose two faces' normals differ by less are not tracked
-
-
-def _mat3(X: np.ndarray, M: np.ndarray, t=None) -> np.ndarray:
-    """``X @ M.T (+ t)`` for (N,3) points without BLAS: a (N,3)x(3,3) product through OpenBLAS
-    took 63 ms for 92k points on a loaded 2-core machine (thread spinning), this 1-3 ms."""
-    out = X[:, 0:1] * M[:, 0] + X[:, 1:2] * M[:, 1] + X[:, 2:3] * M[:, 2]
-    if t is not None:
-        out += t
-    return out
 
 
 @dataclass
@@ -74,6 +74,10 @@ class ModelGeometry:
     #: bounding sphere of each face's outer loop (centre (F,3) m, radius (F,) m), for frustum culling
     face_center: np.ndarray | None = None
     face_radius: np.ndarray | None = None
+    #: (F+1,) offsets of each face's vertex ids (every ring, outer first) in ``ring_vid``
+    face_vstart: np.ndarray | None = None
+    #: grid over the faces for frustum queries (:mod:`.spatial_index`); None below INDEX_MIN_FACES
+    index: FaceIndex | None = None
 
     @classmethod
     def from_model(cls, model) -> ModelGeometry:
@@ -144,8 +148,27 @@ class ModelGeometry:
             rad = 0.5 * np.linalg.norm(hi - lo, axis=1)
         else:
             ctr, rad = np.zeros((0, 3)), np.zeros(0)
+        face_vstart = np.append(ring_start[face_ring0], len(ring_vid)).astype(np.int64) if len(faces) \
+            else np.zeros(1, np.int64)
+        index = FaceIndex(ctr, rad, ef) if len(faces) >= INDEX_MIN_FACES else None
         return cls(V, faces, holes, N, P, loop_vid, loop_start, uniq, ef, convex, size, ring_vid, ring_start,
-                   ring_len, face_ring0, face_nring, ctr, rad)
+                   ring_len, face_ring0, face_nring, ctr, rad, face_vstart, index)
+
+    def face_vertices(self, faces: np.ndarray) -> np.ndarray:
+        """Vertex ids of every ring of ``faces`` (K,) face ids, concatenated (repeats kept)."""
+        return csr_gather(self.ring_vid, self.face_vstart, faces)
+
+    def to_camera(self, T_cam_model: np.ndarray, faces: np.ndarray | None = None) -> np.ndarray:
+        """(V,3) the model vertices in the camera frame; with ``faces`` (K,) face ids only the
+        vertices of those faces and the free lines (the others NaN: never read)."""
+        R, t = T_cam_model[:3, :3], T_cam_model[:3, 3]
+        if faces is None:
+            return _mat3(self.vertices, R, t)
+        Xc = np.full(self.vertices.shape, np.nan)
+        vid = np.concatenate([self.face_vertices(faces), self.edges[self.index.free_edges].ravel()]) \
+            if self.index is not None else self.face_vertices(faces)
+        Xc[vid] = _mat3(self.vertices[vid], R, t)
+        return Xc
 
 
 @dataclass
@@ -238,122 +261,24 @@ def _clip_rect(a: np.ndarray, b: np.ndarray, x0: float, y0: float, x1: float, y1
     return s0, s1, keep
 
 
-def _clip_poly_near(P: np.ndarray, near: float) -> np.ndarray:
-    """Sutherland-Hodgman clip of one camera-frame polygon (k,3) to z >= near."""
-    out = []
-    k = len(P)
-    for i in range(k):
-        a, b = P[i], P[(i + 1) % k]
-        ina, inb = a[2] >= near, b[2] >= near
-        if ina:
-            out.append(a)
-        if ina != inb:
-            t = (near - a[2]) / (b[2] - a[2])
-            out.append(a + t * (b - a))
-    return np.array(out) if out else np.zeros((0, 3))
-
-
-def inverse_depth_buffer(geom: ModelGeometry, T_cam_model: np.ndarray, K: np.ndarray, width: int, height: int,
-                         faces: np.ndarray, near: float, scale: float = 0.5,
-                         Xc_all: np.ndarray | None = None) -> tuple[np.ndarray, float]:
-    """Render ``1/z`` (1/metres, 0 = empty) of the given faces (``(F,)`` bool) at ``scale`` x the
-    image size (``K`` the image's intrinsics, ``T_cam_model`` model -> camera).
-
-    Each face's plane makes ``1/z`` affine in the pixel coordinates. Faces wholly behind the near
-    plane ``near`` (metres) are culled, and so are faces outside the buffer (in the kernel, from
-    the projected bounding box); faces wholly in front are filled by one numba scanline call
-    (:func:`mst.pipeline.zbuffer_kernels.fill_faces`, holes honoured); the few that cross the near
-    plane are clipped (Sutherland-Hodgman) and filled with ``cv2.fillPoly``. ``Xc_all``: the
-    model vertices already in the camera frame (V,3), when the caller has them.
-    """
-    import cv2
-
-    from mst.pipeline.zbuffer_kernels import fill_faces
-
-    W, H = max(1, int(round(width * scale))), max(1, int(round(height * scale)))
-    buf = np.zeros((H, W), np.float32)
-    Ks = K.copy()
-    Ks[:2] *= scale
-    Ks[0, 2] = (K[0, 2] + 0.5) * scale - 0.5
-    Ks[1, 2] = (K[1, 2] + 0.5) * scale - 0.5
-    Kinv = np.linalg.inv(Ks)
-    R, t = T_cam_model[:3, :3], T_cam_model[:3, 3]
-    sel = np.flatnonzero(faces)
-    if not len(sel):
-        return buf, scale
-    # plane of each selected face in the camera frame: 1/z = (n_c . Kinv [u v 1]) / d
-    n_c = _mat3(geom.face_normals[sel], R)
-    p_c = _mat3(geom.face_point[sel], R, t)
-    d = np.einsum("ij,ij->i", n_c, p_c)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        coef_sel = _mat3(n_c, Kinv.T) / d[:, None]
-    coef = np.zeros((len(geom.faces), 3))
-    coef[sel] = coef_sel
-    # depth range of each face's outer loop
-    Xc = _mat3(geom.vertices, R, t) if Xc_all is None else Xc_all
-    vid, start = _loops_of(geom, sel)
-    z_loop = Xc[vid, 2]
-    zmin = np.minimum.reduceat(z_loop, start)
-    zmax = np.maximum.reduceat(z_loop, start)
-    keep = (np.abs(d) >= 1e-12) & (zmax >= near)
-    inside = sel[keep & (zmin >= near)]
-    crossing = sel[keep & (zmin < near)]
-    if len(inside):
-        z = np.where(Xc[:, 2] > 1e-12, Xc[:, 2], 1e-12)
-        uu = (Ks[0, 0] * Xc[:, 0] + Ks[0, 1] * Xc[:, 1]) / z + Ks[0, 2]
-        vv = Ks[1, 1] * Xc[:, 1] / z + Ks[1, 2]
-        fill_faces(buf, uu, vv, geom.ring_vid, geom.ring_start, geom.ring_len, geom.face_ring0, geom.face_nring,
-                   inside.astype(np.int64), coef)
-    for f in crossing:
-        polys = []
-        for lp in [geom.faces[f], *geom.holes[f]]:
-            Pc = geom.vertices[lp] @ R.T + t
-            Pc = _clip_poly_near(Pc, near)
-            if len(Pc) < 3:
-                continue
-            uv = Pc @ Ks.T
-            uv = uv[:, :2] / uv[:, 2:3]
-            polys.append(np.round(uv * 16).astype(np.int32))
-        if not polys:
-            continue
-        allp = np.concatenate(polys) / 16.0
-        xa, ya = max(0, int(np.floor(allp[:, 0].min()))), max(0, int(np.floor(allp[:, 1].min())))
-        xb, yb = min(W - 1, int(np.ceil(allp[:, 0].max()))), min(H - 1, int(np.ceil(allp[:, 1].max())))
-        if xb < xa or yb < ya:
-            continue
-        m = np.zeros((yb - ya + 1, xb - xa + 1), np.uint8)
-        cv2.fillPoly(m, [p - np.array([xa * 16, ya * 16], np.int32) for p in polys], 1, lineType=cv2.LINE_8, shift=4)
-        a = coef[f]
-        uu = np.arange(xa, xb + 1, dtype=np.float32)
-        vv = np.arange(ya, yb + 1, dtype=np.float32)
-        iz = (a[0] * uu[None, :] + a[1] * vv[:, None] + a[2]).astype(np.float32)
-        roi = buf[ya:yb + 1, xa:xb + 1]
-        upd = (m > 0) & (iz > roi)
-        roi[upd] = iz[upd]
-    return buf, scale
-
-
 def frustum_faces(geom: ModelGeometry, T_cam_model: np.ndarray, K: np.ndarray, width: int, height: int,
-                  near: float, far: float | None = None, counts: dict | None = None) -> np.ndarray:
+                  near: float, far: float | None = None, counts: dict | None = None,
+                  among: np.ndarray | None = None) -> np.ndarray:
     """(F,) bool: faces whose bounding sphere reaches into the view frustum (the image rectangle,
     ``near`` .. ``far`` metres). One vectorised plane test per face: a city's faces behind the
     camera or beside the view never reach the per-vertex work. ``counts``: gets (F,) bool masks of
-    the faces culled as ``behind``, ``beyond_far`` and ``outside``."""
-    if not len(geom.faces):
+    the faces culled as ``behind``, ``beyond_far`` and ``outside``. ``among`` (K,) face ids: test
+    only these (a superset of the answer from :meth:`FaceIndex.candidates`; the others are False)."""
+    F = len(geom.faces)
+    if not F:
         return np.zeros(0, bool)
-    c = _mat3(geom.face_center, T_cam_model[:3, :3], T_cam_model[:3, 3])
-    r = geom.face_radius
+    sel = slice(None) if among is None else among
+    c = _mat3(geom.face_center[sel], T_cam_model[:3, :3], T_cam_model[:3, 3])
+    r = geom.face_radius[sel]
     ok = c[:, 2] >= near - r
     if far is not None and np.isfinite(far):
         ok &= c[:, 2] <= far + r
-    Kinv = np.linalg.inv(K)
-    corners = np.array([[-0.5, -0.5, 1], [width - 0.5, -0.5, 1], [width - 0.5, height - 0.5, 1], [-0.5, height - 0.5, 1]])
-    rays = corners @ Kinv.T
-    for i in range(4):  # side planes through the camera centre, inward normals
-        n = np.cross(rays[i], rays[(i + 1) % 4])
-        n /= np.linalg.norm(n)
-        if n @ np.array([0.0, 0.0, 1.0]) < 0:
-            n = -n
+    for n in frustum_planes(K, width, height):  # side planes through the camera centre, inward normals
         ok &= c @ n >= -r
     if counts is not None:
         behind = c[:, 2] < near - r
@@ -361,16 +286,22 @@ def frustum_faces(geom: ModelGeometry, T_cam_model: np.ndarray, K: np.ndarray, w
         counts["behind"] = behind
         counts["beyond_far"] = beyond & ~behind
         counts["outside"] = ~ok & ~behind & ~beyond
-    return ok
+    if among is None:
+        return ok
+    out = np.zeros(F, bool)
+    out[among[ok]] = True
+    return out
 
 
-def _loops_of(geom: ModelGeometry, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Outer-loop vertex ids of the faces ``faces`` (K,) concatenated, and each loop's start."""
-    ends = np.append(geom.loop_start[1:], len(geom.loop_vid))
-    lens = (ends - geom.loop_start)[faces]
-    start = np.concatenate([[0], np.cumsum(lens)[:-1]]).astype(np.int64)
-    pos = np.arange(int(lens.sum())) - np.repeat(start - geom.loop_start[faces], lens)
-    return geom.loop_vid[pos], start
+def view_faces(geom: ModelGeometry, T_cam_model: np.ndarray, K: np.ndarray, width: int, height: int,
+               near: float, far: float | None) -> np.ndarray | None:
+    """(F,) bool faces in the view frustum through the model's :class:`FaceIndex` (candidates
+    reused between close poses, then the exact test); None for a model without an index."""
+    if geom.index is None:
+        return None
+    far = np.inf if far is None else far
+    return frustum_faces(geom, T_cam_model, K, width, height, near, far,
+                         among=geom.index.candidates(T_cam_model, K, width, height, near, far))
 
 
 def projected_face_area_px2(geom: ModelGeometry, T_cam_model: np.ndarray, K: np.ndarray, near: float,
@@ -441,20 +372,31 @@ def visible_samples(geom: ModelGeometry, T_cam_model: np.ndarray, K: np.ndarray,
     """
     far = np.inf if far is None else far
     R, t = T_cam_model[:3, :3], T_cam_model[:3, 3]
-    Xv = _mat3(geom.vertices, R, t)  # every vertex in the camera frame, once
     culled: dict = {}
+    indexed = geom.index is not None
     if geom.face_center is not None and len(geom.faces):
         masks: dict = {}
-        in_view = frustum_faces(geom, T_cam_model, K, width, height, near, far, masks)
+        if indexed:  # the grid's candidates (reused between close poses), then the exact test
+            in_view = view_faces(geom, T_cam_model, K, width, height, near, far)
+        else:
+            in_view = frustum_faces(geom, T_cam_model, K, width, height, near, far, masks)
         fv = face_visibility(geom, T_cam_model, prev_faces, appear_deg, disappear_deg, among=in_view)
         if fv.sum() < 6:  # a failure to explain: which front-facing faces were culled, and why
+            if indexed:
+                frustum_faces(geom, T_cam_model, K, width, height, near, far, masks)
             fv_all = face_visibility(geom, T_cam_model, prev_faces, appear_deg, disappear_deg)
             culled = {k: int((m & fv_all).sum()) for k, m in masks.items()}
         else:
             fv_all = fv
     else:
         fv = fv_all = face_visibility(geom, T_cam_model, prev_faces, appear_deg, disappear_deg)
-    ef = geom.edge_faces
+    # every vertex in the camera frame, once (with an index: those of the front faces in view and
+    # of the free lines, the only ones read below, unless a failure is explained from all faces)
+    Xv = geom.to_camera(T_cam_model, np.flatnonzero(fv)) if indexed and fv_all is fv else _mat3(geom.vertices, R, t)
+    # candidate edges: with an index those adjacent to a front face in view (and the free lines),
+    # in edge order; the others cannot pass the test below
+    e_sel = geom.index.edges_of(np.flatnonzero(fv)) if indexed else slice(None)
+    ef = geom.edge_faces[e_sel]
     fv_big = fv
     if lod_min_face_px2 > 0 and len(fv):
         fv_big = fv & (projected_face_area_px2(geom, T_cam_model, K, near, Xv, fv) >= lod_min_face_px2)
@@ -462,8 +404,8 @@ def visible_samples(geom: ModelGeometry, T_cam_model: np.ndarray, K: np.ndarray,
     ev |= (ef[:, 0] < 0) & (ef[:, 1] < 0)  # free lines: always candidates
     ev_big = ((ef[:, 0] >= 0) & fv_big[np.maximum(ef[:, 0], 0)]) | ((ef[:, 1] >= 0) & fv_big[np.maximum(ef[:, 1], 0)])
     ev_big |= (ef[:, 0] < 0) & (ef[:, 1] < 0)
-    E = geom.edges[ev]
-    eid = np.flatnonzero(ev)
+    eid = np.flatnonzero(ev) if not indexed else e_sel[ev]
+    E = geom.edges[eid]
     small_face = ~ev_big[ev]
     stats = {"candidates": int(len(E)) + sum(culled.values())}
     A = Xv[E[:, 0]]

@@ -159,6 +159,142 @@ def solve_pose(T0: np.ndarray, K: np.ndarray, X_model: np.ndarray, edge: np.ndar
     with the previous weights) is undone and the damping raised. Iterations stop when a step
     moves image points by less than ``stop_px`` pixels. Samples without any candidate are
     ignored (weight 0). Fewer than 6 residuals: status ``TOO_FEW`` (no pose), see :class:`VVSResult`.
+
+    The per-sample work of an iteration runs in numba kernels (:mod:`mst.pipeline.tracking.kernels`:
+    residuals, candidate choice, edge-spread weights and the normal equations accumulated without a
+    Jacobian array, into buffers allocated once per solve); the same arithmetic as
+    :func:`solve_pose_numpy` up to the summation order of the 6x6 system.
+    """
+    from mst.pipeline.tracking.kernels import vvs_cost, vvs_linearise, vvs_residuals
+
+    fx, fy, cx, cy = float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2])
+    has = np.isfinite(cand_uv[..., 0]).any(axis=1)
+    X = np.ascontiguousarray(X_model[has], np.float64)
+    e = np.ascontiguousarray(edge[has], np.int64)
+    cand = np.where(np.isfinite(cand_uv[has]), cand_uv[has], 1e9)
+    cu, cv = np.ascontiguousarray(cand[..., 0]), np.ascontiguousarray(cand[..., 1])
+    nk = 0 if klt_X_model is None else len(klt_X_model)
+    if len(X) + 2 * nk < 6:
+        return _no_pose(T0, len(X_model), SolveStatus.TOO_FEW, min_mad_px)
+    AB = np.ascontiguousarray(np.concatenate([A_model, B_model]), np.float64)
+    nE = len(A_model)
+    T = T0.copy()
+    mu = lm_mu
+    n = len(X)
+    fmax = max(fx, fy)
+    Xc0 = X @ T[:3, :3].T + T[:3, 3]
+    iz_max = float(1.0 / max(Xc0[:, 2].min(), 1e-9)) if n else 1.0
+    xy_max = float(np.abs(Xc0[:, :2] / np.maximum(Xc0[:, 2:3], 1e-9)).max()) if n else 1.0
+    # per-solve buffers, filled in place by the kernels at every iteration
+    r_all = np.empty(cu.shape)
+    nx, ny, x, y, iz = (np.empty(n) for _ in range(5))
+    ch_buf = [np.empty(n, np.int64), np.empty(n, np.int64)]  # the current and the accepted choice
+    r_buf = [np.empty(n), np.empty(n)]
+    w_buf = [np.zeros(n), np.zeros(n)]
+    w_tukey = np.zeros(n)
+    H_buf = [np.zeros((6, 6)), np.zeros((6, 6))]
+    g_buf = [np.zeros(6), np.zeros(6)]
+    slot = 0
+
+    def evaluate(Tc):
+        vvs_residuals(np.ascontiguousarray(Tc[:3, :3]), np.ascontiguousarray(Tc[:3, 3]), X, AB, nE, e, cu, cv, fx,
+                      fy, cx, cy, r_all, nx, ny, x, y, iz)
+
+    def evaluate_klt(Tc):
+        Xc = klt_X_model @ Tc[:3, :3].T + Tc[:3, 3]
+        izk = 1.0 / Xc[:, 2]
+        xk, yk = Xc[:, 0] * izk, Xc[:, 1] * izk
+        rk = np.concatenate([fx * xk + cx - klt_uv[:, 0], fy * yk + cy - klt_uv[:, 1]])
+        Jp = _point_jacobian(xk, yk, izk, fx, fy)
+        return rk, np.concatenate([Jp[:, 0], Jp[:, 1]])
+
+    prev = None  # (T, cost, ch, w, wk, H, g) of the last accepted linearisation
+    it = 0
+    w = w_buf[0]
+    wk = np.zeros(2 * nk)
+    sigma = min_mad_px
+    H = np.zeros((6, 6))
+    r = np.zeros(n)
+    rk = np.zeros(0)
+    for it in range(1, iters + 1):  # noqa: B007 (returned)
+        evaluate(T)
+        if nk:
+            rk, Jk = evaluate_klt(T)
+        if prev is not None:
+            cost_new = float(vvs_cost(r_all, prev[2], prev[3]))
+            if nk:
+                cost_new += float(np.sum(prev[4] * rk * rk))
+            if cost_new > prev[1] * (1 + 1e-9) and mu < 1e8:
+                # undo: retry from the previous linearisation with more damping
+                mu *= 10.0
+                T_prev, _, _, _, _, Hp, gp = prev
+                try:
+                    xi = -np.linalg.solve(Hp + mu * np.diag(np.diag(Hp) + 1e-9), gp)
+                except np.linalg.LinAlgError:  # the damped system of an accepted step: not finite
+                    return _no_pose(T0, len(X_model), SolveStatus.DIVERGED, min_mad_px)
+                T = se3_exp(xi) @ T_prev
+                continue
+            mu = max(mu / 10.0, 1e-7)
+        ch, r, w, H, g = ch_buf[slot], r_buf[slot], w_buf[slot], H_buf[slot], g_buf[slot]
+        slot = 1 - slot  # the other slot holds the accepted linearisation (prev) until the next one
+        sigma, cost = vvs_linearise(r_all, ch, r, w, w_tukey, float(min_mad_px), float(tukey_c), e, nE,
+                                    bool(edge_spread_weight), SPREAD_K, nx, ny, x, y, iz, fx, fy, H, g)
+        if nk:
+            wk, _ = tukey_weights(rk, min_mad_px, tukey_c)
+            wk = wk * klt_weight
+            H = H + Jk.T @ (wk[:, None] * Jk)
+            g = g + Jk.T @ (wk * rk)
+            cost += float(np.sum(wk * rk * rk))
+        try:
+            xi = -np.linalg.solve(H + mu * np.diag(np.diag(H) + 1e-9), g)
+        except np.linalg.LinAlgError:
+            break
+        prev = (T, cost, ch, w, wk, H, g)
+        step_px = fmax * (np.abs(xi[:3]).max() * iz_max + np.abs(xi[3:]).max() * (1.0 + xy_max))
+        T = se3_exp(xi) @ T
+        if step_px < stop_px:
+            break
+    else:
+        # iteration budget spent: keep the last accepted pose
+        if prev is not None:
+            evaluate(T)
+            if float(vvs_cost(r_all, prev[2], prev[3])) > prev[1] * (1 + 1e-9):
+                T = prev[0]
+    sw = float(w.sum())
+    ssr = float(np.sum(w * r * r))
+    klt_in = None
+    if nk:
+        klt_in = (wk[:nk] > 0.5 * klt_weight) & (wk[nk:] > 0.5 * klt_weight)
+    rms = float(np.sqrt(ssr / max(sw, 1e-9)))
+    status = SolveStatus.OK
+    try:
+        cov = rms**2 * np.linalg.inv(H)
+    except np.linalg.LinAlgError:
+        cov = np.full((6, 6), np.inf)
+        status = SolveStatus.DEGENERATE
+    if not np.isfinite(T).all() or not np.isfinite(H).all():
+        status = SolveStatus.DIVERGED
+    W_full = np.zeros(len(X_model))
+    W_full[has] = w
+    Wt_full = np.zeros(len(X_model))
+    Wt_full[has] = w_tukey
+    R_full = np.full(len(X_model), np.nan)
+    R_full[has] = r
+    return VVSResult(T, H, cov, W_full, R_full, Wt_full > 0.5, sigma, rms, it, klt_in, status)
+
+
+def solve_pose_numpy(T0: np.ndarray, K: np.ndarray, X_model: np.ndarray, edge: np.ndarray, A_model: np.ndarray,
+               B_model: np.ndarray, cand_uv: np.ndarray, *, iters: int = 30, lm_mu: float = 0.01,
+               min_mad_px: float = 1.0, tukey_c: float = TUKEY_C, klt_X_model: np.ndarray | None = None,
+               klt_uv: np.ndarray | None = None, klt_weight: float = 1.0, stop_px: float = 0.1,
+               edge_spread_weight: bool = True) -> VVSResult:
+    """The numpy formulation of :func:`solve_pose` (the reference of the kernels' tests). Robust VVS from ``T0``. ``cand_uv`` (N, C, 2) candidate pixels per sample (NaN = none).
+
+    Each iteration: residuals at the current pose, candidate choice, Tukey weights, a damped
+    Gauss-Newton step; a step that raises the weighted cost (evaluated at the next iteration
+    with the previous weights) is undone and the damping raised. Iterations stop when a step
+    moves image points by less than ``stop_px`` pixels. Samples without any candidate are
+    ignored (weight 0). Fewer than 6 residuals: status ``TOO_FEW`` (no pose), see :class:`VVSResult`.
     """
     fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
     has = np.isfinite(cand_uv[..., 0]).any(axis=1)

@@ -1,0 +1,132 @@
+"""The edge tracker's numba kernels (:mod:`mst.pipeline.tracking.kernels`, issue #14) against the numpy
+formulations they replaced (``search_edges_numpy``, ``reference_contrast_numpy``, ``solve_pose_numpy``).
+
+Budget: the moving-edge search keeps numpy's float32 matrix product for the convolutions, so its
+outputs must be *identical* (NaN pattern, offsets, likelihoods, convolutions). The VVS kernels
+accumulate the 6x6 normal equations and the 3-term rigid transforms in another order than BLAS
+(rounding level, 1e-16 relative): the solved poses may differ by that rounding times the system's
+conditioning, far below 1e-9 m / 1e-9 rad, with the same iterations, weights within 1e-9 and the
+same inliers.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from mst.core.poses import inv_T, se3_exp, se3_log
+from mst.pipeline.tracking import moving_edges as me
+from mst.pipeline.tracking.vvs import solve_pose, solve_pose_numpy
+
+
+def _scene(seed: int = 3):
+    """A textured 640x480 image with a bright box, samples near its border and random ones."""
+    rng = np.random.default_rng(seed)
+    img = (rng.random((480, 640)) * 60).astype(np.uint8)
+    cv2.rectangle(img, (200, 150), (420, 330), 190, -1)
+    img = cv2.GaussianBlur(img, (5, 5), 1.0)
+    n = 600
+    t = rng.uniform(0, 1, n)
+    uv = np.c_[200 + 220 * t, 150 + rng.normal(0, 2.5, n)]
+    uv[300:] = rng.uniform([2, 2], [637, 477], (300, 2))  # some at the image border (clipped reads)
+    ang = rng.uniform(0, 2 * np.pi, n)
+    nrm = np.c_[np.cos(ang), np.sin(ang)]
+    nrm[:150] = [0.0, 1.0]
+    normal, midx = me.canonical_normals(nrm, 180)
+    return img, uv, normal, midx, rng.integers(0, 12, n)
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.float32])
+def test_moving_edge_search_is_identical_to_numpy(dtype):
+    img, uv, normal, midx, edge = _scene()
+    img = img.astype(dtype)
+    ref = me.reference_contrast(img, uv + 0.6, normal, midx, 5, 180)
+    assert np.array_equal(ref, me.reference_contrast_numpy(img, uv + 0.6, normal, midx, 5, 180))
+    for r in (None, ref):
+        for e in (None, edge):
+            for R, C in ((8, 2), (3, 3), (0, 1)):
+                kw = dict(search_range=R, threshold=12.0, mu1=0.5, mu2=0.5, size=5, n_masks=180, n_candidates=C,
+                          mask_idx=midx, edge=e)
+                a = me.search_edges(img, uv, normal, r, **kw)
+                b = me.search_edges_numpy(img, uv, normal, r, **kw)
+                assert np.isfinite(a.offset).sum() > 0
+                np.testing.assert_array_equal(a.offset, b.offset)
+                np.testing.assert_array_equal(a.likelihood, b.likelihood)
+                np.testing.assert_array_equal(a.conv, b.conv)
+                assert a.likelihood.dtype == b.likelihood.dtype and a.conv.dtype == b.conv.dtype
+
+
+def test_moving_edge_search_of_no_samples():
+    img = np.zeros((50, 60), np.uint8)
+    z = np.zeros((0, 2))
+    m = me.search_edges(img, z, z, None, search_range=4, threshold=10.0, mu1=0.5, mu2=0.5, size=5, n_masks=180,
+                        n_candidates=2, mask_idx=np.zeros(0, np.int64), edge=np.zeros(0, np.int64))
+    assert m.offset.shape == (0, 2) and m.conv.shape == (0,)
+
+
+K = np.array([[500.0, 0, 319.5], [0, 500.0, 239.5], [0, 0, 1]])
+
+
+def _box_problem(seed: int):
+    """Samples on a 20 cm cube's 12 edges 1 m away; 2 candidates each: the true projection plus
+    0.5 px normal noise, and a clutter edge 2-6 px off; 10 % gross outliers; KLT points on faces."""
+    rng = np.random.default_rng(seed)
+    c = np.array([[x, y, z] for x in (-0.1, 0.1) for y in (-0.1, 0.1) for z in (-0.1, 0.1)])
+    E = [(i, j) for i in range(8) for j in range(i + 1, 8) if np.sum(np.abs(c[i] - c[j]) > 0) == 1]
+    A, B = c[[e[0] for e in E]], c[[e[1] for e in E]]
+    t = np.linspace(0.05, 0.95, 12)
+    X = np.concatenate([A[k] + t[:, None] * (B[k] - A[k]) for k in range(len(E))])
+    edge = np.repeat(np.arange(len(E)), len(t))
+    T = se3_exp(np.array([0.02, -0.01, 1.0, 0.3, 0.5, 0.1]))
+
+    def proj(P):
+        Pc = P @ T[:3, :3].T + T[:3, 3]
+        return Pc[:, :2] / Pc[:, 2:3] * [K[0, 0], K[1, 1]] + K[:2, 2]
+
+    d = proj(B) - proj(A)
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    nrm = np.stack([-d[:, 1], d[:, 0]], 1)[edge]
+    uv = proj(X)
+    c0 = uv + rng.normal(0, 0.5, len(uv))[:, None] * nrm
+    c1 = uv + rng.choice([-1, 1], len(uv))[:, None] * rng.uniform(2, 6, len(uv))[:, None] * nrm
+    out = rng.random(len(uv)) < 0.1
+    c0[out] += rng.normal(0, 8, (out.sum(), 2))
+    cand = np.stack([c0, c1], 1)
+    cand[rng.random(len(uv)) < 0.05, 1] = np.nan  # some samples with one candidate only
+    Xk = c[rng.integers(0, 8, 30)] * rng.uniform(0.3, 1.0, (30, 1))
+    uk = proj(Xk) + rng.normal(0, 0.3, (30, 2))
+    T0 = se3_exp(np.array([0.004, -0.003, 0.01, 0.01, -0.008, 0.006])) @ T
+    return T0, X, edge, A, B, cand, Xk, uk
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+@pytest.mark.parametrize("klt", [False, True])
+def test_vvs_kernels_solve_the_numpy_pose(seed, klt):
+    T0, X, edge, A, B, cand, Xk, uk = _box_problem(seed)
+    kw = {"klt_X_model": Xk, "klt_uv": uk} if klt else {}
+    for mad, spread in ((0.3, True), (1.0, False)):
+        a = solve_pose(T0, K, X, edge, A, B, cand, min_mad_px=mad, edge_spread_weight=spread, **kw)
+        b = solve_pose_numpy(T0, K, X, edge, A, B, cand, min_mad_px=mad, edge_spread_weight=spread, **kw)
+        assert a.status is b.status and a.iters == b.iters
+        assert np.abs(se3_log(a.T_cam_model @ inv_T(b.T_cam_model))).max() < 1e-9
+        np.testing.assert_allclose(a.weights, b.weights, rtol=0, atol=1e-9)
+        assert np.array_equal(a.inlier, b.inlier)
+        np.testing.assert_allclose(a.W, b.W, rtol=1e-9, atol=1e-9 * np.abs(b.W).max())
+        assert a.rms_px == pytest.approx(b.rms_px, rel=1e-9) and a.sigma_px == pytest.approx(b.sigma_px, rel=1e-9)
+        if klt:
+            assert np.array_equal(a.klt_inlier, b.klt_inlier)
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.float32])
+def test_sobel_kernel_is_identical_to_numpy(dtype):
+    from mst.pipeline.tracking.health import sobel_at, sobel_at_numpy
+
+    img, uv, *_ = _scene(5)
+    img = img.astype(dtype) * (np.float32(1.37) if dtype == np.float32 else 1)
+    uv = np.concatenate([uv, [[-5.0, 3.0], [700.0, 500.0], [0.5, 478.5], [np.nan, 10.0]]])  # outside: clipped
+    a = sobel_at(img, uv)
+    with np.errstate(invalid="ignore"):  # numpy's cast of the NaN position
+        b = sobel_at_numpy(img, uv)
+    assert a.dtype == b.dtype == np.float32
+    np.testing.assert_array_equal(a, b)
