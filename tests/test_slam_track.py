@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from drift_helpers import budget_track as _track_budget
+from drift_helpers import calibrated_share
 
 from mst.eval.bench.slam import SAMPLE_MODEL, out_of_view, recovery_frames, trajectory_errors
 
@@ -50,8 +52,12 @@ def test_corridor_rgbd_carries_the_pose_while_the_model_is_away(corridor, tmp_pa
     _, e_off = _track(corridor, "off", tmp_path / "off.txt")
     st = e["status"]
     assert summ["aid"] == "rgbd"
-    assert not (st == "lost").any()
-    assert (st[hidden] == "slam").all()
+    # while the model is away the map runs, but its poses are output only within the drift budget
+    # (1 % / 2 deg at a 2-sigma bound): at 320x240 the edge poses that anchor it are uncertain to
+    # 0.3-0.5 % (1 sigma), so most of the stretch is withheld (`lost`, aid `drift-budget`); at
+    # 640x480 it is carried (test_slam_drift.py). The frames not output are the budget's, no others
+    assert ((st == "lost") == np.isin(e["frame"], summ["drift_budget_frames"])).all()
+    assert ((st[hidden] == "slam") | (st[hidden] == "lost")).all()
     # the model pose takes over again after the return; no re-initialisation was needed
     ret = np.flatnonzero(hidden)[-1] + 1
     assert (st[ret + 5:] == "model").mean() > 0.8
@@ -88,22 +94,48 @@ def test_corridor_mono_rejects_wrong_edge_poses_on_the_return(corridor, tmp_path
     assert summ["aid"] == {"mono": "mono", "auto": "mono-standby"}[mode]
     if mode == "auto":  # the default: the mono aid woke before the model left the view
         assert summ["aid_wakes"] >= 1 and min(summ["aid_wake_frames"]) < np.flatnonzero(hidden)[0]
-    # while the model is away the SLAM carries the pose (a frame may be lost at the end of the
-    # stretch, where the returning model's edges already contradict the drifted map)
-    assert not (st[hidden] == "model").any() and (st[hidden] == "slam").mean() > 0.9
-    ret = np.flatnonzero(hidden)[-1] + 1
+    # while the model is away the map runs, but its poses (the scale drifting to ~50 % of the
+    # distance here) are far beyond the drift budget: withheld, `lost` with aid `drift-budget`
+    # (test_slam_drift.py: the bound covers the measured error)
     rows = list(csv.DictReader(open(tmp_path / "mono.csv")))
-    # the returning model's edges were found and refused by the health score: the path tested (mono
-    # only: the default's map, replayed from 20 frames when it woke, drifts differently)
-    if mode == "mono":
-        assert any(r["reason"].startswith("health score") for r in rows[ret - 5:])
+    aid = np.array([r["aid"] for r in rows])
+    assert not (st[hidden] == "model").any() and (aid[hidden] == "drift-budget").mean() > 0.9
+    assert np.isin(np.flatnonzero(aid == "drift-budget"), summ["drift_budget_frames"]).all()
+    ret = np.flatnonzero(hidden)[-1] + 1
     # ... and every pose output as a model pose after the return is a correct one (320x240 edge noise)
     after = np.arange(len(st)) >= ret
     assert np.all(e["rel"][after & (st == "model")] < 0.01)
-    # ... and no map pose either: the drifted map (its pose was 45-63 % of the distance off after the
-    # return, output as `slam` before the aid heard of the weak edge poses) is contradicted by the
-    # image, so those frames are lost, not tracked
-    assert np.all(e["rel"][after & (st != "lost")] < 0.01)
+    # ... and no map pose either, before or after the return: the drifted map (its pose 45-63 % of
+    # the distance off at the return) is beyond its budget and contradicted by the image
+    assert np.all(e["rel"][st != "lost"] < 0.01)
+
+
+# ---------------------------------------------------------------------------- drift budget (320x240)
+@pytest.mark.parametrize("mode", ["rgbd", "mono"])
+def test_corridor_predicted_bound_covers_the_measured_error(corridor, tmp_path, mode):
+    """With the budget lifted every map pose is output with its predicted bound: the bound (2 sigma)
+    must cover the measured error on >= 95 % of them (a 2-sigma bound of an honest Gaussian error
+    covers 95 %), the rgbd aid's map (0.1-0.6 % off) and the mono map whose scale drifts to ~50 %
+    of the distance alike."""
+    _, e = _track_budget(corridor, mode, tmp_path / "t.txt", budget=False)
+    assert calibrated_share(e) >= 0.95
+
+
+@pytest.mark.parametrize("mode", ["rgbd", "mono"])
+def test_corridor_no_map_pose_beyond_the_budget(corridor, tmp_path, mode):
+    """Budget on (the default): no output pose off by more than 1 % of the distance or 2 deg; the map
+    poses withheld are marked ``drift-budget``, counted in --json, and the model frames before the
+    stretch are unchanged. At 320x240 the edge poses themselves are uncertain to ~0.3-0.5 % (1 sigma,
+    their covariance, which matches their measured error), so a 2-sigma bound of a map anchored on
+    them is ~1 % already: the stretch is mostly withheld here (640x480: the slow test below)."""
+    s, e = _track_budget(corridor, mode, tmp_path / "t.txt")
+    hidden = out_of_view(corridor)
+    out = e["status"] != "lost"
+    assert np.all(e["rel"][out] <= 0.01) and np.all(e["deg"][out] <= 2.0)
+    budget = e["aid"] == "drift-budget"
+    assert budget.any() and (e["status"][budget] == "lost").all()
+    assert s["drift_budget_frames"] == [int(f) for f in e["frame"][budget]]
+    assert (e["status"][: np.flatnonzero(hidden)[0] - 3] == "model").all()
 
 
 @pytest.mark.parametrize("drop", [8, 10])

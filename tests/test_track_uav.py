@@ -53,7 +53,7 @@ def _run(seq, d, m, slam: str, fps: float):
     err = np.linalg.norm(Te[:, :3, 3] - Tg[idx, :3, 3], axis=1)
     fg, fe = Tg[idx, :3, 2], Te[:, :3, 2]  # optical axes in the model frame (z up): heading = yaw
     dyaw = (np.degrees(np.arctan2(fe[:, 1], fe[:, 0]) - np.arctan2(fg[:, 1], fg[:, 0])) + 180) % 360 - 180
-    return {"summary": s, "idx": idx, "err": err, "dyaw": dyaw, "status": status, "cov": cov, "Tg": Tg}
+    return {"summary": s, "idx": idx, "err": err, "dyaw": dyaw, "status": status, "cov": cov, "Tg": Tg, "Te": Te}
 
 
 def _model_px(seq) -> np.ndarray:
@@ -171,6 +171,60 @@ def test_uav_survey_band_default_mode(survey):
     # the block is tracked again after the turn (the model / relocalised in the last 20 %)
     tail = [d["status"].get(k) for k in range(int(0.8 * n), n)]
     assert tail.count("model") + tail.count("relocalised") >= 0.5 * len(tail), tail
+    # the drift budget (issue 12): no `slam` pose off by more than 1 % of its distance to the model
+    # (the nearest vertex, the budget's own distance) or 2 deg; before it, 3-5 map poses at the ends
+    # of the turn were 0.8-1.4 % (40 m) up to 3-5 m off; and where both output a pose, the default is
+    # within the comparison's noise of edges only
+    _assert_slam_within_budget(d, V)
+    both = np.isin(d["idx"], o["idx"])
+    e_d, e_o = d["err"][both], o["err"][np.isin(o["idx"], d["idx"])]
+    assert _rms(e_d) <= _rms(e_o) + 0.2 * o["budget"], (_rms(e_d), _rms(e_o))
+
+
+def _assert_slam_within_budget(run, V) -> None:
+    """Every `slam` pose of ``run`` within 1 % of its camera's distance to the nearest model vertex and 2 deg."""
+    from mst.core.poses import pose_error
+
+    sl = np.array([run["status"].get(int(k)) == "slam" for k in run["idx"]], bool)
+    if not sl.any():
+        return
+    Tg = run["Tg"][run["idx"][sl]]
+    dist = np.linalg.norm(Tg[:, None, :3, 3] - V[None], axis=2).min(1)
+    assert np.all(run["err"][sl] <= 0.01 * dist), (run["err"][sl], dist)
+    _, deg = pose_error(run["Te"][sl], Tg)
+    assert np.all(deg <= 2.0), deg
+
+
+@pytest.fixture(scope="module")
+def fpv_rotterdam(shared_data, tmp_path_factory):
+    """The FPV facade pass over Rotterdam (640x480, 150 frames, 30 m from the facade), default mode."""
+    d = tmp_path_factory.mktemp("fpvR")
+    seq = d / "seq"
+    _cli("synth", "fpv", "--model", shared_data / "cityjson/rotterdam_subset.json", "-o", seq, "--distance", 30,
+         "--no-depth", "--aa", 4, "--texture-size", 512, "-q")
+    m = _prepare(seq, d)
+    from mst.meshtools.formats import load_model
+
+    return _run(seq, d, m, "auto", 30.0), load_model(m).vertices
+
+
+@pytest.mark.slow
+def test_fpv_rotterdam_no_slam_pose_beyond_the_budget(fpv_rotterdam):
+    """Issue 11/12: the edges lose the facade after a few frames; the default's map then output
+    `slam` poses 25 m and 18 deg off. With the drift budget no map pose beyond 1 % / 2 deg is output."""
+    run, V = fpv_rotterdam
+    _assert_slam_within_budget(run, V)
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="`model` poses: the first 5 (from the clicks) are 1.5-4.8 % off, and after a "
+                   "74-frame loss the edge search from the held pose locks onto the facades 24 m off and passes "
+                   "the health score (frames 79-98)")
+def test_fpv_rotterdam_no_wrong_output_pose(fpv_rotterdam):
+    run, V = fpv_rotterdam
+    Tg = run["Tg"][run["idx"]]
+    dist = np.linalg.norm(Tg[:, None, :3, 3] - V[None], axis=2).min(1)
+    assert np.all(run["err"] <= 0.01 * dist)
 
 
 # ---------------------------------------------------------------------------- policy

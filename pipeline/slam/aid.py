@@ -52,6 +52,7 @@ pose perturbations are on the left (camera frame): ``T = exp(delta) @ T0``. Pixe
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from pathlib import Path
 
@@ -62,6 +63,7 @@ from mst.core.klt import to_gray
 from mst.pipeline.depth_io import DepthConfig, list_depth_frames
 from mst.pipeline.slam.ba import LocalBA
 from mst.pipeline.slam.config import SlamConfig, slam_depth_config
+from mst.pipeline.slam.drift import DriftBudget
 from mst.pipeline.slam.frontend import FrontEnd
 from mst.pipeline.slam.keyframes import KeyframeMap
 from mst.pipeline.slam.landmarks import Landmarks
@@ -69,7 +71,7 @@ from mst.pipeline.slam.policy import AidPolicy
 from mst.pipeline.slam.state import STATUS_MODEL, FrameState, Keyframe
 
 
-class ModelAidedSlam(FrontEnd, Landmarks, AidPolicy, KeyframeMap, LocalBA):
+class ModelAidedSlam(FrontEnd, Landmarks, AidPolicy, KeyframeMap, LocalBA, DriftBudget):
     """The SLAM aid called by the tracking loop (see :func:`mst.pipeline.slam.make_aid` for the arguments).
 
     State shared by its parts: the tracks of the current frame (``pts`` (N, 2) float32 pixels,
@@ -113,10 +115,19 @@ class ModelAidedSlam(FrontEnd, Landmarks, AidPolicy, KeyframeMap, LocalBA):
         self.first_xn = np.zeros((0, 2))          # normalised coordinates at the first observation
         self.tri_deg = np.zeros(0)                # mono: parallax (deg) of the track's triangulation, 0 = none
         self.first_P = np.zeros((0, 3, 4))        # [R|t] of that frame (model -> camera)
+        self.first_sig = np.zeros((0, 2))         # that frame's pose uncertainty: map part (m, rad) ...
+        self.first_C = np.zeros((0, 6, 6))        # ... and its fit's twist covariance (:mod:`.drift`)
         self._next_tid = 0
+        self._last_pnp_sig: tuple | None = None
         # landmarks: id -> model point, and whether it was anchored under a model (edge) pose
         self.lm: dict[int, np.ndarray] = {}
         self.lm_model: dict[int, bool] = {}
+        self.lm_sig: dict[int, tuple[float, float, float]] = {}  #: (corr m, ind m, rot rad) 1-sigma (:mod:`.drift`)
+        self._pose_sig = (0.0, 0.0, np.zeros((6, 6)))  # sigmas of the pose the map is being extended under
+        self._out_sig: tuple | None = None  # sigmas of the last output map pose
+        self._reloc_sig: tuple | None = None
+        self.drift_log: dict[int, tuple[float, float]] = {}  #: frame -> (bound / distance, bound deg)
+        self.drift_budget_frames: list[int] = []  #: map poses beyond the drift budget (not output)
         self._export: list[np.ndarray] = []
         self._n_export = 0
         self.kfs: deque[Keyframe] = deque(maxlen=max(2, self.cfg.ba_window))
@@ -164,6 +175,7 @@ class ModelAidedSlam(FrontEnd, Landmarks, AidPolicy, KeyframeMap, LocalBA):
         if self.prev_gray is not None and len(self.pts):
             self._track(gray, T_cv)
             st.T, st.W, st.n_inliers = self._pnp(T_cv)
+            st.sig = self._last_pnp_sig
         self._cur = st
         self._cur_gray = gray
         self.timing_ms["predict"] += (time.perf_counter() - t0) * 1e3
@@ -176,9 +188,13 @@ class ModelAidedSlam(FrontEnd, Landmarks, AidPolicy, KeyframeMap, LocalBA):
         return None
 
     def update(self, k: int, gray: np.ndarray, T_cam_model_edges: np.ndarray | None,
-               W: np.ndarray | None, healthy: bool, weak_edge_pose: np.ndarray | None = None
-               ) -> tuple[np.ndarray | None, str]:
+               W: np.ndarray | None, healthy: bool, weak_edge_pose: np.ndarray | None = None,
+               cov_edges: np.ndarray | None = None) -> tuple[np.ndarray | None, str]:
         """Fuse the edge tracker's pose for frame ``k``; return ``(T_cam_model_out or None, status)``.
+
+        ``cov_edges``: the edge pose's 6x6 twist covariance (its residual RMS^2 x W^-1, the tracker's
+        ``FrameResult.cov``): the uncertainty that model-anchored landmarks inherit (drift budget,
+        :mod:`.drift`); None: ``edge_sigma_px^2 W^-1``.
 
         ``weak_edge_pose``: an edge pose that passed the tracker's absolute tests but not its
         calibrated health score (too weak to be output or to move the map). When the map pose lies
@@ -203,7 +219,13 @@ class ModelAidedSlam(FrontEnd, Landmarks, AidPolicy, KeyframeMap, LocalBA):
             v.contradicted = True
             self.stats["weak_contradictions"] += 1
         T_out, status = self._output(k, gray, T_cam_model_edges, W, st, slam_ok, v)
+        self._out_sig = None
         if T_out is not None:
+            if status == STATUS_MODEL:
+                ok_cov = cov_edges is not None and np.isfinite(cov_edges).all()
+                self._pose_sig = (0.0, 0.0, np.asarray(cov_edges, float).copy()) if ok_cov else self._model_pose_sig(W)
+            else:
+                self._pose_sig = self._out_sig = st.sig if st.sig is not None else (math.inf, math.inf, np.full((6, 6), np.inf))
             W_prior = W if status == STATUS_MODEL else None
             T_out = self._maintain_map(k, gray, T_out, status, T_cam_model_edges if W_prior is not None else None,
                                        W_prior)

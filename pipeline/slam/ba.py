@@ -177,6 +177,7 @@ class LocalBA:
             p = result.point3D(pid)
             if p.error > cfg.ba_max_error_px or not np.isfinite(p.xyz).all():
                 self.lm.pop(t, None)
+                self.lm_sig.pop(t, None)
             else:
                 self.lm[t] = np.asarray(p.xyz, float).copy()
         if status != STATUS_SLAM:

@@ -105,6 +105,11 @@ class SlamConfig(Config):
     #: lost: no map pose is output against its image's evidence
     disagree_rel: float = param(0.01, min=0, help="output bound: edge and map poses further apart (x scene depth) leave the frame lost")
     disagree_deg: float = param(2.0, min=0, help="output bound in rotation, deg")
+    #: the drift budget (:mod:`mst.pipeline.slam.drift`): a map pose is output only while its
+    #: propagated uncertainty bound (drift_sigmas x sigma) is within these (the issue's 1 % / 2 deg)
+    drift_budget_rel: float = param(0.01, min=0, help="drift budget: a map pose's uncertainty bound must be within this x its distance to the model")
+    drift_budget_deg: float = param(2.0, min=0, help="drift budget in rotation, deg")
+    drift_sigmas: float = param(2.0, min=0, min_open=True, help="the uncertainty bound of a map pose, x its propagated 1-sigma")
     # relocalisation and the exported map
     reloc_keyframes: int = param(40, min=1, max=100_000, help="keyframes kept for relocalisation")
     reloc_min_inliers: int = param(20, min=4, max=100_000, help="ORB matches / PnP inliers needed to relocalise")

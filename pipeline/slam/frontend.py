@@ -84,11 +84,14 @@ class FrontEnd:
         self.first_xn = self.first_xn[keep]
         self.tri_deg = self.tri_deg[keep]
         self.first_P = self.first_P[keep]
+        self.first_sig = self.first_sig[keep]
+        self.first_C = self.first_C[keep]
 
     def _pnp(self, T_guess: np.ndarray | None) -> tuple[np.ndarray | None, np.ndarray | None, int]:
         """PnP + RANSAC on tracks with landmarks; drops outlier tracks' landmarks."""
         import cv2
 
+        self._last_pnp_sig = None
         X = self._landmark_array(self.tid)
         has = np.flatnonzero(np.isfinite(X[:, 0]))
         if len(has) < max(6, self.cfg.pnp_min_inliers):
@@ -107,12 +110,19 @@ class FrontEnd:
         keep[has[~good]] = False
         for t in self.tid[has[~good]]:
             self.lm.pop(int(t), None)
+            self.lm_sig.pop(int(t), None)
+        tids_in = self.tid[has[good]]
         self._keep_tracks(keep)
         R = np.ascontiguousarray(T[:3, :3])  # a contiguous copy, not T's view: the product's last bits as they were
         Xc = Xh[good] @ R.T + T[:3, 3]
         if len(Xc):
             self.scene_depth = float(np.median(Xc[:, 2]))
-        return T, pose_information(self.K, Xc), int(good.sum())
+        W = pose_information(self.K, Xc)
+        if len(Xc) >= 7:
+            # the fit's noise: its reprojection RMS (2 residuals per point, 6 parameters)
+            rms = float(np.sqrt(np.sum(err[good] ** 2) / max(2 * len(Xc) - 6, 1)))
+            self._last_pnp_sig = self._pnp_sig(tids_in, W, rms)
+        return T, W, int(good.sum())
 
     def _replenish(self, gray: np.ndarray, T: np.ndarray) -> None:
         """Detect new corners away from the tracked ones, at most a fair share per grid cell."""
@@ -162,4 +172,6 @@ class FrontEnd:
         self.first_xn = np.r_[self.first_xn, self._normalised(uv)]
         self.tri_deg = np.r_[self.tri_deg, np.full(m, tri_deg)]
         self.first_P = np.r_[self.first_P, np.broadcast_to(T[:3], (m, 3, 4))]
+        self.first_sig = np.r_[self.first_sig, np.broadcast_to(np.asarray(self._pose_sig[:2], float), (m, 2))]
+        self.first_C = np.r_[self.first_C, np.broadcast_to(self._pose_sig[2], (m, 6, 6))]
         return tids

@@ -14,6 +14,7 @@ import math
 import numpy as np
 
 from mst.core.poses import inv_T, pnp_ransac, refine_pnp, se3_log, transform_points
+from mst.pipeline.slam.geometry import pose_information
 from mst.pipeline.slam.state import STATUS_MODEL, Keyframe
 
 
@@ -76,8 +77,10 @@ class KeyframeMap:
             if D is not None:
                 Xc = self._depth_at(D, uv)
                 Xk = transform_points(inv_T(T), Xc)
+                Sk = self._depth_landmark_sig(Xc)
             else:
                 Xk = np.full((len(uv), 3), np.nan)
+                Sk = np.full((len(uv), 3), np.inf)
                 has = np.flatnonzero(np.isfinite(X[:, 0]))
                 if len(has):
                     q = self.pts[has].astype(np.float64)
@@ -85,9 +88,11 @@ class KeyframeMap:
                     j = np.argmin(d2, axis=1)
                     near = d2[np.arange(len(uv)), j] < 9.0
                     Xk[near] = X[has[j[near]]]
+                    inf3 = (np.inf,) * 3
+                    Sk[near] = np.array([self.lm_sig.get(int(t), inf3) for t in self.tid[has[j[near]]]]).reshape(-1, 3)
             ok = np.isfinite(Xk[:, 0])
             if ok.sum() >= self.cfg.reloc_min_inliers:
-                kf.desc, kf.X_desc = desc[ok], Xk[ok].astype(np.float32)
+                kf.desc, kf.X_desc, kf.sig_desc = desc[ok], Xk[ok].astype(np.float32), Sk[ok]
         evicted = self.kfs[0] if len(self.kfs) == self.kfs.maxlen else None
         self.kfs.append(kf)
         self.reloc_kfs.append(kf)
@@ -112,6 +117,7 @@ class KeyframeMap:
         for t in dead:
             del self.lm[t]
             self.lm_model.pop(t, None)
+            self.lm_sig.pop(t, None)
         room = self.cfg.max_export_points - self._n_export
         if room > 0:
             self._export.append(pts[:room])
@@ -142,10 +148,18 @@ class KeyframeMap:
                 continue
             inl = inl.ravel()
             T = refine_pnp(X[inl], uv[inl], self.K, self.dist, rvec, tvec)
-            # restart the tracks from the inlier matches (new landmark ids, positions from the keyframe)
-            for t, x in zip(self._add_tracks(uv[inl], 90.0, T), X[inl]):
+            # restart the tracks from the inlier matches (new landmark ids, positions from the keyframe,
+            # their sigmas as stored with it; the pose's sigma from them: :mod:`.drift`)
+            S = kf.sig_desc[qi][inl] if kf.sig_desc is not None else np.full((len(inl), 3), np.inf)
+            tids = self._add_tracks(uv[inl], 90.0, T)
+            for t, x, s in zip(tids, X[inl], S):
                 self.lm[int(t)] = x
                 self.lm_model[int(t)] = False
+                self.lm_sig[int(t)] = (float(s[0]), float(s[1]), float(s[2]))
+            Xc = transform_points(T, X[inl])
+            self._reloc_sig = self._pnp_sig(tids, pose_information(self.K, Xc))
+            self.first_sig[-len(tids):] = self._reloc_sig[:2]
+            self.first_C[-len(tids):] = self._reloc_sig[2]
             self.stats["relocalisations"] += 1
             return T
         return None

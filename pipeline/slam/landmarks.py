@@ -61,9 +61,11 @@ class Landmarks:
             return
         T_model_cam = inv_T(T)
         X_model = transform_points(T_model_cam, X_cam[ok])
-        for t, x in zip(self.tid[idx[ok]], X_model):
+        sig = self._depth_landmark_sig(X_cam[ok])
+        for t, x, s in zip(self.tid[idx[ok]], X_model, sig):
             self.lm[int(t)] = x
             self.lm_model[int(t)] = model_pose
+            self.lm_sig[int(t)] = (float(s[0]), float(s[1]), float(s[2]))
 
 
     def _depth_frame(self, k: int) -> np.ndarray | None:
@@ -153,6 +155,9 @@ class Landmarks:
         good = (np.isfinite(X).all(1) & (X1c[:, 2] > cfg.tri_min_depth_m) & (X2c[:, 2] > cfg.tri_min_depth_m)
                 & (e1 < cfg.tri_max_reproj_px) & (e2 < cfg.tri_max_reproj_px))
         self.tri_deg[cand[good]] = ang[good]
-        for t, x in zip(self.tid[cand[good]], X[good]):
+        cg = cand[good]
+        sig = self._landmark_sig(X1c[good], X2c[good], self.first_sig[cg], self.first_C[cg], ang[good])
+        for t, x, s in zip(self.tid[cand[good]], X[good], sig):
             self.lm[int(t)] = x
             self.lm_model[int(t)] = model_pose
+            self.lm_sig[int(t)] = (float(s[0]), float(s[1]), float(s[2]))

@@ -119,8 +119,10 @@ class AidPolicy:
             T_out, status = None, STATUS_LOST
             self.frames_since_fix += 1
         else:
+            self._reloc_sig = None
             T_out = self._relocalise(gray)
             status = STATUS_SLAM if T_out is not None else STATUS_LOST
+            st.sig = self._reloc_sig
             self.frames_since_fix += 1
         return T_out, status
 
@@ -145,13 +147,13 @@ class AidPolicy:
         the object: :meth:`follow_model`. Returns True while the map still bridges."""
         streak = self._refute_streak + 1 if self.map_refuted and self.map_refuted[-1] == k - 1 else 1
         self.map_refuted.append(int(k))
+        self.stats["image_refutations"] += 1
         self._refute_streak = streak
         if streak >= self.cfg.static_world_frames:
             self.follow_model()
             self.T_hist.clear()
             return False
         return True
-        self.stats["image_refutations"] += 1
 
     def _process_noise(self) -> np.ndarray:
         """Per-frame random-walk covariance (v, w) of the SLAM pose against the model frame."""

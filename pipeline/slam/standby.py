@@ -40,7 +40,7 @@ class StandbyAid:
     def __init__(self, camera: Camera, config: SlamConfig | Mapping | None = None):
         self.camera, self.config = camera, SlamConfig.from_dict(config)
         sb = self.config.standby
-        self.buf: deque[tuple[int, np.ndarray, np.ndarray, np.ndarray | None]] = deque(maxlen=max(2, sb.buffer_frames))
+        self.buf: deque[tuple] = deque(maxlen=max(2, sb.buffer_frames))
         self.wake_info_ratio, self.sleep_after = sb.wake_info_ratio, sb.sleep_after_frames
         self.aid: ModelAidedSlam | None = None
         self.info_ref: float | None = None
@@ -48,6 +48,8 @@ class StandbyAid:
         self._retired: list[np.ndarray] = []
         self._fired: list[int] = []
         self._refuted: list[int] = []
+        self._budget: list[int] = []
+        self._drift_log: dict[int, tuple[float, float]] = {}
         self.stats = {"wakes": 0, "sleeps": 0, "frames_active": 0, "wake_frames": []}
         self.timing_ms = {"wake": 0.0}
 
@@ -65,6 +67,20 @@ class StandbyAid:
     def map_refuted(self) -> list[int]:
         """Frames whose map pose the image refuted (:meth:`ModelAidedSlam.refute_map_pose`)."""
         return self._refuted + (self.aid.map_refuted if self.aid is not None else [])
+
+    @property
+    def drift_budget_frames(self) -> list[int]:
+        """Frames whose map pose was beyond the drift budget (:meth:`ModelAidedSlam.within_budget`)."""
+        return self._budget + (self.aid.drift_budget_frames if self.aid is not None else [])
+
+    @property
+    def drift_log(self) -> dict[int, tuple[float, float]]:
+        """Frame -> (bound / distance, bound deg) of every map pose (:mod:`mst.pipeline.slam.drift`)."""
+        return {**self._drift_log, **(self.aid.drift_log if self.aid is not None else {})}
+
+    def within_budget(self, k: int, distance_m: float) -> bool:
+        """The active map's pose of frame ``k`` is within its drift budget (True when asleep)."""
+        return self.aid.within_budget(k, distance_m) if self.aid is not None else True
 
     def refute_map_pose(self, k: int) -> bool:
         """The image refutes the active map's pose of frame ``k``: see :meth:`ModelAidedSlam.refute_map_pose`."""
@@ -85,9 +101,9 @@ class StandbyAid:
 
         t0 = time.perf_counter()
         self.aid = ModelAidedSlam("mono", self.camera, self.config)
-        for kb, gb, Tb, Wb in self.buf:
+        for kb, gb, Tb, Wb, Cb in self.buf:
             self.aid.predict(kb, gb, Tb)
-            self.aid.update(kb, gb, Tb, Wb, True)
+            self.aid.update(kb, gb, Tb, Wb, True, cov_edges=Cb)
         self.buf.clear()
         self.n_strong = 0
         self.stats["wakes"] += 1
@@ -101,23 +117,26 @@ class StandbyAid:
         return None if self.aid is None else self.aid.predict(k, gray, T_cam_model_prev)
 
     def update(self, k: int, gray: np.ndarray, T_cam_model_edges: np.ndarray | None,
-               W: np.ndarray | None, healthy: bool, weak_edge_pose: np.ndarray | None = None
-               ) -> tuple[np.ndarray | None, str]:
+               W: np.ndarray | None, healthy: bool, weak_edge_pose: np.ndarray | None = None,
+               cov_edges: np.ndarray | None = None) -> tuple[np.ndarray | None, str]:
         """As :meth:`ModelAidedSlam.update`; asleep, a healthy strong edge pose is output as is."""
         if self.aid is None and not self.needs_wake(healthy, W):
-            self.buf.append((k, to_gray(gray), np.asarray(T_cam_model_edges, float).copy(), np.asarray(W, float)))
+            self.buf.append((k, to_gray(gray), np.asarray(T_cam_model_edges, float).copy(), np.asarray(W, float),
+                             None if cov_edges is None else np.asarray(cov_edges, float).copy()))
             tr = float(np.trace(W))
             self.info_ref = tr if self.info_ref is None else 0.9 * self.info_ref + 0.1 * tr
             return np.asarray(T_cam_model_edges, float).copy(), STATUS_MODEL
         if self.aid is None:  # the loop did not call wake() (hook contract): wake now
             self.wake(k, gray, T_cam_model_edges)
-        T_out, status = self.aid.update(k, gray, T_cam_model_edges, W, healthy, weak_edge_pose)
+        T_out, status = self.aid.update(k, gray, T_cam_model_edges, W, healthy, weak_edge_pose, cov_edges)
         self.stats["frames_active"] += 1
         self.n_strong = self.n_strong + 1 if (status == STATUS_MODEL and healthy and self._strong(W)) else 0
         if self.n_strong >= self.sleep_after:
             self._retired.append(self.aid.landmarks())
             self._fired += self.aid.static_world_fired
             self._refuted += self.aid.map_refuted
+            self._budget += self.aid.drift_budget_frames
+            self._drift_log.update(self.aid.drift_log)
             self.aid.close()
             self.aid = None
             self.stats["sleeps"] += 1
@@ -135,6 +154,8 @@ class StandbyAid:
             self._retired.append(self.aid.landmarks())
             self._fired += self.aid.static_world_fired
             self._refuted += self.aid.map_refuted
+            self._budget += self.aid.drift_budget_frames
+            self._drift_log.update(self.aid.drift_log)
             self.aid.close()
             self.aid = None
         self.buf.clear()

@@ -22,6 +22,7 @@ class Keyframe:
     prior_W: np.ndarray | None = None             # its 6x6 J^T J, twist order (v, w)
     desc: np.ndarray | None = None                # (R, 32) uint8 ORB descriptors (relocalisation)
     X_desc: np.ndarray | None = None              # (R, 3) float32 model points of those descriptors
+    sig_desc: np.ndarray | None = None            # (R, 3) their (corr m, ind m, rot rad) sigmas (:mod:`.drift`)
 
 
 @dataclass
@@ -32,3 +33,4 @@ class FrameState:
     T: np.ndarray | None = None
     W: np.ndarray | None = None
     n_inliers: int = 0
+    sig: tuple | None = None  #: uncertainty (map part m, map rotation rad, 6x6 fit covariance) of T (:mod:`.drift`)

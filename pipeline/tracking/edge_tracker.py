@@ -319,9 +319,9 @@ class EdgeTracker:
             by = np.clip(np.round((iy + 0.5) * sc - 0.5).astype(np.int64), 0, buf.shape[0] - 1)
             vis = iz >= buf[by, bx] * (1.0 - 1e-2)
             idx, ix, iy = idx[vis], ix[vis], iy[vis]
-        f = gray.ravel().astype(np.float32)
+        f = gray.ravel()  # only the pixels read are converted (not the whole frame, every frame)
         b = iy * W + ix
-        val = sum(f[b + dy * W + dx] for dy in (-1, 0, 1) for dx in (-1, 0, 1)) / 9.0
+        val = sum(f[b + dy * W + dx].astype(np.float32) for dy in (-1, 0, 1) for dx in (-1, 0, 1)) / 9.0
         return idx, val.astype(np.float64)
 
     # -------------------------------------------------------------- main entry

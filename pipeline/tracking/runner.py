@@ -159,6 +159,12 @@ def _summary(records: list[FrameRecord], session: TrackingSession, aid_mode: str
     if refuted is not None:
         # frames whose map pose the image refuted with the model in view (not output: lost)
         opt["map_refuted_frames"] = [int(f) for f in refuted]
+    beyond = getattr(aid, "drift_budget_frames", None) if aid is not None else None
+    if beyond is not None and aid.drift_log:
+        # map poses whose propagated uncertainty exceeded the drift budget (not output: lost), and the
+        # bound of every map pose: frame -> [bound / model distance, bound deg]
+        opt["drift_budget_frames"] = [int(f) for f in beyond]
+        opt["slam_uncertainty"] = {str(k): [float(a), float(b)] for k, (a, b) in sorted(aid.drift_log.items())}
     if aid is not None and "wakes" in getattr(aid, "stats", {}):
         # the default aid: how often (and where) the mono SLAM was switched on, its replay cost
         opt["aid_wakes"] = int(aid.stats["wakes"])

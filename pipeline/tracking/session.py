@@ -233,6 +233,14 @@ def _shift_px(tracker: EdgeTracker, T_a: np.ndarray, T_b: np.ndarray) -> float:
     return float(np.linalg.norm(p[0] - p[1], axis=1).max())
 
 
+def model_distance(tracker: EdgeTracker, T_cam_model: np.ndarray) -> float:
+    """Distance (m) from the camera centre of ``T_cam_model`` to the nearest model vertex: the
+    distance that the drift budget of a map pose is relative to."""
+    c = -T_cam_model[:3, :3].T @ T_cam_model[:3, 3]
+    V = np.asarray(tracker.geom.vertices, float)
+    return float(np.sqrt(((V - c) ** 2).sum(1).min())) if len(V) else float("inf")
+
+
 def _standby(aid) -> bool | None:
     """The default aid's standby flag (None: an always-on aid, which has none)."""
     return getattr(aid, "standby", None)
@@ -302,7 +310,16 @@ class TrackingSession:
             # puts the object: the aid outputs no map pose that contradicts it
             weak = (fr.T_cam_model if not healthy and fr.T_cam_model is not None
                     and (fr.reason or "").startswith("health score") else None)
-            T_out, status = aid.update(idx, gray, fr.T_cam_model, fr.W, healthy, weak_edge_pose=weak)
+            T_out, status = aid.update(idx, gray, fr.T_cam_model, fr.W, healthy, weak_edge_pose=weak, cov_edges=fr.cov)
+            if status == "slam" and T_out is not None and hasattr(aid, "within_budget"):
+                # a map pose is output only while its propagated uncertainty is within the drift
+                # budget at its distance to the model (mst.pipeline.slam.drift); beyond it the
+                # map keeps running, so that the model can re-anchor it
+                if not aid.within_budget(idx, model_distance(tr, T_out)):
+                    rel, deg = aid.drift_log[idx]
+                    fr.reason = (f"drift budget: map pose uncertain to {rel:.1%} of the model distance, "
+                                 f"{deg:.2f} deg")
+                    return self._withhold(idx, time_s, gray, T_out, fr, recovering, t0)
             if status == "slam" and T_out is not None and p.monitor is not None:
                 # a map pose is output only while the image does not refute it (the model in view)
                 why = p.map_pose_refuted(tr.evidence(gray, T_out))
@@ -311,13 +328,7 @@ class TrackingSession:
                     if aid.refute_map_pose(idx):
                         # not output, but the map still bridges: the next frame goes on from its
                         # pose as from a slam frame (only the output is withheld)
-                        tr.accept(gray, T_out)
-                        p.accepted(T_out)
-                        p.update_support("slam", recovering, fr.support)
-                        p.prev_status = "slam"
-                        p.frame_done(fr)
-                        ms = (time.perf_counter() - t0) * 1000.0
-                        return FrameRecord(idx, time_s, "lost", None, fr, self._aid_state(idx), ms)
+                        return self._withhold(idx, time_s, gray, T_out, fr, recovering, t0)
                     T_out, status = None, "lost"
         else:
             T_out, status = (fr.T_cam_model, "model") if healthy else (None, "lost")
@@ -339,6 +350,20 @@ class TrackingSession:
         ms = (time.perf_counter() - t0) * 1000.0
         return FrameRecord(idx, time_s, status, T_out, fr, self._aid_state(idx), ms)
 
+    def _withhold(self, idx: int, time_s: float, gray: np.ndarray, T_map: np.ndarray, fr: FrameResult,
+                  recovering: bool, t0: float) -> FrameRecord:
+        """A map pose that is not output (``lost``) while the map still bridges: the next frame goes
+        on from it as from a slam frame (edge search start, re-acquisition, relocalisation attempts)."""
+        tr, p = self.tracker, self.policy
+        tr.accept(gray, T_map)
+        p.accepted(T_map)
+        p.update_support("slam", recovering, fr.support)
+        p.prev_status = "slam"
+        p.slam_streak += 1
+        p.frame_done(fr)
+        ms = (time.perf_counter() - t0) * 1000.0
+        return FrameRecord(idx, time_s, "lost", None, fr, self._aid_state(idx), ms)
+
     def _aid_state(self, idx: int) -> str:
         aid = self.aid
         if aid is None:
@@ -346,7 +371,10 @@ class TrackingSession:
         state = "standby" if _standby(aid) else "on"
         fired = getattr(aid, "static_world_fired", None)
         refuted = getattr(aid, "map_refuted", None)
-        if fired and fired[-1] == idx:
+        beyond = getattr(aid, "drift_budget_frames", None)
+        if beyond and beyond[-1] == idx:
+            state = "drift-budget"  # the map pose's uncertainty exceeded the drift budget: not output
+        elif fired and fired[-1] == idx:
             state = "static-world-broken"  # the map's world moved against the object here
         elif refuted and refuted[-1] == idx:
             state = "map-refuted"  # the image refuted the map pose here: the map stops bridging
