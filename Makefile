@@ -20,7 +20,7 @@ $(STAMP): pyproject.toml $(LOCK) .ci/setup
 	$(BIN)/python -m mst.eval.c2m.warmup
 	@touch $(STAMP)
 
-## warmup: compile the numba kernels of mst c2m into their on-disk cache (make setup does it once;
+## warmup: compile the numba kernels of mst c2m and mst track into their on-disk cache (make setup does it once;
 ## every later process only loads them)
 warmup: $(STAMP)
 	$(BIN)/python -m mst.eval.c2m.warmup

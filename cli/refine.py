@@ -36,6 +36,16 @@ FLAGS = {"fps": "--fps", "keyframe_every": "--keyframe-every", "rounds": "--roun
               help="Refined TUM trajectory (same times as --traj).")
 @click.option("--gt", "gt", type=click.Path(dir_okay=False), default=None,
               help="Ground-truth TUM trajectory: report the ATE (position RMSE, model frame) before/after.")
+@click.option("--frames", "frames", default=None,
+              help="The tracked images (folder, video, glob): bundle adjustment of the keyframes with KLT tie "
+                   "points first (--set ba=false: off).")
+@click.option("--cov", "cov", type=click.Path(dir_okay=False), default=None,
+              help="mst track's pose covariances, the BA priors [default: traj.cov.csv beside --traj when present].")
+@click.option("--nav", "nav", type=click.Path(dir_okay=False), default=None,
+              help="GPS/AHRS log (nav.csv): GPS (Huber) and AHRS factors in the bundle adjustment, calibrated as "
+                   "by mst nav fuse (settings: nav.*).")
+@click.option("--model-to-world", "m2w", type=click.Path(dir_okay=False), default=None,
+              help="4x4 model-to-world transform for --nav (default: estimated from the log, as mst nav fuse).")
 @click.option("--fps", type=FINITE, default=None, help="Trajectory times are seconds: frame index = round(t * FPS).")
 @click.option("--keyframe-every", type=int, default=None, help="Every N-th pose is a keyframe [default: 5].")
 @click.option("--rounds", type=int, default=None, help="At most this many rounds [default: 4].")
@@ -44,11 +54,15 @@ FLAGS = {"fps": "--fps", "keyframe_every": "--keyframe-every", "rounds": "--roun
 @json_option
 @quiet_option
 @verbosity_options
-def refine(traj, model, camera, depth, output, gt, fps, keyframe_every, rounds, depth_scale, config_file, set_values,
+def refine(traj, model, camera, depth, output, gt, frames, cov, nav, m2w, fps, keyframe_every, rounds, depth_scale, config_file, set_values,
            as_json, quiet, verbose):
     """Refine a tracked trajectory globally against the model with the depth frames.
 
-    Every N-th pose is a keyframe; its depth samples (a pixel grid) are placed with its pose. Each
+    Every N-th pose is a keyframe; its depth samples (a pixel grid) are placed with its pose. With
+    --frames, first a bundle adjustment of the keyframes: KLT corners tracked keyframe to keyframe
+    as tie points (started from the depth), the tracked poses as priors with W = JᵀJ (mst track's
+    traj.cov.csv), and with --nav the GPS fixes (Huber) and AHRS attitudes through the mount
+    calibrated as mst nav fuse does; its relative motions are the ones the pose graph keeps. Each
     round: (1) robust point-to-plane ICP (Open3D, Tukey kernel) of the fused keyframe cloud onto
     the model's sampled surface, applied as one rigid correction; (2) per keyframe the same ICP
     of its own samples, a prior with the information JᵀJ of its point-to-plane residuals (frames
@@ -74,16 +88,21 @@ def refine(traj, model, camera, depth, output, gt, fps, keyframe_every, rounds, 
     from mst.pipeline.refine import refine as run_refine
 
     setup_logging(quiet, verbose, "mst refine")
-    check_outputs([output], [traj, model, camera, gt, config_file, (depth, DEPTH_SUFFIXES)])
+    check_outputs([output], [traj, model, camera, gt, cov, nav, m2w, frames, config_file, (depth, DEPTH_SUFFIXES)])
     cfg = build_config(RefineConfig, config_file=config_file, set_values=set_values, section_name="refine",
                        options={"fps": fps, "keyframe_every": keyframe_every, "rounds": rounds,
                                 "depth.scale": depth_scale}, flags=FLAGS)
-    s = run_refine(traj, model, camera, depth, output, cfg, gt_path=gt)
+    s = run_refine(traj, model, camera, depth, output, cfg, gt_path=gt, frames_path=frames, nav_path=nav, cov_path=cov,
+                   m2w_path=m2w)
     b, a = s.c2m_before, s.c2m_after
     info(f"{s.keyframes} keyframes ({s.priors} see the model), {s.rounds_kept}/{s.rounds} rounds kept; mean C2M "
          f"{b.mean_m:.4g} -> {a.mean_m:.4g} m over {b.points:,} samples near the model", quiet)
+    if s.ba.get("points"):
+        info(f"bundle adjustment: {s.ba['points']} tie points, {s.ba['observations']} observations, reprojection RMS "
+             f"{s.ba['reproj_rms_before_px']:.3g} -> {s.ba['reproj_rms_after_px']:.3g} px", quiet)
     if s.ate:
-        info(f"ATE {s.ate['before_m']:.4g} -> {s.ate['after_m']:.4g} m ({s.ate['matched']} poses)", quiet)
+        ba = f", {s.ate['after_ba_m']:.4g} m after the bundle adjustment" if "after_ba_m" in s.ate else ""
+        info(f"ATE {s.ate['before_m']:.4g} -> {s.ate['after_m']:.4g} m ({s.ate['matched']} poses{ba})", quiet)
     info(f"wrote {s.poses} poses to {output} in {s.elapsed_s:.2f} s", quiet)
     if as_json:
         emit_json(s.to_json())

@@ -100,3 +100,35 @@ def test_cli_from_nav_converges_or_refuses_a_frame_without_the_model(view, tmp_p
     r = mst(*args, "--image", tmp_path / "blank.png", "-o", tmp_path / "pose1.txt", check=False)
     assert r.returncode == 1 and "blank.png" in r.stderr and "may not show the model" in r.stderr
     assert not (tmp_path / "pose1.txt").exists()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("scenario, distance", [("orbit", None), ("flyover", 15.0)])
+def test_sample_house_is_refused_rather_than_wrong(tmp_path, scenario, distance):
+    """The issue asks for >= 95 % convergence on the bundled sample house too. NOT met: measured
+    2026-12-02, 0 of 20 (flyover, 640x480, 22 m) and 0 of 10 (orbit, 12 m) trials converge -- all
+    are refused, none wrong. At the TRUE pose the edge tracker keeps only 50-53 % of its samples as
+    inliers (the grey house on the mottled floor/terrain: Canny and the moving edges find texture
+    edges beside the model's; two roof faces shaded alike), below the 70 % the refusal asks for.
+    What must hold meanwhile: no wrong pose is ever accepted (within 0.5 % / 0.5 deg or refused)."""
+    import cv2
+
+    from mst.core.camera import read_camera
+    from mst.core.trajectory import read_pose_file
+    from mst.eval.bench.slam import SAMPLE_MODEL
+    from mst.meshtools.formats import load_tracking_model
+    from mst.pipeline.synth import SynthConfig, synthesize
+
+    out = tmp_path / scenario
+    synthesize(scenario, SAMPLE_MODEL, out, SynthConfig(frames=1, distance=distance, aa_samples=4, texture_size=512,
+                                                        depth=False))
+    T_mc = inv_T(read_pose_file(out / "cMo" / "000000.txt"))
+    cam, m = read_camera(out / "camera.json"), load_tracking_model(out / "model.obj")
+    gray = cv2.cvtColor(cv2.imread(str(sorted((out / "rgb").iterdir())[0])), cv2.COLOR_BGR2GRAY)
+    rng = np.random.default_rng(1)
+    dist = np.linalg.norm(T_mc[:3, 3] - m.vertices.mean(0))
+    for i in range(10):
+        r = auto_init(gray, m, cam, inv_T(_guess(T_mc, rng)), AutoInitConfig(seed=i))
+        if r.ok:
+            dt, dr = pose_error(inv_T(r.T_cam_model), T_mc)
+            assert dt <= 0.005 * dist and dr <= 0.5, (i, dt, dr)

@@ -89,6 +89,28 @@ def test_refine_lowers_ate_and_c2m_by_30_percent(degraded, tmp_path, mst):
     assert s["config"]["fps"] == FPS and s["priors"] >= 2
 
 
+def test_refine_bundle_adjustment_with_klt_tie_points(degraded, tmp_path, mst):
+    """--frames: the keyframes are bundle adjusted first (KLT tie points, the tracked poses as
+    priors). The degradation is a global bias of the start, which tie points cannot see: the BA
+    alone must not spoil the ATE (within 5 %), tightens the tie points to the KLT's precision
+    (reprojection RMS <= 1.5 x the 1 px sigma, below the start's), and the whole refinement still
+    meets the issue's -30 % on ATE and C2M."""
+    seq, traj = degraded
+    out = tmp_path / "refined.txt"
+    r = mst("refine", "--traj", traj, "--model", seq / "model.obj", "--camera", seq / "camera.json", "--depth",
+            seq / "depth", "--frames", seq / "rgb", "--fps", FPS, "--gt", seq / "gt.txt", "-o", out, "--json")
+    s = json.loads(r.stdout)
+    ba = s["ba"]
+    assert ba["points"] >= 100 and ba["priors_from_tracker"] >= 2, ba
+    assert ba["reproj_rms_after_px"] <= min(1.5, ba["reproj_rms_before_px"]), ba
+    assert s["ate"]["after_ba_m"] <= 1.05 * s["ate"]["before_m"], s["ate"]
+    assert s["ate"]["after_m"] <= 0.7 * s["ate"]["before_m"], s["ate"]
+    assert _model_sample_c2m(seq, out) <= 0.7 * _model_sample_c2m(seq, traj)
+    r = mst("refine", "--traj", traj, "--model", seq / "model.obj", "--camera", seq / "camera.json", "--depth",
+            seq / "depth", "--nav", seq / "gt.txt", "--fps", FPS, "-o", tmp_path / "n.txt", check=False)
+    assert r.returncode == 1 and "--frames" in r.stderr and not (tmp_path / "n.txt").exists()
+
+
 def test_refine_keeps_a_correct_trajectory(degraded, tmp_path):
     """The ground truth in: ICP on exact depth must leave it where it is. Budget: a 320x240 pixel
     is ~6 cm at 15 m, ~250 model samples per keyframe on 2-4 planes -> mm-level plane fits; 1 cm

@@ -71,7 +71,7 @@ def test_teabox_tin_matches_polygon(shared_data, tmp_path, mst):
     edges stays near the polygon-model poses on every frame: rotation within 0.5 deg (the issue's bound)
     and translation within 3 mm (3.6 px at f ~ 545 px and 0.45 m... along the optical axis the box's
     depth is ~2.7x less constrained than across: 1 px of edge disagreement x 0.83 mm/px x 2.7 = 2.2 mm,
-    bound 3 mm; the issue's 1 mm is not reached yet: measured 0.4-2.6 mm)."""
+    bound 3 mm; the issue's 1 mm is not reached yet: measured max 2.1 mm, 0.37 deg)."""
     from mst.meshtools.formats import load_model, save_triangles
     from mst.meshtools.generate import model_to_tin
 
@@ -204,3 +204,66 @@ def test_synth_torus_render_edges(tmp_path, mst):
     assert js["edges"] == "render" and js["tracked"] == 16
     dt, dr = _error_modulo_z_symmetry(read_tum(out)[1], read_tum(d / "gt.txt")[1])
     assert dt.mean() <= 0.003 * s["distance_m"] and dr.mean() <= 0.3, (dt / s["distance_m"], dr)
+
+
+@pytest.mark.slow
+def test_house_tin_render_vs_polygon(tmp_path):
+    """The bundled sample house (samples/building_tin.obj, 136 triangles) cut into 6,664 triangles and tracked
+    directly with render-based edges (320x240, 16 frames orbit at 14 m, start at the true pose): every frame
+    tracked, mean error within 10 % of tracking its polygon version (tin_to_polygons: 17 planar faces) plus a
+    floor of 0.05 % of the distance / 0.02 deg (a few tenths of a pixel, as for the box TIN above): its hips,
+    valleys and gables are creases the render finds, its concave corner a self-occlusion."""
+    from pathlib import Path
+
+    from mst.meshtools.convert import tin_to_polygons
+    from mst.meshtools.formats import load_triangles, save_model, save_triangles
+    from mst.meshtools.generate import lattice_split
+    from mst.meshtools.model import PolygonModel
+
+    V0, F0 = load_triangles(Path(__file__).parent.parent / "samples" / "building_tin.obj")
+    V, F = lattice_split(V0, F0, 7)
+    assert len(F) >= 5000
+    poly, _ = tin_to_polygons(np.asarray(V0, float), np.asarray(F0, np.int64))
+    save_triangles(tmp_path / "tin.obj", V, F)
+    save_model(tmp_path / "house.obj", poly)
+    cam = Camera(300, 300, 159.5, 119.5, 320, 240)
+    dist = 14.0
+    c = 0.5 * (V.min(0) + V.max(0))
+    poses = orbit_poses(c, dist * 0.9, dist * 0.45, 16, 1.5)
+    d = _sequence(tmp_path / "seq", PolygonModel(V, list(F)), cam, poses)
+    s_r = _track(d, tmp_path / "tin.obj", tmp_path / "r.txt", "auto")
+    s_p = _track(d, tmp_path / "house.obj", tmp_path / "p.txt", "auto")
+    assert s_r["edges"] == "render" and s_p["edges"] == "polygon"
+    assert s_r["tracked"] == 16 and s_p["tracked"] == 16
+    gt = inv_T(np.array(poses))
+    dt_r, dr_r = pose_error(read_tum(tmp_path / "r.txt")[1], gt)
+    dt_p, dr_p = pose_error(read_tum(tmp_path / "p.txt")[1], gt)
+    assert dt_r.mean() <= 1.1 * dt_p.mean() + 5e-4 * dist, (dt_r.mean(), dt_p.mean())
+    assert dr_r.mean() <= 1.1 * dr_p.mean() + 0.02, (dr_r.mean(), dr_p.mean())
+
+
+def test_bad_meshes_no_faces_and_no_contour(tmp_path):
+    """A mesh of vertices only: one clear error naming the file. An open flat patch (3,200 triangles, 20 m
+    wide) under a camera 1 m above it: no silhouette, self-occlusion or crease in view, so no frame is tracked
+    and the error says why (not a face-orientation reason of the polygon path); no trajectory written."""
+    from mst import InputError
+    from mst.core.poses import look_at
+    from mst.meshtools.formats import save_triangles
+    from mst.meshtools.generate import lattice_split
+    from mst.pipeline.tracking import TrackConfig, run_track
+
+    cam = Camera(300, 300, 159.5, 119.5, 320, 240)
+    d = _one_frame(tmp_path, None, inv_T(look_at(np.array([0.0, 0.0, 1.0]), np.array([0.1, 0.0, 0.0]), (0, 1, 0))), cam)
+    (tmp_path / "nofaces.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\n")
+    out = tmp_path / "o.txt"
+    with pytest.raises(InputError, match="no faces") as e:
+        run_track(d / "rgb", tmp_path / "nofaces.obj", d / "camera.json", d / "pose0.txt", out,
+                  TrackConfig(aid="off", edge_source="render"))
+    assert "nofaces.obj" in str(e.value) and not out.exists()
+    V = np.array([[-10, -10, 0], [10, -10, 0], [10, 10, 0], [-10, 10, 0]], float)
+    V, F = lattice_split(V, np.array([[0, 1, 2], [0, 2, 3]]), 40)
+    save_triangles(tmp_path / "plane.obj", V, F)
+    with pytest.raises(InputError, match="no contour of the mesh in view"):
+        run_track(d / "rgb", tmp_path / "plane.obj", d / "camera.json", d / "pose0.txt", out,
+                  TrackConfig(aid="off", edge_source="auto"))
+    assert not out.exists()

@@ -1,12 +1,11 @@
 """The edge tracker's numba kernels (:mod:`mst.pipeline.tracking.kernels`, issue #14) against the numpy
 formulations they replaced (``search_edges_numpy``, ``reference_contrast_numpy``, ``solve_pose_numpy``).
 
-Budget: the moving-edge search keeps numpy's float32 matrix product for the convolutions, so its
-outputs must be *identical* (NaN pattern, offsets, likelihoods, convolutions). The VVS kernels
-accumulate the 6x6 normal equations and the 3-term rigid transforms in another order than BLAS
-(rounding level, 1e-16 relative): the solved poses may differ by that rounding times the system's
-conditioning, far below 1e-9 m / 1e-9 rad, with the same iterations, weights within 1e-9 and the
-same inliers.
+Budget: none needed, the kernels are exact. The moving-edge search keeps numpy's float32 matrix
+product for the convolutions and the VVS keeps numpy's BLAS products for the rigid transforms and
+the 6x6 normal equations; everything the kernels compute is elementwise IEEE arithmetic in the numpy
+formulation's order, sequential per-edge sums as ``np.bincount``'s and exact medians. So the outputs
+must be *identical* (NaN pattern, offsets, likelihoods, convolutions; poses, weights, inliers).
 """
 
 from __future__ import annotations
@@ -109,11 +108,13 @@ def test_vvs_kernels_solve_the_numpy_pose(seed, klt):
         a = solve_pose(T0, K, X, edge, A, B, cand, min_mad_px=mad, edge_spread_weight=spread, **kw)
         b = solve_pose_numpy(T0, K, X, edge, A, B, cand, min_mad_px=mad, edge_spread_weight=spread, **kw)
         assert a.status is b.status and a.iters == b.iters
-        assert np.abs(se3_log(a.T_cam_model @ inv_T(b.T_cam_model))).max() < 1e-9
-        np.testing.assert_allclose(a.weights, b.weights, rtol=0, atol=1e-9)
-        assert np.array_equal(a.inlier, b.inlier)
-        np.testing.assert_allclose(a.W, b.W, rtol=1e-9, atol=1e-9 * np.abs(b.W).max())
-        assert a.rms_px == pytest.approx(b.rms_px, rel=1e-9) and a.sigma_px == pytest.approx(b.sigma_px, rel=1e-9)
+        np.testing.assert_array_equal(a.T_cam_model, b.T_cam_model)  # bit for bit
+        np.testing.assert_array_equal(a.weights, b.weights)
+        np.testing.assert_array_equal(a.inlier, b.inlier)
+        np.testing.assert_array_equal(a.W, b.W)
+        assert a.rms_px == b.rms_px and a.sigma_px == b.sigma_px
+        # and it is a real solve: the start was ~5 mm / 0.8 deg off the cube's true pose
+        assert np.abs(se3_log(a.T_cam_model @ inv_T(T0))).max() > 1e-3
         if klt:
             assert np.array_equal(a.klt_inlier, b.klt_inlier)
 

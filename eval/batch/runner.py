@@ -98,7 +98,8 @@ def _probe(address: str, timeout_s: float) -> None:
     try:
         socket.create_connection((host, port), timeout=min(timeout_s, 5.0)).close()
     except (ConnectionRefusedError, socket.gaierror) as e:
-        raise SchedulerError(f"cannot reach the dask scheduler at {address}: {e.strerror or e}") from None
+        raise SchedulerError(f"cannot reach the dask scheduler at {address} (within {timeout_s:g} s): "
+                             f"{e.strerror or e}") from None
     except OSError:
         return
 

@@ -36,7 +36,7 @@ def _sequence(workdir: Path, name: str, V, F) -> Path:
     return d
 
 
-def _time(d: Path) -> dict:
+def _time(d: Path, model_path: Path | None = None, mode: str = "render") -> dict:
     import cv2
 
     from mst.core.camera import read_camera
@@ -47,16 +47,17 @@ def _time(d: Path) -> dict:
     from mst.pipeline.tracking.render_edges import attach_render_edges
 
     cam = read_camera(d / "camera.json")
-    model = load_model(d / "model.obj")
+    model_path = model_path or d / "model.obj"
+    model = load_model(model_path)
     gt = read_tum(d / "gt.txt")[1]  # T_model_cam
     grays = [cv2.imread(str(f), cv2.IMREAD_GRAYSCALE) for f in sorted((d / "rgb").glob("*.png"))]
     T = T0 = inv_T(gt[0])
     tr = EdgeTracker(model, cam, TrackConfig(use_klt=False, aid="off"))
-    attach_render_edges(tr, model, d / "model.obj", "render", T0)
+    attach_render_edges(tr, model, model_path, mode, T0)
     prov = tr.sample_provider
     wall, cpu, rend, est, lost = [], [], [], [], 0
     for k, g in enumerate(grays):
-        r0 = prov.render_ms
+        r0 = prov.render_ms if prov else 0.0
         t0, c0 = time.perf_counter(), time.process_time()
         fr = tr.track(g, T, first=k == 0)
         if fr.healthy:
@@ -67,9 +68,9 @@ def _time(d: Path) -> dict:
         if k > 0:
             wall.append((time.perf_counter() - t0) * 1e3)
             cpu.append((time.process_time() - c0) * 1e3)
-            rend.append(prov.render_ms - r0)
+            rend.append((prov.render_ms if prov else 0.0) - r0)
         est.append(inv_T(T))
-    n_r = prov.n_renders
+    n_r = prov.n_renders if prov else 0
     dist = float(np.linalg.norm(gt[0][:3, 3] - 0.5 * (model.vertices.min(0) + model.vertices.max(0))))
     dt, dr = pose_error(np.array(est), gt)
     return {"frames": len(grays), "lost": lost, "median_ms": float(np.median(wall)), "cpu_median_ms": float(np.median(cpu)),
@@ -79,10 +80,34 @@ def _time(d: Path) -> dict:
             "mean_dt_pct_of_distance": float(100.0 * dt.mean() / dist), "mean_dr_deg": float(dr.mean())}
 
 
+def _house(workdir: Path) -> list[dict]:
+    """The bundled sample house as a TIN of 6,664 triangles (each of its 136 triangles cut 49 times) against
+    its polygon version (tin_to_polygons: its planar faces), the same 640x480 orbit: per-frame CPU median
+    (target <= 2x the polygon model's) and mean errors (target: within 10 % of the polygon model's)."""
+    from mst.meshtools.convert import tin_to_polygons
+    from mst.meshtools.formats import load_triangles, save_model
+    from mst.meshtools.generate import lattice_split
+
+    V0, F0 = load_triangles(Path(__file__).resolve().parents[2] / "samples" / "building_tin.obj")
+    V, F = lattice_split(V0, F0, 7)
+    d = _sequence(Path(workdir), "house_tin", V, F)
+    poly, _ = tin_to_polygons(np.asarray(V0, float), np.asarray(F0, np.int64))
+    save_model(Path(workdir) / "house_poly.obj", poly)
+    r = _time(d, d / "model.obj", "render")
+    p = _time(d, Path(workdir) / "house_poly.obj", "polygon")
+    row = {"bench": f"track --edges render house TIN {len(F)} triangles vs its polygon model 640x480 edges",
+           "target": "cpu median <= 2x polygon; errors <= 1.1x polygon (+ 0.05 % / 0.02 deg floor)",
+           **{f"tin_{k}": v for k, v in r.items()}, **{f"poly_{k}": v for k, v in p.items()}}
+    row["ok"] = bool(r["lost"] == 0 and r["cpu_median_ms"] <= 2.0 * p["cpu_median_ms"]
+                     and r["mean_dt_pct_of_distance"] <= 1.1 * p["mean_dt_pct_of_distance"] + 0.05
+                     and r["mean_dr_deg"] <= 1.1 * p["mean_dr_deg"] + 0.02)
+    return [row]
+
+
 def run(workdir: Path) -> list[dict]:
     from mst.meshtools.generate import blob
 
-    rows = []
+    rows = _house(workdir)
     for name, sub, target in (("blob20k", 5, 10.0), ("blob330k", 7, 25.0)):
         V, F = blob(subdivisions=sub)
         r = _time(_sequence(Path(workdir), name, V, F))

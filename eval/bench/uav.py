@@ -131,6 +131,9 @@ def run(workdir: Path, sizes=((640, 480), (1280, 720))) -> list[dict]:
 #: issue 11's flyover bands: metres above the ground
 ALTITUDES = (40, 120, 250)
 SURVEY_SETS = ("rotterdam_subset.json", "DH_01_subs.city.json", "delft_1b.json", "city36")
+#: camera pitch (deg below the horizon) where the scenario's 45 deg does not work: The Hague at 40 m
+#: shows only 3 model corners in frame 0 at 45 deg (the clicks need 4)
+SURVEY_PITCH = {("DH_01_subs.city.json", 40): 30.0}
 
 
 def _view_distance(Tg: np.ndarray, V: np.ndarray, cam: dict, frames) -> float:
@@ -155,11 +158,8 @@ def survey_row(name: str, altitude: float, workdir: Path, frames: int = 240,
     ``--slam off``: per mode the output frames, the frames with a building in view that were not
     output, the position error (RMS and max) over the output frames with a building in view, in m
     and in % of the camera-building distance (target 0.1 %), and over all output frames."""
-    import csv
-    import json
 
-    from mst.core.trajectory import read_tum
-    from mst.meshtools.formats import load_model, save_model
+    from mst.meshtools.formats import save_model
     from mst.meshtools.generate import city_block_model
     from mst.pipeline.tracking import TrackConfig, run_track
 
@@ -174,33 +174,61 @@ def survey_row(name: str, altitude: float, workdir: Path, frames: int = 240,
     else:
         src = SHARED / "cityjson" / name
         m = d / "m.wrl"
-    _cli("synth", "uav", "--model", src, "-o", seq, "--frames", frames, "--distance", altitude, "--width", w,
-         "--height", h, "--no-depth", "--aa", 4, "--texture-size", 512, "-q", "--overwrite")
+    pitch = SURVEY_PITCH.get((name, int(altitude)), 45.0)
+    _cli("synth", "uav", "--model", src, "-o", seq, "--frames", frames, "--distance", altitude, "--pitch", pitch,
+         "--width", w, "--height", h, "--no-depth", "--aa", 4, "--texture-size", 512, "-q", "--overwrite")
     if not name.startswith("city"):
         _cli("convert-model", seq / "model.obj", "-o", m, "-q")
     _cli("init", "--model", m, "--camera", seq / "camera.json", "--clicks", seq / "clicks.txt", "-o", d / "p0.txt", "-q")
+    for slam in ("auto", "off"):
+        run_track(seq / "rgb", m, seq / "camera.json", d / "p0.txt", d / f"traj_{slam}.txt", TrackConfig(aid=slam), fps=30)
+    return survey_metrics(d, m, f"{Path(name).stem} {int(altitude)} m")
+
+
+def survey_metrics(d: Path, model: Path, label: str) -> list[dict]:
+    """The rows of :func:`survey_row` from a run's folder (``seq/``, ``traj_auto.*``, ``traj_off.*``).
+
+    ``steady``: the flight before the hover and the turn (the first 20 %, the block in view)."""
+    import csv
+    import json
+
+    from mst.core.trajectory import read_tum
+    from mst.meshtools.formats import load_model
+
+    seq = d / "seq"
     px = np.array([int(r["model_px"]) for r in csv.DictReader(open(seq / "frames.csv"))])
     tg, Tg = read_tum(seq / "gt.txt")
+    n = len(tg)
     cam = json.loads((seq / "camera.json").read_text())
-    dist = _view_distance(Tg, load_model(m).vertices, cam, np.flatnonzero(px > 0))
+    dist = _view_distance(Tg, load_model(model).vertices, cam, np.flatnonzero(px > 0))
     rows = []
     for slam in ("auto", "off"):
         out = d / f"traj_{slam}.txt"
-        s = run_track(seq / "rgb", m, seq / "camera.json", d / "p0.txt", out, TrackConfig(aid=slam), fps=30)
+        st = [r["status"] for r in csv.DictReader(open(out.with_suffix(".csv")))]
         te, Te = read_tum(out)
         idx = np.searchsorted(np.round(tg, 6), np.round(te, 6))
         err = np.linalg.norm(Te[:, :3, 3] - Tg[idx, :3, 3], axis=1)
         seen = px[idx] > 0
-        rms = float(np.sqrt(np.mean(err[seen] ** 2))) if seen.any() else float("nan")
-        rows.append({"bench": f"uav survey {Path(name).stem} {int(altitude)} m {'default' if slam == 'auto' else 'slam off'}",
-                     "distance_m": round(dist, 1), "frames": s["frames"], "in_view": int((px > 0).sum()),
-                     "output": s["tracked"], "status_counts": dict(s["status_counts"]),
+        steady = idx < 0.2 * n
+
+        def rms(e):
+            return float(np.sqrt(np.mean(e ** 2))) if len(e) else float("nan")
+
+        counts = {k: st.count(k) for k in ("model", "relocalised", "slam", "lost")}
+        out_st = np.array([s for s in st if s != "lost"])  # the output frames' statuses, in order
+        worst = {k: round(float(err[seen & (out_st == k)].max()), 3) for k in ("model", "relocalised", "slam")
+                 if (seen & (out_st == k)).any()}
+        rows.append({"bench": f"uav survey {label} {'default' if slam == 'auto' else 'slam off'}",
+                     "distance_m": round(dist, 1), "frames": n, "in_view": int((px > 0).sum()),
+                     "output": int(len(te)), "status_counts": counts,
                      "in_view_not_output": int((px > 0).sum() - seen.sum()),
-                     "ate_in_view_m": rms, "ate_in_view_pct": 100 * rms / dist,
+                     "steady_output": int(steady.sum()), "steady_frames": int(np.ceil(0.2 * n)),
+                     "ate_steady_m": rms(err[steady]), "ate_steady_pct": 100 * rms(err[steady]) / dist,
+                     "ate_in_view_m": rms(err[seen]), "ate_in_view_pct": 100 * rms(err[seen]) / dist,
                      "max_in_view_m": float(err[seen].max()) if seen.any() else float("nan"),
-                     "ate_all_m": float(np.sqrt(np.mean(err ** 2))) if len(err) else float("nan"),
+                     "max_in_view_by_status_m": worst,
                      "target": "ATE <= 0.1 % of distance, every in-view frame output",
-                     "ok": bool(rms <= 1e-3 * dist and seen.sum() == (px > 0).sum())})
+                     "ok": bool(rms(err[seen]) <= 1e-3 * dist and seen.sum() == (px > 0).sum())})
     return rows
 
 
@@ -223,5 +251,10 @@ if __name__ == "__main__":
     wd = Path(sys.argv[1] if len(sys.argv) > 1 else "/tmp/mst-uav-survey")
     sets = sys.argv[2].split(",") if len(sys.argv) > 2 else SURVEY_SETS
     alts = [float(a) for a in sys.argv[3].split(",")] if len(sys.argv) > 3 else ALTITUDES
-    for r in survey(wd, sets, alts):
-        print(json.dumps(r), flush=True)
+    for name in sets:
+        for a in alts:
+            try:
+                for r in survey(wd, [name], [a]):
+                    print(json.dumps(r), flush=True)
+            except RuntimeError as e:  # e.g. too few model corners in frame 0 for the clicks
+                print(json.dumps({"bench": f"uav survey {Path(name).stem} {a:g} m", "error": str(e)}), flush=True)

@@ -180,7 +180,8 @@ class DenseGrid:
     Candidate triangle lists (see :class:`TriangleGrid` for the conservative rule) are computed
     lazily, the first time a point falls in a cell, and cached for the following chunks (thread
     safe). Per point the work is a cell lookup and exact float64 distances to the cell's few
-    candidates: no sorting. Points outside the grid box go to :class:`TriangleGrid`.
+    candidates: no sorting. Points outside the grid box go to a :class:`BinGrid` of the same mesh
+    (compiled path; :class:`TriangleGrid` on the numpy reference path).
     """
 
     def __init__(self, idx: MeshIndex, max_cells: int = 500_000, compiled: bool = True):
@@ -205,6 +206,7 @@ class DenseGrid:
         self._lock = threading.Lock()
         self._filled = False  # any cell computed yet
         self._tg = TriangleGrid(idx)
+        self._bins: BinGrid | None = None  # points outside the grid (compiled path), built on first need
         self.ext = ext
         nb = None
         if compiled:  # the compiled kernels (about 10x faster); the numpy path is the tests' reference
@@ -237,7 +239,13 @@ class DenseGrid:
             tri[new], d2[new], feat[new], st[new] = t2, e2, f2, s2
         out = np.nonzero(st == 1)[0]
         if len(out):
-            tri[out], d2[out], feat[out] = self._tg.nearest(P[out], max_dist)
+            # outside the dense grid: the compiled shell search of a binned grid (exact, built once on
+            # first need; the numpy coarse-to-fine search took 2.3 s for 3,000 points around a
+            # 3,072-triangle box)
+            with self._lock:
+                if self._bins is None:
+                    self._bins = BinGrid(idx, nb)
+            tri[out], d2[out], feat[out] = self._bins.nearest(P[out], max_dist)
         return tri, d2, feat
 
     def _fill(self, flat: np.ndarray) -> None:

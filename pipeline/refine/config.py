@@ -6,7 +6,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from mst.core.config import Config, param, section
+from mst.core.klt import KltConfig
 from mst.pipeline.depth_io import DepthConfig
+from mst.pipeline.nav.fusion import FusionConfig
 
 
 @dataclass
@@ -38,6 +40,22 @@ class RefineConfig(Config):
                                help="C2M statistics over the samples nearer the model than this x median depth at the "
                                     "given poses (the rest is the scene around it), distances capped at it")
     seed: int = param(0, help="seed of the model surface sampling")
+    ba: bool = param(True, help="bundle adjustment of the keyframes (KLT tie points, tracked-pose priors, nav "
+                                "factors) before the ICP rounds; needs the frames")
+    ba_sigma_px: float = param(1.0, min=0, min_open=True, help="tie point reprojection sigma, px")
+    ba_huber: float = param(3.0, min=0, min_open=True, help="Huber kernel of every whitened BA residual, sigmas")
+    ba_min_track: int = param(3, min=2, help="a tie point needs this many keyframes")
+    ba_max_px: float = param(20.0, min=0, min_open=True,
+                             help="a tie observation off by more than this at the tracked poses is a wrong match, px")
+    ba_prior_scale: float = param(1.0, min=0, min_open=True,
+                                  help="x the tracker's pose covariances (traj.cov.csv) in the BA priors")
+    ba_fallback_sigma_rel: float = param(0.01, min=0, min_open=True,
+                                         help="prior position sigma of a keyframe without a covariance (SLAM, "
+                                              "relocalised), x median depth")
+    ba_fallback_sigma_deg: float = param(1.0, min=0, min_open=True, help="its rotation sigma, deg")
+    ba_iterations: int = param(30, min=1, help="BA function evaluations, at most")
+    klt: KltConfig = section(KltConfig)
+    nav: FusionConfig = section(FusionConfig)
 
     def check(self) -> None:
         from mst.errors import ConfigError

@@ -67,7 +67,9 @@ class RefineSummary:
     output: str
     config: dict
     elapsed_s: float
-    ate: dict = field(default_factory=dict)  #: {"before_m", "after_m", "matched"} with ground truth
+    ate: dict = field(default_factory=dict)  #: {"before_m", "after_ba_m", "after_m", "matched"} with ground truth
+    ba: dict = field(default_factory=dict)   #: the bundle adjustment's counts and reprojection RMS (when run)
+    nav: dict = field(default_factory=dict)  #: the nav factors used (with --nav)
 
     def to_json(self) -> dict:
         d = {"poses": self.poses, "keyframes": self.keyframes, "priors": self.priors, "rounds": self.rounds,
@@ -77,6 +79,10 @@ class RefineSummary:
              "output": self.output, "config": self.config, "elapsed_s": self.elapsed_s}
         if self.ate:
             d["ate"] = self.ate
+        if self.ba:
+            d["ba"] = self.ba
+        if self.nav:
+            d["nav"] = self.nav
         return d
 
 
@@ -156,11 +162,100 @@ def _round(surface, cfg, clouds, normals, T_kf, Z, med):
     return T_new, priors, G
 
 
+def _keyframe_grays(frames_path, ks: np.ndarray, cam) -> list[np.ndarray]:
+    """The frames ``ks`` (indices into the source) as 8-bit gray images of the camera's size."""
+    from mst.core.klt import to_gray
+    from mst.pipeline.frames import open_frames
+
+    src = open_frames(frames_path)
+    if cam.width and cam.height and (src.width, src.height) != (cam.width, cam.height):
+        raise InputError(frames_path, f"frames are {src.width}x{src.height} but the camera is for {cam.width}x{cam.height}")
+    if int(ks.max()) >= len(src):
+        raise InputError(frames_path, f"{len(src)} frames, but the trajectory needs frame {int(ks.max())}")
+    want = {int(k): None for k in ks}
+    if src.kind == "images":
+        import cv2
+
+        for k in want:
+            img = cv2.imread(str(src.files[src.indices[k]]), cv2.IMREAD_UNCHANGED)
+            if img is None:
+                raise InputError(src.files[src.indices[k]], "image could not be read")
+            want[k] = to_gray(src._resize(img))
+    else:
+        for j, (_, _, img) in enumerate(src):
+            if j in want:
+                want[j] = to_gray(img)
+    return [want[int(k)] for k in ks]
+
+
+def _keyframe_covariances(traj_path, cov_path, t_kf, T_kf, cfg: RefineConfig, med: float) -> tuple[np.ndarray, int]:
+    """Prior covariances of the keyframes (model-frame position, rotation; :mod:`.ba`): ``mst
+    track``'s ``traj.cov.csv`` (given, or beside the trajectory) x ``ba_prior_scale``, the fallback
+    sigmas where a frame has none. Returns (C (n, 6, 6), frames with the tracker's covariance)."""
+    from dataclasses import replace
+
+    from mst.pipeline.nav.run import _is_track_cov, cov_path_for, read_track_cov
+
+    s_t, s_r = cfg.ba_fallback_sigma_rel * med, np.radians(cfg.ba_fallback_sigma_deg)
+    fallback = np.diag([s_t**2] * 3 + [s_r**2] * 3)
+    cp = Path(cov_path) if cov_path else cov_path_for(traj_path)
+    if not cp.is_file():
+        if cov_path:
+            raise InputError(cp, "covariance file does not exist")
+        return np.tile(fallback, (len(t_kf), 1, 1)), 0
+    if not _is_track_cov(cp):
+        raise InputError(cp, "not mst track's per-frame covariance file (frame, c00..c55 columns)")
+    # read_track_cov gives frames without a covariance 3x its vision sigmas: set them to the fallback
+    ncfg = replace(cfg.nav, vision_sigma_m=s_t / 3.0, vision_sigma_deg=cfg.ba_fallback_sigma_deg / 3.0)
+    C = read_track_cov(cp, traj_path, t_kf, T_kf, ncfg)
+    is_fb = np.all(np.isclose(C, fallback[None], rtol=1e-9, atol=0), axis=(1, 2))
+    C[~is_fb] *= cfg.ba_prior_scale
+    return C, int((~is_fb).sum())
+
+
+def _run_ba(cfg, traj_path, cov_path, frames_path, nav_path, files, k_kf, t_kf, T_kf, cam, med, t_all, T_all,
+            m2w_path=None):
+    """The bundle adjustment stage: -> (refined keyframe poses, BA summary, nav summary)."""
+    from mst.pipeline.refine.ba import bundle_adjust, klt_tie_tracks, nav_factors
+
+    C, n_cov = _keyframe_covariances(traj_path, cov_path, t_kf, T_kf, cfg, med)
+    grays = _keyframe_grays(frames_path, k_kf, cam)
+    depths = [read_depth(files[k], cfg.depth.scale) for k in k_kf]
+    ties = klt_tie_tracks(grays, depths, cam, T_kf, cfg.klt, cfg.ba_min_track)
+    nav_f, nav_info = None, {}
+    if nav_path is not None:
+        from mst.core.poses import read_rigid_transform
+        from mst.pipeline.nav.fusion import fuse_navigation
+        from mst.pipeline.nav.log import read_navlog
+
+        nav = read_navlog(nav_path)
+        T_wm = read_rigid_transform(m2w_path, "model-to-world file") if m2w_path is not None else None
+        res = fuse_navigation(t_all, T_all, None, nav, cfg.nav, nav_name=nav_path, T_world_model=T_wm)  # calibration
+        nav.t = nav.t + res.calib["time_offset_s"]
+        sig = np.array([cfg.nav.gps_sigma_h_m, cfg.nav.gps_sigma_h_m, cfg.nav.gps_sigma_v_m])
+        nav_f = nav_factors(t_kf, T_kf, nav, res.T_world_model, res.R_body_cam, cfg.nav.lever_arm_m, sig,
+                            np.radians(cfg.nav.ahrs_sigma_deg))
+        nav_info = {"gps_factors": int(nav_f.has_p.sum()), "ahrs_factors": int(nav_f.has_R.sum()),
+                    "world_yaw_deg": res.calib["world_yaw_deg"], "mount_ypr_deg": res.calib["mount_ypr_deg"]}
+    if len(ties.X0) == 0 and nav_f is None:
+        log.info("bundle adjustment skipped: no KLT track spans %d keyframes", cfg.ba_min_track)
+        return T_kf, {"points": 0, "skipped": "no tie points", "priors_from_tracker": n_cov}, nav_info
+    r = bundle_adjust(T_kf, C, ties, cam, cfg.ba_sigma_px, cfg.ba_huber, nav_f, cfg.ba_iterations, cfg.ba_max_px,
+                      cfg.ba_min_track)
+    return r.T_kf, {**r.to_json(), "priors_from_tracker": n_cov}, nav_info
+
+
 def refine(traj_path: str | os.PathLike, model_path: str | os.PathLike, camera_path: str | os.PathLike,
            depth_dir: str | os.PathLike, out_path: str | os.PathLike, config: RefineConfig | None = None,
-           gt_path: str | os.PathLike | None = None) -> RefineSummary:
+           gt_path: str | os.PathLike | None = None, frames_path: str | os.PathLike | None = None,
+           nav_path: str | os.PathLike | None = None, cov_path: str | os.PathLike | None = None,
+           m2w_path: str | os.PathLike | None = None) -> RefineSummary:
     """Refine ``traj_path`` (TUM ``T_model_cam``) against the model with the depth frames; write
-    ``out_path`` (TUM, the same times). Raises :class:`InputError` for bad input, before writing."""
+    ``out_path`` (TUM, the same times). With ``frames_path`` (the tracked images) and ``cfg.ba``:
+    first a bundle adjustment of the keyframes (:mod:`mst.pipeline.refine.ba`; priors from
+    ``cov_path`` or the trajectory's ``.cov.csv``, nav factors from ``nav_path``, its model-to-world
+    transform from ``m2w_path`` or estimated). Raises
+    :class:`InputError` for bad input, before writing."""
     cfg = config or RefineConfig()
     t0 = time.perf_counter()
     t, T_all = read_tum(traj_path)
@@ -188,7 +283,6 @@ def refine(traj_path: str | os.PathLike, model_path: str | os.PathLike, camera_p
     surface = ModelSurface(np.asarray(V, np.float64), np.asarray(F, np.int64), cfg.model_samples, cfg.seed)
     c2m_max = cfg.c2m_max_rel * med
     T_kf0 = T_all[kf]
-    Z = inv_T(T_kf0[:-1]) @ T_kf0[1:]
     best = T_kf0
     X0 = fused_points(clouds, best)
     near = surface.distance(X0) < c2m_max
@@ -196,6 +290,18 @@ def refine(traj_path: str | os.PathLike, model_path: str | os.PathLike, camera_p
     if before.points == 0:
         raise InputError(depth_dir, f"no depth sample lies within {c2m_max:.3g} m of the model at the given poses "
                                     "(another model, or a trajectory of another sequence?)")
+    ba_info, nav_info, T_ba = {}, {}, None
+    if nav_path is not None and not (cfg.ba and frames_path is not None):
+        raise InputError(nav_path, "nav factors are part of the bundle adjustment: give the frames (--frames) "
+                                   "and keep ba on")
+    if cfg.ba and frames_path is not None:
+        T_ba, ba_info, nav_info = _run_ba(cfg, traj_path, cov_path, frames_path, nav_path, files, k_of_pose[kf], t[kf],
+                                          T_kf0, cam, med, t, T_all, m2w_path)
+        best = T_ba
+        score = c2m_stats(surface, fused_points(clouds, best), near, c2m_max)
+        log.info(f"bundle adjustment: mean C2M {before.mean_m:.4g} -> {score.mean_m:.4g} m")
+    # the relative motions the pose graph keeps: the bundle-adjusted ones when run
+    Z = inv_T(best[:-1]) @ best[1:]
     rounds = kept = 0
     n_priors, G0 = 0, np.eye(4)
     for r in range(cfg.rounds):
@@ -211,7 +317,11 @@ def refine(traj_path: str | os.PathLike, model_path: str | os.PathLike, camera_p
         best, score, kept, n_priors = T_new, s, kept + 1, len(priors)
         if gain < cfg.min_gain:
             break
-    T_out = interpolate_corrections(k_of_pose[kf], T_kf0, best, k_of_pose, T_all) if kept else T_all
+    if T_ba is not None and not score.mean_m <= before.mean_m:  # never further from the model than the input
+        log.info("the bundle adjustment and ICP rounds did not lower the mean C2M: the input poses are kept")
+        best, score, T_ba = T_kf0, before, None
+    changed = kept or T_ba is not None
+    T_out = interpolate_corrections(k_of_pose[kf], T_kf0, best, k_of_pose, T_all) if changed else T_all
     ate = {}
     if gt is not None:
         b, m = ate_rmse(t, T_all, *gt)
@@ -219,6 +329,8 @@ def refine(traj_path: str | os.PathLike, model_path: str | os.PathLike, camera_p
         if m == 0:
             raise InputError(gt_path, "no ground-truth time matches a trajectory time")
         ate = {"before_m": b, "after_m": a, "matched": m}
+        if T_ba is not None:
+            ate["after_ba_m"] = ate_rmse(t, interpolate_corrections(k_of_pose[kf], T_kf0, T_ba, k_of_pose, T_all), *gt)[0]
     from mst.core.poses import rotation_angle_deg
 
     with atomic_output(out_path) as tmp:
@@ -228,4 +340,5 @@ def refine(traj_path: str | os.PathLike, model_path: str | os.PathLike, camera_p
         c2m_after=score, c2m_max_m=c2m_max, median_depth_m=med,
         global_correction={"translation_m": float(np.linalg.norm(G0[:3, 3])),
                            "rotation_deg": float(rotation_angle_deg(G0[:3, :3]))},
-        output=str(out_path), config=cfg.to_dict(), elapsed_s=time.perf_counter() - t0, ate=ate)
+        output=str(out_path), config=cfg.to_dict(), elapsed_s=time.perf_counter() - t0, ate=ate, ba=ba_info,
+        nav=nav_info)

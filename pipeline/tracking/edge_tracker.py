@@ -131,6 +131,8 @@ class EdgeTracker:
         """Why the samples ``S`` of a pose are too few (see :func:`visibility.explain_no_samples`)."""
         from mst.pipeline.tracking.visibility import explain_no_samples
 
+        if self.sample_provider is not None:
+            return self.sample_provider.explain(S)
         return explain_no_samples(S.stats, self.near_m or 0.0, self.cfg.far_clip_m, self.lod)
 
     def _edge_pass(self, img, K, T, search_range, ref_img, ref_T, klt=None, min_mad_px=None):
@@ -153,6 +155,8 @@ class EdgeTracker:
         m = search_edges(img, S.uv, normal, ref, search_range=int(search_range), threshold=c.edge_threshold,
                          mu1=c.mu1, mu2=c.mu2, size=c.mask_px, n_masks=c.n_masks, n_candidates=c.n_candidates,
                          mask_idx=midx, edge=S.edge)
+        if self.sample_provider is not None and ref_img is not None:  # render-based edges: contour side test
+            m = self.sample_provider.filter_matches(img, K, S, m, ref_img, ref_T)
         cand = m.candidates_uv(S.uv)
         kx, ku = (None, None) if klt is None else klt
         res = solve_pose(T, K, S.X_model, S.edge, S.A_model, S.B_model, cand, iters=c.vvs_iters, lm_mu=c.lm_mu,
@@ -315,9 +319,9 @@ class EdgeTracker:
             by = np.clip(np.round((iy + 0.5) * sc - 0.5).astype(np.int64), 0, buf.shape[0] - 1)
             vis = iz >= buf[by, bx] * (1.0 - 1e-2)
             idx, ix, iy = idx[vis], ix[vis], iy[vis]
-        f = gray.ravel().astype(np.float32)
+        f = gray.ravel()  # only the pixels read are converted (not the whole frame, every frame)
         b = iy * W + ix
-        val = sum(f[b + dy * W + dx] for dy in (-1, 0, 1) for dx in (-1, 0, 1)) / 9.0
+        val = sum(f[b + dy * W + dx].astype(np.float32) for dy in (-1, 0, 1) for dx in (-1, 0, 1)) / 9.0
         return idx, val.astype(np.float64)
 
     # -------------------------------------------------------------- main entry

@@ -26,7 +26,9 @@ Per edgelet (model frame, metres): ``X_model`` the surface point, ``t_model`` a 
 contour (creases: the crease direction; occluding contours: the direction in the viewing plane of the
 contour line, perpendicular to the view ray -- the true edge direction of a sharp silhouette, ``n_face x
 m``, gave 10 % larger errors on the box TIN orbit), and at the render pose the full-resolution pixel
-``uv_px`` and unit 2D edge normal ``normal_px`` (image x right, y down). The local line
+``uv_px`` and unit 2D edge normal ``normal_px`` (image x right, y down; for silhouettes and occlusions it
+points away from the object / near surface, and ``t_model`` is signed so that every projection of the
+local line keeps that orientation). The local line
 ``X +- h t`` projects onto the contour's tangent line: the tracker's point-to-line distance.
 
 Cost: one ray per low-resolution pixel of the window holding the mesh's projected bounding box
@@ -368,6 +370,12 @@ def extract_edgelets(renderer, T_cam_model: np.ndarray, K: np.ndarray, width: in
     t_model = tan @ R
     # the exact image of each edgelet and of its local line at the render pose
     uv, nrm_px = project_lines(X_model, t_model, T, K, 0.01 * Xcam[:, 2])
+    # orientation: the tangent's sign makes the projected normal point from side a to side b (silhouettes:
+    # out of the object into the background; occlusions: from the near surface to the far one), at every
+    # pose the line is projected at (the line and its distances are unchanged by the sign)
+    out = ((ub - ua) * nrm_px[:, 0] + (vb - va) * nrm_px[:, 1]) < 0
+    t_model = np.where(out[:, None], -t_model, t_model)
+    nrm_px = np.where(out[:, None], -nrm_px, nrm_px)
     good = np.isfinite(uv).all(1) & np.isfinite(nrm_px).all(1) & real
     return Edgelets(X_model[good], t_model[good], uv[good], nrm_px[good], Xcam[good, 2], kind[good], T.copy(), n_cand)
 

@@ -7,12 +7,11 @@
   and likelihood tests, the polarity vote of each model edge, local maxima, the best candidates and
   their parabolic sub-pixel refinement (float32 where the numpy formulation is float32, thresholds
   rounded to float32 as numpy's weak Python scalars are, float64 elsewhere).
-* :func:`vvs_residuals`, :func:`vvs_cost`, :func:`vvs_linearise`: one VVS iteration's residuals at
-  a pose (each sample's candidates against its projected model line), the weighted cost of a
-  candidate choice, and the linearisation: candidate choice, Tukey weights on the MAD scale, the
-  edge-spread re-weighting, ``J^T W J`` and ``J^T W r`` accumulated per sample (no Jacobian array). Residuals and weights are the numpy formulation's
-  to the last bit except for the order of the 3-term sums of the rigid transform and of the
-  6x6 accumulation (BLAS's order; rounding level, 1e-16 relative).
+* :func:`vvs_residuals`, :func:`vvs_linearise`: one VVS iteration's residuals at a pose (each
+  sample's candidates against its projected model line) and its linearisation (candidate choice,
+  Tukey weights on the MAD scale, the edge-spread re-weighting, the point-to-line Jacobian and its
+  weighted copy). The rigid transforms, ``J^T W J``, ``J^T W r`` and the costs stay numpy's (BLAS
+  and pairwise sums), so that the solved poses are those of the numpy formulation to the bit.
 * :func:`sobel_at`: the Sobel gradient at sample positions (the health tests).
 
 No fastmath (reproducible bit for bit), single-threaded (the tracker's one-core budget).
@@ -167,118 +166,33 @@ def me_select(conv, k_eff, ks, R, ref, has_ref, threshold, mu1, mu2, edge, vote,
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def vvs_residuals(R, t, X, AB, nE, e, cu, cv, fx, fy, cx, cy, r_all, nx, ny, x, y, iz):
-    """Residuals ``r_all (N, C)`` px of every candidate against its sample's projected model line at
-    pose ``(R, t)``, with the line normals ``nx, ny`` (N,) and the normalised coordinates and
-    inverse depth ``x, y, iz`` (N,) of the samples (all outputs filled in place)."""
-    nAB = AB.shape[0]
+def vvs_residuals(Xc, P, nE, e, cu, cv, fx, fy, cx, cy, r_all, nx, ny, x, y, iz):
+    """Residuals ``r_all (N, C)`` px of every candidate against its sample's projected model line,
+    from the samples ``Xc (N, 3)`` and the edge end points ``P (2 nE, 3)`` (A then B) in the camera
+    frame (the rigid transform stays numpy's matrix product, so that every value is the numpy
+    formulation's to the bit); also the line normals ``nx, ny`` (N,) and the normalised
+    coordinates and inverse depth ``x, y, iz`` (N,) of the samples (all outputs filled in place)."""
     lnx = np.empty(nE)
     lny = np.empty(nE)
-    pu = np.empty(nAB)
-    pv = np.empty(nAB)
-    for k in range(nAB):
-        X0, X1, X2 = AB[k, 0], AB[k, 1], AB[k, 2]
-        p0 = X0 * R[0, 0] + X1 * R[0, 1] + X2 * R[0, 2] + t[0]
-        p1 = X0 * R[1, 0] + X1 * R[1, 1] + X2 * R[1, 2] + t[1]
-        p2 = X0 * R[2, 0] + X1 * R[2, 1] + X2 * R[2, 2] + t[2]
-        pu[k] = fx * p0 / p2
-        pv[k] = fy * p1 / p2
     for k in range(nE):
-        du = pu[nE + k] - pu[k]
-        dv = pv[nE + k] - pv[k]
+        pa_u = fx * P[k, 0] / P[k, 2]
+        pa_v = fy * P[k, 1] / P[k, 2]
+        pb_u = fx * P[nE + k, 0] / P[nE + k, 2]
+        pb_v = fy * P[nE + k, 1] / P[nE + k, 2]
+        du = pb_u - pa_u
+        dv = pb_v - pa_v
         ln = np.sqrt(du * du + dv * dv) + 1e-12
         lnx[k] = -dv / ln
         lny[k] = du / ln
     C = cu.shape[1]
-    for i in range(X.shape[0]):
-        X0, X1, X2 = X[i, 0], X[i, 1], X[i, 2]
-        c0 = X0 * R[0, 0] + X1 * R[0, 1] + X2 * R[0, 2] + t[0]
-        c1 = X0 * R[1, 0] + X1 * R[1, 1] + X2 * R[1, 2] + t[1]
-        c2 = X0 * R[2, 0] + X1 * R[2, 1] + X2 * R[2, 2] + t[2]
-        q = 1.0 / c2
-        xi, yi = c0 * q, c1 * q
+    for i in range(Xc.shape[0]):
+        q = 1.0 / Xc[i, 2]
+        xi, yi = Xc[i, 0] * q, Xc[i, 1] * q
         u, v = fx * xi + cx, fy * yi + cy
         a, b = lnx[e[i]], lny[e[i]]
         nx[i], ny[i], x[i], y[i], iz[i] = a, b, xi, yi, q
         for c in range(C):
             r_all[i, c] = (u - cu[i, c]) * a + (v - cv[i, c]) * b
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def vvs_cost(r_all, ch, w):
-    """sum_i w_i r_all[i, ch_i]^2: the weighted cost of a fixed candidate choice and weights."""
-    s = 0.0
-    for i in range(r_all.shape[0]):
-        r = r_all[i, ch[i]]
-        s += w[i] * r * r
-    return s
-
-
-@njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def vvs_choose(r_all, ch, r):
-    """Per sample the candidate nearest its model line (first on ties): ``ch`` and ``r`` in place."""
-    C = r_all.shape[1]
-    for i in range(r_all.shape[0]):
-        j = 0
-        for c in range(1, C):
-            if abs(r_all[i, c]) < abs(r_all[i, j]):
-                j = c
-        ch[i] = j
-        r[i] = r_all[i, j]
-
-
-@njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def vvs_normal_equations(r, w, sigma, e, nE, spread, spread_k, nx, ny, x, y, iz, fx, fy, H, g):
-    """Edge-spread re-weighting of the Tukey weights ``w`` (in place, when ``spread``), then
-    ``H = J^T W J`` (6x6) and ``g = J^T W r`` (6,) of the point-to-line residuals, accumulated per
-    sample. Returns the weighted cost ``sum w r^2``."""
-    N = r.shape[0]
-    if spread and N > 0:
-        sw = np.zeros(nE)
-        sm = np.zeros(nE)
-        for i in range(N):
-            sw[e[i]] += w[i]
-            sm[e[i]] += w[i] * r[i]
-        for k in range(nE):
-            sw[k] += 1e-9
-            sm[k] /= sw[k]
-        sv = np.zeros(nE)
-        for i in range(N):
-            d = r[i] - sm[e[i]]
-            sv[e[i]] += w[i] * (d * d)
-        s2 = sigma * sigma
-        for i in range(N):
-            w[i] = w[i] / (1.0 + spread_k * (sv[e[i]] / sw[e[i]]) / s2)
-    for a in range(6):
-        g[a] = 0.0
-        for b in range(6):
-            H[a, b] = 0.0
-    J = np.empty(6)
-    wJ = np.empty(6)
-    cost = 0.0
-    for i in range(N):
-        a_ = nx[i] * fx
-        b_ = ny[i] * fy
-        xi, yi, q = x[i], y[i], iz[i]
-        J[0] = a_ * q
-        J[1] = b_ * q
-        J[2] = -(a_ * xi + b_ * yi) * q
-        J[3] = -a_ * xi * yi - b_ * (1.0 + yi * yi)
-        J[4] = a_ * (1.0 + xi * xi) + b_ * xi * yi
-        J[5] = b_ * xi - a_ * yi
-        wi = w[i]
-        ri = r[i]
-        cost += wi * ri * ri
-        for p in range(6):
-            wJ[p] = wi * J[p]
-        for p in range(6):
-            g[p] += wJ[p] * ri
-            for k in range(p, 6):
-                H[p, k] += J[p] * wJ[k]
-    for p in range(6):
-        for k in range(p):
-            H[p, k] = H[k, p]
-    return cost
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
@@ -295,13 +209,22 @@ def _median(a):
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def vvs_linearise(r_all, ch, r, w, w_tukey, min_scale, tukey_c, e, nE, spread, spread_k, nx, ny, x, y, iz, fx, fy,
-                  H, g):
-    """One VVS linearisation at the residuals ``r_all`` of :func:`vvs_residuals`: the candidate
-    choice (``ch``, ``r``), Tukey weights on the MAD scale floored at ``min_scale`` (``w_tukey``, and
-    ``w`` after the edge-spread re-weighting when ``spread``), ``H = J^T W J`` and ``g = J^T W r``
-    (all in place). Returns ``(sigma px, weighted cost sum w r^2)``."""
-    vvs_choose(r_all, ch, r)
+                  J, wJ):
+    """One VVS linearisation at the residuals ``r_all`` of :func:`vvs_residuals` (all outputs in
+    place): per sample the candidate nearest its model line (``ch``, ``r``; first on ties), Tukey
+    weights on the MAD scale floored at ``min_scale`` (``w_tukey``), the edge-spread re-weighting
+    (``w``, when ``spread``: an edge whose inlier residuals scatter counts less), the point-to-line
+    Jacobian ``J (N, 6)`` and ``wJ = w J``. Returns the robust scale sigma (px). The products
+    ``J^T wJ`` and ``wJ^T r`` are left to numpy's BLAS (the numpy formulation's values to the bit)."""
     n = r.shape[0]
+    C = r_all.shape[1]
+    for i in range(n):
+        j = 0
+        for c in range(1, C):
+            if abs(r_all[i, c]) < abs(r_all[i, j]):
+                j = c
+        ch[i] = j
+        r[i] = r_all[i, j]
     sigma = min_scale
     if n:
         med = _median(r)
@@ -311,8 +234,37 @@ def vvs_linearise(r_all, ch, r, w, w_tukey, min_scale, tukey_c, e, nE, spread, s
         u = r[i] / cs
         w[i] = (1.0 - u * u) ** 2 if abs(u) < 1.0 else 0.0
         w_tukey[i] = w[i]
-    cost = vvs_normal_equations(r, w, sigma, e, nE, spread and n > 0, spread_k, nx, ny, x, y, iz, fx, fy, H, g)
-    return sigma, cost
+    if spread and n > 0:
+        sw = np.zeros(nE)
+        sm = np.zeros(nE)
+        for i in range(n):
+            sw[e[i]] += w[i]
+            sm[e[i]] += w[i] * r[i]
+        for k in range(nE):
+            sw[k] += 1e-9
+            sm[k] /= sw[k]
+        sv = np.zeros(nE)
+        for i in range(n):
+            d = r[i] - sm[e[i]]
+            sv[e[i]] += w[i] * (d * d)
+        s2 = sigma * sigma
+        for k in range(nE):
+            sv[k] /= sw[k]
+        for i in range(n):
+            w[i] = w[i] / (1.0 + spread_k * sv[e[i]] / s2)
+    for i in range(n):
+        a_ = nx[i] * fx
+        b_ = ny[i] * fy
+        xi, yi, q = x[i], y[i], iz[i]
+        J[i, 0] = a_ * q
+        J[i, 1] = b_ * q
+        J[i, 2] = -(a_ * xi + b_ * yi) * q
+        J[i, 3] = -a_ * xi * yi - b_ * (1.0 + yi * yi)
+        J[i, 4] = a_ * (1.0 + xi * xi) + b_ * xi * yi
+        J[i, 5] = b_ * xi - a_ * yi
+        for p in range(6):
+            wJ[i, p] = w[i] * J[i, p]
+    return sigma
 
 
 @njit(cache=True, nogil=True, error_model="numpy")

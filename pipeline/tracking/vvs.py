@@ -160,12 +160,12 @@ def solve_pose(T0: np.ndarray, K: np.ndarray, X_model: np.ndarray, edge: np.ndar
     moves image points by less than ``stop_px`` pixels. Samples without any candidate are
     ignored (weight 0). Fewer than 6 residuals: status ``TOO_FEW`` (no pose), see :class:`VVSResult`.
 
-    The per-sample work of an iteration runs in numba kernels (:mod:`mst.pipeline.tracking.kernels`:
-    residuals, candidate choice, edge-spread weights and the normal equations accumulated without a
-    Jacobian array, into buffers allocated once per solve); the same arithmetic as
-    :func:`solve_pose_numpy` up to the summation order of the 6x6 system.
+    The per-sample work of an iteration runs in two numba kernels (:mod:`mst.pipeline.tracking.kernels`:
+    residuals; candidate choice, Tukey and edge-spread weights, Jacobian) into buffers allocated once
+    per solve; the rigid transforms, the 6x6 normal equations and the costs stay numpy's (BLAS), so
+    the result is :func:`solve_pose_numpy`'s to the bit.
     """
-    from mst.pipeline.tracking.kernels import vvs_cost, vvs_linearise, vvs_residuals
+    from mst.pipeline.tracking.kernels import vvs_linearise, vvs_residuals
 
     fx, fy, cx, cy = float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2])
     has = np.isfinite(cand_uv[..., 0]).any(axis=1)
@@ -192,13 +192,14 @@ def solve_pose(T0: np.ndarray, K: np.ndarray, X_model: np.ndarray, edge: np.ndar
     r_buf = [np.empty(n), np.empty(n)]
     w_buf = [np.zeros(n), np.zeros(n)]
     w_tukey = np.zeros(n)
-    H_buf = [np.zeros((6, 6)), np.zeros((6, 6))]
-    g_buf = [np.zeros(6), np.zeros(6)]
+    J = np.empty((n, 6))
+    wJ = np.empty((n, 6))
+    rows = np.arange(n)
     slot = 0
 
     def evaluate(Tc):
-        vvs_residuals(np.ascontiguousarray(Tc[:3, :3]), np.ascontiguousarray(Tc[:3, 3]), X, AB, nE, e, cu, cv, fx,
-                      fy, cx, cy, r_all, nx, ny, x, y, iz)
+        R, t = Tc[:3, :3], Tc[:3, 3]
+        vvs_residuals(X @ R.T + t, AB @ R.T + t, nE, e, cu, cv, fx, fy, cx, cy, r_all, nx, ny, x, y, iz)
 
     def evaluate_klt(Tc):
         Xc = klt_X_model @ Tc[:3, :3].T + Tc[:3, 3]
@@ -221,7 +222,8 @@ def solve_pose(T0: np.ndarray, K: np.ndarray, X_model: np.ndarray, edge: np.ndar
         if nk:
             rk, Jk = evaluate_klt(T)
         if prev is not None:
-            cost_new = float(vvs_cost(r_all, prev[2], prev[3]))
+            r_old = r_all[rows, prev[2]]
+            cost_new = float(np.sum(prev[3] * r_old * r_old))
             if nk:
                 cost_new += float(np.sum(prev[4] * rk * rk))
             if cost_new > prev[1] * (1 + 1e-9) and mu < 1e8:
@@ -235,10 +237,13 @@ def solve_pose(T0: np.ndarray, K: np.ndarray, X_model: np.ndarray, edge: np.ndar
                 T = se3_exp(xi) @ T_prev
                 continue
             mu = max(mu / 10.0, 1e-7)
-        ch, r, w, H, g = ch_buf[slot], r_buf[slot], w_buf[slot], H_buf[slot], g_buf[slot]
+        ch, r, w = ch_buf[slot], r_buf[slot], w_buf[slot]
         slot = 1 - slot  # the other slot holds the accepted linearisation (prev) until the next one
-        sigma, cost = vvs_linearise(r_all, ch, r, w, w_tukey, float(min_mad_px), float(tukey_c), e, nE,
-                                    bool(edge_spread_weight), SPREAD_K, nx, ny, x, y, iz, fx, fy, H, g)
+        sigma = vvs_linearise(r_all, ch, r, w, w_tukey, float(min_mad_px), float(tukey_c), e, nE,
+                              bool(edge_spread_weight), SPREAD_K, nx, ny, x, y, iz, fx, fy, J, wJ)
+        H = J.T @ wJ
+        g = wJ.T @ r
+        cost = float(np.sum(w * r * r))
         if nk:
             wk, _ = tukey_weights(rk, min_mad_px, tukey_c)
             wk = wk * klt_weight
@@ -258,7 +263,8 @@ def solve_pose(T0: np.ndarray, K: np.ndarray, X_model: np.ndarray, edge: np.ndar
         # iteration budget spent: keep the last accepted pose
         if prev is not None:
             evaluate(T)
-            if float(vvs_cost(r_all, prev[2], prev[3])) > prev[1] * (1 + 1e-9):
+            r_old = r_all[rows, prev[2]]
+            if float(np.sum(prev[3] * r_old * r_old)) > prev[1] * (1 + 1e-9):
                 T = prev[0]
     sw = float(w.sum())
     ssr = float(np.sum(w * r * r))
