@@ -1,13 +1,18 @@
 """``mst synth turntable|carried|leave|occluder|blackout`` (pipeline/synth/dynamic.py) and ``mst track`` on them.
 
-Bounds are comparisons within the run: at 320x240 the edge tracker's own error on this textured
-object is 1-1.6 % of the distance even on still frames (measured; the checker texture pulls the
-moving edges by ~2-3 px), so a pose counts as right when it is within twice the largest error of
-the still frames before anything happens (plus 2 deg for rotations, the issue's bound). The point
-of these tests is the frames where something happens: the object turning in a still room (a SLAM
-map of the room says it did not move), carried along a path, leaving the view and coming back
-moved, an occluder, black and blurred frames. The issue's own bound (1 % of the distance) is
-below the 320x240 tracker's still-frame error, so it cannot be checked at this size.
+The issue's bounds (#12), asserted at 640x480: no frame with status ``model``/``slam``/``relocalised``
+whose pose is off by more than 1 % of the distance or 2 deg, and the object re-acquired within 10
+frames of being fully visible and at rest again. Error budget at 640x480: the edge tracker's
+still-frame error on this textured object is 0.06-0.11 % of the distance and 0.04-0.08 deg
+(measured; checked below to be under half the bound, else the bound would say nothing), so 1 %
+leaves a 10x margin for the frames where something happens, while a wrong pose (a SLAM map of the
+still room given as the moving object's, a pose locked onto the background) is 2-25 % off. One test
+per scenario runs in the default suite on short sequences (30-45 frames: the events are faster per
+frame, which makes re-acquisition harder, not easier); the full-length ones are ``slow``.
+
+At 320x240 the tracker's own still-frame error is 1.2-1.7 % (the checker texture pulls the moving
+edges by ~2-3 px at that size), above the issue's bound: the 320x240 tests (``slow``) use twice
+the still-frame error (plus 2 deg for rotations) as "right", and the same 10-frame re-acquisition.
 """
 
 from __future__ import annotations
@@ -80,6 +85,89 @@ def _reacquired_within(st, truth, frames=10):
     return int(ok[0]) if len(ok) else None
 
 
+def _settled(truth) -> np.ndarray:
+    """(N,) bool: the object fully visible and at rest, nothing in the way (no occluder, black or
+    blurred frame)."""
+    return np.array([r["object_moving"] == "0" and float(r["in_view"]) == 1.0 and float(r["occluded_fraction"]) == 0.0
+                     and r["black"] == "0" and r["blur"] == "0" for r in truth])
+
+
+def _reacquired_after_event(st, truth, frames=10):
+    """Frames from the first settled frame after the scenario's last event (motion, leaving the
+    view, occluder, black or blurred frames) to the first model/relocalised frame (None: never)."""
+    ok = _settled(truth)
+    last = int(np.flatnonzero(~ok)[-1])
+    assert len(st) - (last + 1) > frames  # the sequence gives the tracker the time
+    hit = np.flatnonzero(np.isin(st[last + 1:], ["model", "relocalised"]))
+    return int(hit[0]) if len(hit) else None
+
+
+#: frames of the default-suite 640x480 sequences (short; blackout: 11 frames after the blur burst).
+#: Faster still (turntable 30, carried 32 frames: 12 deg and more per frame) is not met yet: the
+#: turntable is not re-acquired, one relocalised pose of the carried object is 1.07 % off
+SHORT_640 = {"turntable": 40, "carried": 40, "leave": 45, "occluder": 30, "blackout": 42}
+
+
+@pytest.fixture(scope="session")
+def seq640(tmp_path_factory):
+    cache = {}
+
+    def get(scenario, frames):
+        if (scenario, frames) not in cache:
+            cache[scenario, frames] = _synth(tmp_path_factory, scenario, frames, 640, 480)
+        return cache[scenario, frames]
+    return get
+
+
+def _check_issue_bounds(seq, tmp_path):
+    """The issue's bounds on one sequence in the default mode (module docstring)."""
+    s, st, rel, deg, truth = _track(seq, "auto", tmp_path / "t.txt")
+    ok = _settled(truth)
+    a0 = int(np.flatnonzero(~ok)[0])
+    assert (st[:a0] == "model").all()
+    assert np.nanmax(rel[:a0]) < 0.005 and np.nanmax(deg[:a0]) < 1.0  # the premise: still error << the bound
+    out = np.isin(st, ["model", "slam", "relocalised"])
+    assert np.isfinite(rel[out]).all()
+    wrong = np.flatnonzero(out & ((rel > 0.01) | (deg > 2.0)))
+    assert not len(wrong), [(int(k), st[k], round(100 * rel[k], 2), round(deg[k], 2)) for k in wrong]
+    k = _reacquired_after_event(st, truth)
+    assert k is not None and k <= 10, k
+    return s, st, truth
+
+
+def _scenario_checks(scenario, st, truth):
+    moving = np.array([r["object_moving"] == "1" for r in truth])
+    if scenario in ("turntable", "carried"):
+        assert not (st[moving] == "slam").any()  # no map pose of the still room given as the moving object's
+    if scenario == "leave":
+        gone = np.array([float(r["in_view"]) == 0.0 for r in truth])
+        assert gone.any() and (st[gone] == "lost").all()  # nothing of it in the view: no pose
+    if scenario == "blackout":
+        black = np.array([r["black"] == "1" for r in truth])
+        assert (st[black] == "lost").all()  # nothing to see: nothing output
+
+
+@pytest.mark.parametrize("scenario", list(SHORT_640))
+def test_issue_bounds_640_short(seq640, tmp_path, scenario):
+    """Default suite: every dynamic scenario, short, at 640x480: the issue's 1 % / 2 deg bound on
+    every output pose and re-acquisition within 10 frames."""
+    s, st, truth = _check_issue_bounds(seq640(scenario, SHORT_640[scenario]), tmp_path)
+    _scenario_checks(scenario, st, truth)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("scenario", [pytest.param(sc, marks=pytest.mark.xfail(
+    strict=True, reason="open (#12, the SLAM aid's output policy): as the object starts to slide out, a weak "
+    "healthy edge pose yields to the woken mono aid's map pose, 1.15 % / 0.74 deg off (1 px mean reprojection: "
+    "the image cannot refute it)")) if sc == "leave" else sc for sc in SHORT_640])
+def test_issue_bounds_640_full_length(seq640, tmp_path, scenario):
+    """The full-length sequences (``DEFAULT_FRAMES_DYNAMIC``) at 640x480, same bounds."""
+    from mst.pipeline.synth.dynamic import DEFAULT_FRAMES_DYNAMIC
+
+    s, st, truth = _check_issue_bounds(seq640(scenario, DEFAULT_FRAMES_DYNAMIC[scenario]), tmp_path)
+    _scenario_checks(scenario, st, truth)
+
+
 @pytest.fixture(scope="module")
 def turntable(tmp_path_factory):
     return _synth(tmp_path_factory, "turntable", 80)
@@ -97,12 +185,10 @@ def test_turntable_no_map_pose_while_the_object_turns(turntable, tmp_path, mode)
     # every output pose is right: no map (SLAM) pose of the still room given as the turning object's
     assert np.nanmax(rel[out]) <= bound and np.nanmax(deg[out]) < 2.0
     assert not (st[moving] == "slam").any()
-    if mode == "mono":
-        # the map's disagreement shows as contradicted frames (`lost`: the turning object's edge
-        # poses are refused by the health score before the gate; no map pose is output); the
-        # object at rest again in full view (its side turned 90 deg): re-acquired within 10 frames
-        k = _reacquired_within(st, truth)
-        assert k is not None and k <= 10
+    # the object at rest again in full view (its side turned 90 deg): re-acquired within 10 frames
+    # (the default: from keypoints of views rendered with the learned texture, turned by 30-90 deg)
+    k = _reacquired_within(st, truth)
+    assert k is not None and k <= 10
 
 
 @pytest.mark.slow
@@ -170,13 +256,5 @@ def test_leave_moved_and_back_no_wrong_pose(leave, tmp_path):
     assert (st[:a0] == "model").all()
     assert (st[gone] == "lost").all()  # nothing of it in the view: no pose (a map pose of the room is none)
     assert np.nanmax(rel[out]) <= 2.0 * np.nanmax(rel[:a0]) and np.nanmax(deg[out]) < 2.0
-    assert _reacquired_within(st, truth) is not None  # re-acquired (18 frames after it is at rest)
-
-
-@pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="open (#12): the relocalised poses of the turned object are refined "
-                   "1-3.5 % off and refused by the health score for 18 frames; the issue asks for 10")
-def test_leave_reacquired_within_10_frames(leave, tmp_path):
-    s, st, rel, deg, truth = _track(leave, "auto", tmp_path / "t.txt")
     k = _reacquired_within(st, truth)
-    assert k is not None and k <= 10
+    assert k is not None and k <= 10  # was 18 frames before the rendered views and the widened refinement

@@ -14,11 +14,23 @@ consensus) and ORB-SLAM2's relocalisation (at least 15 matches to try, 50 inlier
 refines the pose with the edge tracker and accepts it only through the calibrated health test
 (:class:`mst.pipeline.tracking.HealthMonitor`): a wrong PnP pose is never output.
 
+Where the object is seen from a new side (turned on a table, carried round), the keyframe alone
+does not match: every learned keyframe also seeds the database with views rendered from the model
+with its texture, the model turned about its axis nearest the image's vertical by
++-``synth_step_deg`` x 1..``synth_steps`` (default +-30/60/90 deg; see :meth:`Relocaliser._learn_views`).
+Keyframes are learned from model and relocalised frames with a health score of at least
+``learn_min_score``. (``min_inliers`` scaled down with the image size, 15 at 320x240, was tried: not needed
+with the rendered views, and on the demo's UAV pass it let relocalised poses in after which 75
+more frames were lost.) An attempt
+returns up to three PnP candidates (:meth:`Relocaliser.candidates`, most inliers first); the
+session refines each (edges from the pose, then the widened coarse-to-fine search) and takes the
+first that passes the health test.
+
 Frames: ``T_cam_model`` (model -> camera); pixels; metres. Memory and matching cost: at most
 ``max_keyframes`` keyframes of at most ``kf_features`` descriptors (32 bytes) and model points
 each; an attempt matches at most ``kf_per_attempt`` of them (the newest and, in turn, the others).
-Measured at 640x480 on the loaded 2-core machine: learning a keyframe 5.5 ms, an attempt 6-13 ms
-with one keyframe, 25-35 ms with four.
+Measured at 640x480 on the loaded 2-core machine: learning a keyframe 5.5 ms (10 ms CPU; with its
+six rendered views 75 ms CPU, 27 ms at 320x240), an attempt 6-13 ms with one keyframe, 25-35 ms with four.
 """
 
 from __future__ import annotations
@@ -51,7 +63,11 @@ class RelocConfig(Config):
     kf_min_frames: int = param(5, min=0, max=1_000_000, help="frames between learned keyframes, at least")
     kf_min_angle_deg: float = param(10.0, min=0, max=180, help="learn a view only when it differs this much from every stored one, deg")
     min_keypoints: int = param(20, min=0, max=100_000, help="a view with fewer keypoints on the model is not stored")
+    learn_min_score: float = param(0.2, min=-1, max=1, help="a tracked frame teaches a keyframe only with at least this health score (1: typical, 0: rejected)")
     every: int = param(2, min=1, max=1_000_000, help="while lost, try every n-th frame (bounded cost)")
+    synth_step_deg: float = param(30.0, min=0, max=180, help="rendered views of a learned keyframe: turned by multiples of this about the image's vertical axis through the model, deg (0: none)")
+    synth_steps: int = param(3, min=0, max=12, help="rendered views per side (3 with 30 deg: +-30, 60, 90 deg)")
+    max_synth_views: int = param(12, min=0, max=10_000, help="rendered views kept (oldest dropped)")
 
 
 class Relocaliser:
@@ -68,8 +84,11 @@ class Relocaliser:
         self.cfg = config or RelocConfig()
         self._orb = cv2.ORB_create(nfeatures=self.cfg.n_features)
         self.kfs: deque[tuple[int, np.ndarray, np.ndarray, np.ndarray]] = deque(maxlen=max(1, self.cfg.max_keyframes))
+        #: views rendered from the model with a keyframe's texture (same layout as ``kfs``)
+        self.views: deque[tuple[int, np.ndarray, np.ndarray, np.ndarray]] = deque(maxlen=max(1, self.cfg.max_synth_views))
         self._last_learn = -10**9
-        self.stats = {"keyframes": 0, "attempts": 0, "pnp_poses": 0, "ms_attempts": 0.0, "ms_learn": 0.0}
+        self.stats = {"keyframes": 0, "synth_views": 0, "attempts": 0, "pnp_poses": 0, "pnp_from_views": 0,
+                      "ms_attempts": 0.0, "ms_learn": 0.0}
 
     # ------------------------------------------------------------------ learning
     def should_learn(self, k: int, T_cam_model: np.ndarray) -> bool:
@@ -83,24 +102,22 @@ class Relocaliser:
                 return False
         return True
 
-    def learn(self, k: int, gray: np.ndarray, T_cam_model: np.ndarray) -> int:
-        """Store the ORB keypoints of ``gray`` on the model's visible surfaces at this pose; returns
-        how many were stored (0: too few, nothing stored)."""
-        import cv2
-
+    def _depth(self, T_cam_model: np.ndarray, W: int, H: int) -> np.ndarray:
+        """(H, W) float32 inverse depth (1/m, 0: off the model) of the model's visible faces at this pose."""
         from mst.pipeline.tracking.visibility import face_visibility, inverse_depth_buffer
 
-        t0 = time.perf_counter()
-        tr, H, W = self.tr, gray.shape[0], gray.shape[1]
+        tr = self.tr
         c = tr.cfg
         fv = face_visibility(tr.geom, T_cam_model, None, c.angle_appear_deg, c.angle_disappear_deg)
-        iz, _ = inverse_depth_buffer(tr.geom, T_cam_model, tr.K, W, H, fv, tr.near(T_cam_model), 1.0)
-        mask = cv2.erode((iz > 0).astype(np.uint8) * 255, np.ones((7, 7), np.uint8))  # off the outline
+        return inverse_depth_buffer(tr.geom, T_cam_model, tr.K, W, H, fv, tr.near(T_cam_model), 1.0)[0]
+
+    def _keypoints(self, gray: np.ndarray, mask: np.ndarray, iz: np.ndarray, T_cam_model: np.ndarray):
+        """ORB keypoints of ``gray`` inside ``mask`` (the strongest ``kf_features``) and their model
+        coordinates from the inverse depth ``iz`` at this pose; ``(desc, X_model)`` or None."""
+        H, W = gray.shape
         kps, desc = self._orb.detectAndCompute(gray, mask)
-        self._last_learn = k
         if desc is None or len(kps) < self.cfg.min_keypoints:
-            self.stats["ms_learn"] += (time.perf_counter() - t0) * 1e3
-            return 0
+            return None
         order = np.argsort([-kp.response for kp in kps])[: self.cfg.kf_features]
         kps, desc = [kps[i] for i in order], desc[order]
         uv = np.array([kp.pt for kp in kps], np.float64)
@@ -108,17 +125,100 @@ class Relocaliser:
         iy = np.clip(np.rint(uv[:, 1]).astype(int), 0, H - 1)
         izk = iz[iy, ix].astype(np.float64)
         ok = izk > 0
-        xn = (uv[ok] - tr.K[:2, 2]) / np.array([tr.K[0, 0], tr.K[1, 1]])
+        if ok.sum() < self.cfg.min_keypoints:
+            return None
+        K = self.tr.K
+        xn = (uv[ok] - K[:2, 2]) / np.array([K[0, 0], K[1, 1]])
         Xc = np.column_stack([xn, np.ones(len(xn))]) / izk[ok, None]
         X_model = (Xc - T_cam_model[:3, 3]) @ T_cam_model[:3, :3]
-        self.kfs.append((k, T_cam_model.copy(), desc[ok], X_model.astype(np.float32)))
+        return desc[ok], X_model.astype(np.float32)
+
+    def learn(self, k: int, gray: np.ndarray, T_cam_model: np.ndarray) -> int:
+        """Store the ORB keypoints of ``gray`` on the model's visible surfaces at this pose (and the
+        rendered views of :meth:`_learn_views`); returns how many were stored (0: too few, nothing stored)."""
+        import cv2
+
+        t0 = time.perf_counter()
+        H, W = gray.shape[0], gray.shape[1]
+        iz = self._depth(T_cam_model, W, H)
+        mask = cv2.erode((iz > 0).astype(np.uint8) * 255, np.ones((7, 7), np.uint8))  # off the outline
+        got = self._keypoints(gray, mask, iz, T_cam_model)
+        self._last_learn = k
+        if got is None:
+            self.stats["ms_learn"] += (time.perf_counter() - t0) * 1e3
+            return 0
+        self.kfs.append((k, T_cam_model.copy(), got[0], got[1]))
         self.stats["keyframes"] += 1
+        if self.cfg.synth_step_deg > 0 and self.cfg.synth_steps > 0:
+            self._learn_views(k, gray, T_cam_model, iz)
         self.stats["ms_learn"] += (time.perf_counter() - t0) * 1e3
-        return int(ok.sum())
+        return len(got[0])
+
+    def _learn_views(self, k: int, gray: np.ndarray, T_kf: np.ndarray, iz_kf: np.ndarray) -> None:
+        """Views of the object from new sides, rendered from the model with the keyframe's texture.
+
+        The keyframe's camera turned about the image's vertical axis through the model's centre by
+        +-``synth_step_deg`` x 1..``synth_steps`` (the object turned on a table, carried round,
+        put back on another side). Each pixel of the new view on a model face seen in the keyframe
+        (its inverse depth there within 2 % of the keyframe's own: not hidden) takes the
+        keyframe's gray level at the same surface point (``cv2.remap``, bilinear); faces the
+        keyframe did not see stay blank and get no keypoints. The keypoints of the view, with
+        their model coordinates from its depth, are matched like a keyframe's."""
+        import cv2
+
+        H, W = gray.shape
+        K = self.tr.K
+        V = self.tr.geom.vertices
+        c_model = 0.5 * (V.min(0) + V.max(0))
+        # the turn axis: the model axis nearest to the image's vertical at the keyframe (the object
+        # turned on its base, as on a table or a turntable)
+        up = T_kf[:3, :3].T @ np.array([0.0, -1.0, 0.0])
+        axis = np.zeros(3)
+        axis[int(np.argmax(np.abs(up)))] = 1.0
+        n_half = self.cfg.synth_steps
+        for j in [s * i for i in range(1, n_half + 1) for s in (1, -1)]:
+            Rm = cv2.Rodrigues(np.radians(self.cfg.synth_step_deg * j) * axis)[0]
+            Tm = np.eye(4)
+            Tm[:3, :3] = Rm
+            Tm[:3, 3] = c_model - Rm @ c_model
+            T_v = T_kf @ Tm  # the model turned about its centre, seen by the keyframe's camera
+            M = T_v @ inv_T(T_kf)  # keyframe camera -> view camera (a rigid motion of the scene)
+            R = M[:3, :3]
+            iz_v = self._depth(T_v, W, H)
+            ys, xs = np.nonzero(iz_v > 0)
+            if len(ys) < 100:
+                continue
+            # the work on the model's bounding box in the view only
+            y0, y1, x0, x1 = ys.min(), ys.max() + 1, xs.min(), xs.max() + 1
+            iz = iz_v[y0:y1, x0:x1]
+            vv, uu = np.mgrid[y0:y1, x0:x1].astype(np.float32)
+            z = 1.0 / np.maximum(iz, 1e-12)
+            Xv = [(uu - K[0, 2]) / K[0, 0] * z, (vv - K[1, 2]) / K[1, 1] * z, z]  # view camera frame
+            d = [Xv[i] - M[i, 3] for i in range(3)]
+            # the same points in the keyframe's camera: X_kf = R^T (X_v - M_t), column by column
+            Xk = [R[0, i] * d[0] + R[1, i] * d[1] + R[2, i] * d[2] for i in range(3)]
+            zk = Xk[2]
+            good = (iz > 0) & (zk > 1e-6)
+            zs = np.where(good, zk, 1.0)
+            mu = (K[0, 0] * Xk[0] / zs + K[0, 2]).astype(np.float32)
+            mv = (K[1, 1] * Xk[1] / zs + K[1, 2]).astype(np.float32)
+            inside = good & (mu >= 0) & (mu <= W - 1) & (mv >= 0) & (mv <= H - 1)
+            izk = cv2.remap(iz_kf, mu, mv, cv2.INTER_NEAREST, borderValue=0)
+            seen = inside & (izk > 0) & (np.abs(izk * zs - 1.0) < 0.02)  # the same surface point, not hidden
+            if seen.sum() < 100:
+                continue
+            img = np.zeros_like(gray)
+            img[y0:y1, x0:x1] = cv2.remap(gray, mu, mv, cv2.INTER_LINEAR, borderValue=0)
+            mask = np.zeros_like(gray)
+            mask[y0:y1, x0:x1] = cv2.erode(seen.astype(np.uint8) * 255, np.ones((7, 7), np.uint8))
+            got = self._keypoints(img, mask, iz_v, T_v)
+            if got is not None:
+                self.views.append((k, T_v, got[0], got[1]))
+                self.stats["synth_views"] += 1
 
     # ------------------------------------------------------------------ search
-    def _pnp(self, kps, pairs, X_kf) -> np.ndarray | None:
-        """RANSAC PnP on one keyframe's matches; None without enough consensus."""
+    def _pnp(self, kps, pairs, X_kf) -> tuple[np.ndarray, int] | None:
+        """RANSAC PnP on one keyframe's matches: ``(T_cam_model, inliers)``, None without enough consensus."""
         import cv2
 
         qi, ti = np.array(pairs).T
@@ -136,42 +236,58 @@ class Relocaliser:
         T = refine_pnp(X[inl], uv[inl], self.tr.K, None, rvec, tvec)
         if not np.isfinite(T).all() or (X[inl] @ T[:3, :3].T + T[:3, 3])[:, 2].min() <= 0:
             return None
-        return T
+        return T, len(inl)
 
     def relocalise(self, gray: np.ndarray) -> np.ndarray | None:
-        """PnP pose ``T_cam_model`` of the object in ``gray`` from the stored keypoints, or None."""
+        """PnP pose ``T_cam_model`` of the object in ``gray`` from the stored keypoints (the one with
+        the most inliers), or None."""
+        cands = self.candidates(gray)
+        return cands[0] if cands else None
+
+    def candidates(self, gray: np.ndarray) -> list[np.ndarray]:
+        """PnP poses ``T_cam_model`` of the object in ``gray``, most inliers first (at most three:
+        one per best-matched keyframe or view; a partly symmetric object can give a wrong pose a
+        consensus on one view while the right one has its own on another, so the caller refines
+        and judges each in turn)."""
         import cv2
 
         if not self.kfs:
-            return None
+            return []
         t0 = time.perf_counter()
         self.stats["attempts"] += 1
         try:
             kps, desc = self._orb.detectAndCompute(gray, None)
             if desc is None or len(kps) < self.cfg.min_matches:
-                return None
+                return []
             # ratio test per keyframe (a surface point stored in several keyframes would fail it
             # against itself in one pooled database), then PnP on the best keyframes in turn
             bf = cv2.BFMatcher(cv2.NORM_HAMMING)
             cands = []
-            kfs = list(self.kfs)
+            kfs = [(kf, False) for kf in self.kfs] + [(v, True) for v in self.views]
             if len(kfs) > self.cfg.kf_per_attempt:
-                # bounded cost: the newest keyframe and a round-robin share of the others per attempt
-                rest = kfs[:-1]
+                # bounded cost: the newest keyframe and a round-robin share of the others (older
+                # keyframes, rendered views) per attempt
+                newest = len(self.kfs) - 1
+                rest = kfs[:newest] + kfs[newest + 1:]
                 j0 = (self.stats["attempts"] * (self.cfg.kf_per_attempt - 1)) % len(rest)
-                kfs = [kfs[-1]] + [rest[(j0 + i) % len(rest)] for i in range(self.cfg.kf_per_attempt - 1)]
-            for _, _, d_kf, X_kf in kfs:
+                kfs = [kfs[newest]] + [rest[(j0 + i) % len(rest)] for i in range(self.cfg.kf_per_attempt - 1)]
+            for (_, _, d_kf, X_kf), is_view in kfs:
                 m = bf.knnMatch(desc, d_kf, k=2)
                 pairs = [(a.queryIdx, a.trainIdx) for a, *b in m
                          if b and a.distance < self.cfg.ratio * b[0].distance and a.distance < self.cfg.max_hamming]
                 if len(pairs) >= self.cfg.min_matches:
-                    cands.append((len(pairs), pairs, X_kf))
+                    cands.append((len(pairs), pairs, X_kf, is_view))
             cands.sort(key=lambda c: -c[0])
-            for _, pairs, X_kf in cands[:3]:
-                T = self._pnp(kps, pairs, X_kf)
-                if T is not None:
-                    self.stats["pnp_poses"] += 1
-                    return T
-            return None
+            # PnP on the three best-matched keyframes/views
+            got = []
+            for _, pairs, X_kf, is_view in cands[:3]:
+                r = self._pnp(kps, pairs, X_kf)
+                if r is not None:
+                    got.append((r[1], is_view, r[0]))
+            got.sort(key=lambda g: -g[0])
+            if got:
+                self.stats["pnp_poses"] += 1
+                self.stats["pnp_from_views"] += int(got[0][1])
+            return [g[2] for g in got]
         finally:
             self.stats["ms_attempts"] += (time.perf_counter() - t0) * 1e3

@@ -193,9 +193,10 @@ class TrackingPolicy:
             n = float(fr.evidence.n)
             self.n_ref = n if self.n_ref is None else 0.9 * self.n_ref + 0.1 * n
 
-    def should_learn_appearance(self, fr: FrameResult, status: str, healthy: bool) -> bool:
-        """A model frame confident enough to teach the relocaliser (the first, or a score >= 0.5)."""
-        return status == "model" and healthy and (self.first or fr.score >= 0.5)
+    def should_learn_appearance(self, fr: FrameResult, status: str, healthy: bool, min_score: float = 0.5) -> bool:
+        """A model (or relocalised) frame confident enough to teach the relocaliser (the first, or a
+        health score >= ``min_score``: :attr:`RelocConfig.learn_min_score`)."""
+        return status in ("model", "relocalised") and healthy and (self.first or fr.score >= min_score)
 
     def accepted(self, T_out: np.ndarray) -> None:
         """An output pose: the next frame starts from it."""
@@ -280,12 +281,14 @@ class TrackingSession:
         relocalised = False
         if reloc is not None and p.should_relocalise(fr, reloc.cfg.every, aid_on=aid is not None and not _standby(aid)):
             # lost: search the learned keypoints, refine with the edges, accept only if healthy
-            T_r = reloc.relocalise(gray)
-            if T_r is not None:
-                fr_r = p.judge(tr.track(gray, T_r, first=True), False)  # no contrast reference, no coarse pass
+            for T_r in reloc.candidates(gray):  # most PnP inliers first; the first healthy one is taken
+                # no contrast reference, no coarse pass (the widened coarse-to-fine search from a
+                # rough PnP pose was tried: at 320x240 on `leave` it let poses 2.1 deg off through)
+                fr_r = p.judge(tr.track(gray, T_r, first=True), False)
                 if fr_r.healthy:
                     fr, relocalised = fr_r, True
                     tr.discard_klt_matches()
+                    break
         return fr, relocalised
 
     def step(self, idx: int, time_s: float, gray: np.ndarray) -> FrameRecord:
@@ -338,7 +341,8 @@ class TrackingSession:
         p.prev_status = status
         p.slam_streak = p.slam_streak + 1 if status == "slam" else 0
         p.learn(fr, status, healthy)
-        if reloc is not None and p.should_learn_appearance(fr, status, healthy) and reloc.should_learn(idx, fr.T_cam_model):
+        if (reloc is not None and p.should_learn_appearance(fr, status, healthy, reloc.cfg.learn_min_score)
+                and reloc.should_learn(idx, fr.T_cam_model)):
             reloc.learn(idx, gray, fr.T_cam_model)
         if T_out is not None and status != "lost":
             tr.accept(gray, T_out)
