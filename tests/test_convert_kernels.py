@@ -1,0 +1,62 @@
+"""The numba kernels of convert-model (mst.meshtools.kernels) against the numpy/scipy code they
+replace: labels equal, floating-point results and decisions bit for bit (outputs must stay
+byte-identical)."""
+
+import numpy as np
+import pytest
+
+from mst.meshtools.kernels import components, pair_candidates, plane_ok, region_sums
+
+
+def test_components_match_scipy_labels():
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    rng = np.random.default_rng(0)
+    for n, m in ((1, 0), (10, 3), (5000, 4000), (20000, 30000)):
+        a, b = rng.integers(0, n, m), rng.integers(0, n, m)
+        nc, lab = components(n, a, b)
+        ref_n, ref = connected_components(coo_matrix((np.ones(m), (a, b)), shape=(n, n)), directed=False)
+        assert nc == ref_n and np.array_equal(lab, ref)
+    with pytest.raises(ValueError):
+        components(3, np.array([0]), np.array([3]))
+
+
+def _random_mesh(seed=1, M=50_000, nv=20_000, n_lab=700):
+    rng = np.random.default_rng(seed)
+    X = rng.normal(size=(nv, 3)) * rng.choice([1e-3, 1.0, 1e3], size=(nv, 1))
+    F = rng.integers(0, nv, (M, 3))
+    N = rng.normal(size=(M, 3))
+    N /= np.linalg.norm(N, axis=1, keepdims=True)
+    return rng, X, F, N, rng.random(M), rng.integers(0, n_lab, M), n_lab
+
+
+def test_region_sums_bitwise():
+    _, X, F, N, w, lab, n_lab = _random_mesh()
+    nsum, csum, wsum = region_sums(X, F, N, w, lab, n_lab)
+    cen = X[F].mean(axis=1)
+    assert np.array_equal(nsum, np.stack([np.bincount(lab, weights=N[:, k] * w, minlength=n_lab) for k in range(3)], 1))
+    assert np.array_equal(csum, np.stack([np.bincount(lab, weights=cen[:, k] * w, minlength=n_lab) for k in range(3)], 1))
+    assert np.array_equal(wsum, np.bincount(lab, weights=w, minlength=n_lab))
+
+
+def test_pair_and_plane_decisions_bitwise():
+    rng, X, F, N, w, lab, n_lab = _random_mesh(seed=2)
+    f1, f2 = rng.integers(0, len(F), 40_000), rng.integers(0, len(F), 40_000)
+    consistent = rng.random(len(f1)) < 0.9
+    cos_pair = np.einsum("ij,ij->i", N[f1], N[f2])
+    nsum, csum, wsum = region_sums(X, F, N, w, lab, n_lab)
+    nR = nsum / np.linalg.norm(nsum, axis=1, keepdims=True)
+    cR = csum / wsum[:, None]
+    nRl = nR[lab]
+    dots = np.einsum("ij,ij->i", N, nRl)
+    d = np.abs(np.einsum("ijk,ik->ij", X[F], nRl) - np.einsum("ij,ij->i", cR[lab], nRl)[:, None]).max(axis=1)
+    # thresholds at exact values and one ulp below them: a decision agrees at both only if the
+    # kernel's value equals numpy's bit for bit for that element
+    for k in rng.integers(0, len(f1), 20):
+        for t in (cos_pair[k], np.nextafter(cos_pair[k], 2.0)):
+            assert np.array_equal(pair_candidates(N, f1, f2, consistent, t), consistent & (cos_pair >= t))
+    for k in rng.integers(0, len(F), 20):
+        for half in (dots[k], np.nextafter(dots[k], 2.0)):
+            for tol in (d[k], np.nextafter(d[k], -1.0), np.inf):
+                assert np.array_equal(plane_ok(X, F, N, lab, nR, cR, half, tol), (dots >= half) & (d <= tol))
