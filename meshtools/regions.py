@@ -11,7 +11,7 @@ from collections import deque
 
 import numpy as np
 
-from mst.meshtools.kernels import components, pair_candidates, plane_ok, region_sums
+from mst.meshtools.kernels import components, edge_order, pair_candidates, plane_ok, region_sums
 
 #: regrowth rounds in a thinner slab before failing regions are split into triangles
 PLANARITY_ROUNDS = 6
@@ -71,7 +71,7 @@ class Edges:
         u = F.ravel()
         v = F[:, [1, 2, 0]].ravel()
         key = np.minimum(u, v) * nv + np.maximum(u, v)
-        self.order = np.argsort(key)
+        self.order = edge_order(u, v, nv)  # = np.argsort(key, kind="stable"), in O(n)
         ks = key[self.order]
         brk = np.flatnonzero(np.diff(ks)) + 1
         self.start = np.concatenate([[0], brk])

@@ -60,3 +60,23 @@ def test_pair_and_plane_decisions_bitwise():
         for half in (dots[k], np.nextafter(dots[k], 2.0)):
             for tol in (d[k], np.nextafter(d[k], -1.0), np.inf):
                 assert np.array_equal(plane_ok(X, F, N, lab, nR, cR, half, tol), (dots >= half) & (d <= tol))
+
+
+def test_edge_order_is_stable_argsort():
+    from mst.meshtools.kernels import edge_order
+
+    rng = np.random.default_rng(3)
+    for nv, n in ((3, 6), (50, 3000), (20_000, 60_000)):  # small nv: buckets > 32 take the merge-sort branch
+        u, v = rng.integers(0, nv, n), rng.integers(0, nv, n)
+        key = np.minimum(u, v) * nv + np.maximum(u, v)
+        assert np.array_equal(edge_order(u, v, nv), np.argsort(key, kind="stable"))
+
+
+def test_triangle_cross_bitwise():
+    from mst.meshtools.kernels import triangle_cross
+
+    _, X, F, *_ = _random_mesh(seed=4)
+    a, b, c = X[F[:, 0]], X[F[:, 1]], X[F[:, 2]]
+    ref = np.cross(b - a, c - a)
+    cr, area2 = triangle_cross(X, F)
+    assert np.array_equal(cr, ref) and np.array_equal(area2, np.linalg.norm(ref, axis=1))
