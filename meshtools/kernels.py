@@ -197,6 +197,41 @@ def edge_order(u, v, nv):
     return order
 
 
+@njit(cache=True)
+def edge_groups(u, v, nv):
+    """:func:`edge_order` and the grouping of :class:`mst.meshtools.regions.Edges` in one pass:
+    ``(order, start, count, edge, pair)``."""
+    order = edge_order(u, v, nv)
+    n = order.shape[0]
+    start = np.empty(n, np.int64)
+    edge = np.empty(n, np.int64)
+    ne = 0
+    prev = -1
+    for j in range(n):
+        h = order[j]
+        key = min(u[h], v[h]) * nv + max(u[h], v[h])
+        if j == 0 or key != prev:
+            start[ne] = j
+            ne += 1
+            prev = key
+        edge[h] = ne - 1
+    start = start[:ne].copy()
+    count = np.empty(ne, np.int64)
+    n_pair = 0
+    for e in range(ne):
+        count[e] = (start[e + 1] if e + 1 < ne else n) - start[e]
+        if count[e] == 2:
+            n_pair += 1
+    pair = np.empty((n_pair, 2), np.int64)
+    k = 0
+    for e in range(ne):
+        if count[e] == 2:
+            pair[k, 0] = order[start[e]]
+            pair[k, 1] = order[start[e] + 1]
+            k += 1
+    return order, start, count, edge, pair
+
+
 def components(n: int, a: np.ndarray, b: np.ndarray) -> tuple[int, np.ndarray]:
     """``(n_components, label per node)`` of the undirected graph on nodes ``0..n-1`` with edges
     ``a[k] - b[k]``; components numbered by their smallest node (scipy's numbering)."""
@@ -210,4 +245,4 @@ def components(n: int, a: np.ndarray, b: np.ndarray) -> tuple[int, np.ndarray]:
     return int(c), lab
 
 
-__all__ = ["components", "edge_order", "triangle_cross", "pair_candidates", "plane_ok", "region_sums"]
+__all__ = ["components", "edge_groups", "edge_order", "triangle_cross", "pair_candidates", "plane_ok", "region_sums"]

@@ -11,7 +11,7 @@ from collections import deque
 
 import numpy as np
 
-from mst.meshtools.kernels import components, edge_order, pair_candidates, plane_ok, region_sums
+from mst.meshtools.kernels import components, edge_groups, pair_candidates, plane_ok, region_sums
 
 #: regrowth rounds in a thinner slab before failing regions are split into triangles
 PLANARITY_ROUNDS = 6
@@ -70,16 +70,8 @@ class Edges:
     def __init__(self, F: np.ndarray, nv: int):
         u = F.ravel()
         v = F[:, [1, 2, 0]].ravel()
-        key = np.minimum(u, v) * nv + np.maximum(u, v)
-        self.order = edge_order(u, v, nv)  # = np.argsort(key, kind="stable"), in O(n)
-        ks = key[self.order]
-        brk = np.flatnonzero(np.diff(ks)) + 1
-        self.start = np.concatenate([[0], brk])
-        self.count = np.diff(np.concatenate([self.start, [len(ks)]]))
-        self.edge = np.empty(len(ks), np.int64)
-        self.edge[self.order] = np.repeat(np.arange(len(self.start)), self.count)
-        man = self.start[self.count == 2]
-        self.pair = np.stack([self.order[man], self.order[man + 1]], axis=1)
+        # = argsort of the undirected key min(u, v) * nv + max(u, v) (stable), grouped, in O(n)
+        self.order, self.start, self.count, self.edge, self.pair = edge_groups(u, v, nv)
         self.u, self.v = u, v
 
 

@@ -80,3 +80,24 @@ def test_triangle_cross_bitwise():
     ref = np.cross(b - a, c - a)
     cr, area2 = triangle_cross(X, F)
     assert np.array_equal(cr, ref) and np.array_equal(area2, np.linalg.norm(ref, axis=1))
+
+
+def test_edge_groups_match_numpy_grouping():
+    from mst.meshtools.kernels import edge_groups
+
+    rng = np.random.default_rng(5)
+    nv, n = 150, 9000  # ~11,000 keys: single, paired and 3+ edges
+    u, v = rng.integers(0, nv, n), rng.integers(0, nv, n)
+    order, start, count, edge, pair = edge_groups(u, v, nv)
+    key = np.minimum(u, v) * nv + np.maximum(u, v)
+    ref_order = np.argsort(key, kind="stable")
+    ks = key[ref_order]
+    ref_start = np.concatenate([[0], np.flatnonzero(np.diff(ks)) + 1])
+    ref_count = np.diff(np.concatenate([ref_start, [n]]))
+    ref_edge = np.empty(n, np.int64)
+    ref_edge[ref_order] = np.repeat(np.arange(len(ref_start)), ref_count)
+    man = ref_start[ref_count == 2]
+    assert (count == 2).any() and (count > 2).any()
+    for got, ref in ((order, ref_order), (start, ref_start), (count, ref_count), (edge, ref_edge),
+                     (pair, np.stack([ref_order[man], ref_order[man + 1]], axis=1))):
+        assert np.array_equal(got, ref)
