@@ -83,9 +83,9 @@ def _check_not_inputs(out_dir, inputs) -> None:
 @click.option("--n-clicks", "n_clicks", type=int, default=None, help="Model corners in clicks.txt (>= 4) [default: 6].")
 @click.option("--up", type=click.Choice(["z", "-z", "y", "-y", "x", "-x"]), default=None,
               help="The model's up axis [default: z].")
-@click.option("--video", is_flag=True, default=None, help="Also write video.mp4 (mp4v).")
+@click.option("--video", is_flag=True, default=None, help="Also write video.mp4 (mp4v, or H.264 with --video-codec h264).")
 @click.option("--video-codec", type=click.Choice(["mp4v", "h264"]), default=None,
-              help="Codec of video.mp4: h264 (H.264, as a UAV records; needs OpenCV's H.264 encoder) [mp4v].")
+              help="Codec of video.mp4: h264 (H.264 through imageio-ffmpeg's libx264, as a UAV records) [mp4v].")
 @click.option("--aa", "aa_samples", type=click.Choice(["0", "4", "8", "16"]), default=None,
               help="Sub-pixel rays per silhouette/crease pixel [default: 16].")
 @click.option("--texture-size", type=int, default=None, help="Texture tile size, texels (a power of two) [default: 2048].")

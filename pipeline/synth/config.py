@@ -56,7 +56,7 @@ class SynthConfig(Config):
     n_clicks: int = param(6, min=4, help="clicked corners")
     up: str = param("z", choices=tuple(UP_AXES), help="the model's up axis")
     video: bool = param(False, help="also write video.mp4")
-    video_codec: str = param("mp4v", choices=("mp4v", "h264"), help="video.mp4 codec (h264: needs an H.264 encoder in OpenCV)")
+    video_codec: str = param("mp4v", choices=("mp4v", "h264"), help="video.mp4 codec (h264: libx264 through imageio-ffmpeg, crf 23, as a drone records)")
     pitch_deg: float | None = param(None, min=-89, max=89,
                                     help="uav/fpv camera pitch below the horizon, deg (default: uav 45, fpv 8)")
     aa_samples: int = param(16, choices=(0, 4, 8, 16), help="sub-pixel rays per silhouette/crease pixel")

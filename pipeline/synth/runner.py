@@ -18,6 +18,7 @@ from mst.pipeline.synth.core import SynthResult, plan_sequence, render_frame
 from mst.pipeline.synth.scene import load_model_triangles
 from mst.pipeline.synth.writers import (
     SCENE_VERSION,
+    H264Writer,
     _commit_out_dir,
     _prepare_out_dir,
     _sha256,
@@ -80,11 +81,13 @@ def _render_into(tmp: Path, plan, cfg: SynthConfig, progress) -> tuple[list, flo
         (tmp / "depth").mkdir()
     writer = None
     if cfg.video:
-        fourcc = "avc1" if cfg.video_codec == "h264" else "mp4v"
-        writer = cv2.VideoWriter(str(tmp / "video.mp4"), cv2.VideoWriter_fourcc(*fourcc), fps, (cam.width, cam.height))
-        if not writer.isOpened():
-            raise MstError(f"cv2.VideoWriter could not open a {cfg.video_codec} ({fourcc}) mp4 writer"
-                           + (": this OpenCV has no H.264 encoder (the mp4v codec works everywhere)" if fourcc == "avc1" else ""))
+        if cfg.video_codec == "h264":
+            writer = H264Writer(tmp / "video.mp4", fps, (cam.width, cam.height))
+        else:
+            writer = cv2.VideoWriter(str(tmp / "video.mp4"), cv2.VideoWriter_fourcc(*"mp4v"), fps,
+                                     (cam.width, cam.height))
+            if not writer.isOpened():
+                raise MstError("cv2.VideoWriter could not open an mp4v mp4 writer")
     rows, render_s = [], 0.0
     for k in range(len(plan.T_model_cam)):
         t0 = time.perf_counter()

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mst import InputError, __version__
+from mst import InputError, MstError, __version__
 from mst.core.camera import write_camera
 from mst.core.ply import write_ply
 from mst.core.trajectory import format_tum
@@ -71,6 +71,39 @@ def _commit_out_dir(tmp: Path, out_dir: Path) -> None:
     for item in tmp.iterdir():
         os.replace(item, out_dir / item.name)
     tmp.rmdir()
+
+
+class H264Writer:
+    """An H.264 (libx264, yuv420p) mp4 writer with the ``cv2.VideoWriter`` calls synth uses.
+
+    OpenCV's wheels carry no H.264 encoder (``avc1`` fails to open), so the frames go to the static
+    ffmpeg of ``imageio-ffmpeg``. ``crf`` is x264's constant rate factor (18: visually lossless,
+    the artefacts of a real drone video's 23-28 are stronger); one encoder thread keeps the bytes the
+    same from run to run.
+    """
+
+    def __init__(self, path: Path, fps: float, size_px: tuple[int, int], crf: int = 23):
+        try:
+            import imageio_ffmpeg
+        except ImportError:  # pragma: no cover - a dependency in pyproject
+            raise MstError("H.264 video needs the imageio-ffmpeg package (pip install imageio-ffmpeg)") from None
+        w, h = size_px
+        if w % 2 or h % 2:
+            raise MstError(f"H.264 (yuv420p) needs an even frame size, not {w}x{h}")
+        self._gen = imageio_ffmpeg.write_frames(
+            str(path), (w, h), fps=fps, codec="libx264", pix_fmt_in="bgr24", pix_fmt_out="yuv420p",
+            macro_block_size=1, ffmpeg_log_level="error",
+            output_params=["-crf", str(int(crf)), "-preset", "medium", "-threads", "1", "-bf", "0"])
+        self._gen.send(None)
+
+    def isOpened(self) -> bool:  # noqa: N802 - the cv2.VideoWriter name
+        return True
+
+    def write(self, bgr: np.ndarray) -> None:
+        self._gen.send(np.ascontiguousarray(bgr, np.uint8))
+
+    def release(self) -> None:
+        self._gen.close()
 
 
 def write_frame(tmp: Path, frame, T_cam_model: np.ndarray, writer, with_depth: bool) -> None:
