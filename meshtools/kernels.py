@@ -158,7 +158,7 @@ def triangle_cross(X, F):
     return cr, area2
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")  # compiled into edge_groups
 def edge_order(u, v, nv):
     """Half-edges ``u[h] -> v[h]`` sorted by undirected key ``(min, max)``, stably (ties in index
     order): a counting sort by the smaller vertex, then each bucket by the larger one."""
