@@ -4,6 +4,7 @@ the binned grid equals a brute-force scan on a large surface."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from c2m_helpers import brute_force_d2, dist
 
 from mst.eval import c2m
@@ -36,6 +37,7 @@ def test_grid_compiled_and_numpy_paths_agree():
     np.testing.assert_allclose(dm[da <= 0.5], da[da <= 0.5])
 
 
+@pytest.mark.slow  # suite time; test_grid_compiled_and_numpy_paths_agree keeps the engines' agreement in the default run
 def test_binned_grid_engine_matches_brute_force_on_a_large_random_surface():
     """The grid engine on a ~50k-triangle surface (binned cells + shell search, no Open3D) gives the
     exact distances of a brute-force scan (1e-9 m) for points on, near, far above and far outside

@@ -209,7 +209,8 @@ def test_local_ba_guard_accepts_good_priors_and_rejects_a_wrong_one():
 
 
 # ---------------------------------------------------------------------------- sequences
-@pytest.mark.parametrize("mode", ["rgbd", "mono"])
+# mono: slow (suite time); the mono hidden stretch is in the default suite through test_slam_track / test_slam_drift
+@pytest.mark.parametrize("mode", ["rgbd", pytest.param("mono", marks=pytest.mark.slow)])
 def test_corridor_model_out_of_view_no_loss(scene, tmp_path, mode):
     """The cube leaves the view for 40+ frames: never lost, SLAM carries the pose, the model pose
     takes over again on return."""

@@ -147,7 +147,13 @@ def _scenario_checks(scenario, st, truth):
         assert (st[black] == "lost").all()  # nothing to see: nothing output
 
 
-@pytest.mark.parametrize("scenario", list(SHORT_640))
+#: the default suite keeps leave and occluder (re-acquisition after leaving and after an occluder, the
+#: issue's two hardest); the others run with -m slow (suite time: 3 min)
+SLOW_SHORT = ("turntable", "carried", "blackout")
+
+
+@pytest.mark.parametrize("scenario", [pytest.param(sc, marks=pytest.mark.slow) if sc in SLOW_SHORT else sc
+                                      for sc in SHORT_640])
 def test_issue_bounds_640_short(seq640, tmp_path, scenario):
     """Default suite: every dynamic scenario, short, at 640x480: the issue's 1 % / 2 deg bound on
     every output pose and re-acquisition within 10 frames."""
