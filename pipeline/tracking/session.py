@@ -36,20 +36,6 @@ REACQUIRE_SUPPORT_RATIO = 0.8
 #: health score's binomial floors are wide)
 MAP_CHECK_MIN_VIEW = 0.5
 
-#: conditioning gate: an edge pose is ``model`` only when the 1-sigma position uncertainty of its
-#: camera centre (the VVS covariance, ``sqrt(trace(R^T C_vv R))``) is at most this fraction of the
-#: distance to the model (nearest vertex): its 2 sigma within the 1 % budget of a tracked pose.
-#: Measured at 640x480, default mode, 250 m above the ground: Rotterdam (buildings 300+ samples)
-#: 0.19-0.40 %, every frame within 1 % (at most 2.8 sigma off); Delft (one building ~60 px wide,
-#: 46-79 samples) 0.48-1.8 %, the frames off by more than 1 % (up to 10 %, 5.6 sigma) all >= 0.69 %
-MAX_POSITION_SIGMA_REL = 0.005
-
-#: after this long without an output pose (s), the held pose (or a withheld map pose) is stale: an
-#: edge pose found by the search from it is not output; only the relocaliser's verified path
-#: re-acquires (Rotterdam FPV: after 74 frames (2.5 s) lost the search from the held pose locked
-#: onto the facades 24 m off and passed the health score; the dynamic scenarios' losses last < 1 s)
-STALE_HELD_POSE_S = 1.0
-
 #: the first frame: the tolerant multi-pass search from the user's pose and a plain search from it
 #: (one pass, the usual range and robust scale) must agree within this many sigma (Mahalanobis
 #: distance of the twist between them, under the tolerant fit's covariance); beyond it the image
@@ -128,9 +114,6 @@ class TrackingPolicy:
         self.monitor = monitor
         self.n_score_rejects = 0
         self.n_ref: float | None = None  #: running mean of the visible edge samples of model frames
-        self.t_output: float | None = None  #: time (s) of the last output pose (the first frame: the initial pose)
-        self.n_weak = 0  #: edge poses refused by the conditioning gate
-        self.n_stale = 0  #: edge poses refused because the pose they were searched from was stale
 
     # -------------------------------------------------------------- before the edge tracker
     def start_pose(self, T_pred: np.ndarray | None, aided: bool, shift_px) -> np.ndarray:
@@ -209,36 +192,6 @@ class TrackingPolicy:
             fr.reason = f"gradient support {fr.support:.0%} (usual {self.support_ref:.0%})"
         return healthy
 
-    def gate_conditioning(self, fr: FrameResult, healthy: bool, distance_m) -> bool:
-        """Whether a healthy edge pose is constrained well enough to be output: the 1-sigma position
-        of its camera centre within ``MAX_POSITION_SIGMA_REL`` of ``distance_m(T)`` (the camera-model
-        distance, m). Otherwise ``fr.reason`` names the cause (the model too small in the image)."""
-        if not healthy or fr.cov is None or fr.T_cam_model is None:
-            return healthy
-        var = float(np.trace(fr.cov[:3, :3]))  # trace(R^T C_vv R) = trace(C_vv)
-        sig = float(np.sqrt(var)) if np.isfinite(var) and var >= 0 else float("inf")
-        dist = distance_m(fr.T_cam_model, sig / MAX_POSITION_SIGMA_REL)
-        if sig <= MAX_POSITION_SIGMA_REL * dist:
-            return True
-        fr.reason = (f"weakly constrained: position sigma {sig:.3g} m = {sig / max(dist, 1e-12):.2%} of the distance "
-                     f"to the model ({dist:.3g} m; at most {MAX_POSITION_SIGMA_REL:.1%}): the model too small in the "
-                     f"image ({fr.n_samples} edge samples)")
-        self.n_weak += 1
-        fr.healthy = False  # not a hint for the next frame either
-        return False
-
-    def gate_stale(self, fr: FrameResult, healthy: bool, relocalised: bool, time_s: float) -> bool:
-        """Whether a healthy edge pose may be output after the time since the last output pose: after
-        ``STALE_HELD_POSE_S`` only a relocalised one (the search from the held pose can lock onto
-        the wrong part of a repetitive scene and pass the health score)."""
-        if not healthy or relocalised or self.t_output is None or time_s - self.t_output <= STALE_HELD_POSE_S:
-            return healthy
-        fr.reason = (f"stale start: {time_s - self.t_output:.2f} s without an output pose (> {STALE_HELD_POSE_S:g} s): "
-                     "re-acquisition only through the relocaliser")
-        self.n_stale += 1
-        fr.healthy = False  # not a hint for the next frame either
-        return False
-
     # -------------------------------------------------------------- after the output decision
     def update_support(self, status: str, recovering: bool, support: float) -> None:
         """The running mean of the gradient support over model frames (not recovering ones)."""
@@ -270,9 +223,7 @@ class TrackingPolicy:
         if fr.healthy and fr.T_cam_model is not None:
             self.T_hint = fr.T_cam_model
 
-    def frame_done(self, fr: FrameResult, time_s: float | None = None, output: bool = False) -> None:
-        if time_s is not None and (output or self.t_output is None):
-            self.t_output = time_s  # the first frame: the initial pose counts as an output
+    def frame_done(self, fr: FrameResult) -> None:
         if self.first:
             self.first_reason = fr.reason
         self.first = False
@@ -301,20 +252,6 @@ def model_distance(tracker: EdgeTracker, T_cam_model: np.ndarray) -> float:
     c = -T_cam_model[:3, :3].T @ T_cam_model[:3, 3]
     V = np.asarray(tracker.geom.vertices, float)
     return float(np.sqrt(((V - c) ** 2).sum(1).min())) if len(V) else float("inf")
-
-
-def _model_distance_at_least(tracker: EdgeTracker, T_cam_model: np.ndarray, enough_m: float) -> float:
-    """:func:`model_distance`, or the distance to the model's bounding box when that already reaches
-    ``enough_m`` (a lower bound of it: no pass over the vertices of a large city)."""
-    if tracker.geom.vertices is None or not len(tracker.geom.vertices):
-        return float("inf")
-    bb = getattr(tracker, "_bbox", None)
-    if bb is None:
-        V = np.asarray(tracker.geom.vertices, float)
-        bb = tracker._bbox = (V.min(0), V.max(0))
-    c = -T_cam_model[:3, :3].T @ T_cam_model[:3, 3]
-    lb = float(np.linalg.norm(np.maximum(bb[0] - c, 0.0) + np.maximum(c - bb[1], 0.0)))
-    return lb if lb >= enough_m else model_distance(tracker, T_cam_model)
 
 
 def _standby(aid) -> bool | None:
@@ -399,8 +336,6 @@ class TrackingSession:
         reacq = p.reacquiring(aid is not None)
         fr, relocalised = self._edge_pose(idx, gray, T_start, reacq)
         healthy = p.gate_recovery(fr, reacq)
-        healthy = p.gate_conditioning(fr, healthy, lambda T, enough: _model_distance_at_least(tr, T, enough))
-        healthy = p.gate_stale(fr, healthy, relocalised, time_s)
         recovering = reacq or p.lost_streak > 0
         if aid is not None and relocalised:
             # a relocalised pose passed the health test on its own image after a loss: the map of
@@ -454,7 +389,7 @@ class TrackingSession:
         else:
             p.lost(fr)
             T_out, status = None, "lost"
-        p.frame_done(fr, time_s, output=status != "lost")
+        p.frame_done(fr)
         ms = (time.perf_counter() - t0) * 1000.0
         return FrameRecord(idx, time_s, status, T_out, fr, self._aid_state(idx), ms)
 
@@ -468,7 +403,7 @@ class TrackingSession:
         p.update_support("slam", recovering, fr.support)
         p.prev_status = "slam"
         p.slam_streak += 1
-        p.frame_done(fr, time_s)
+        p.frame_done(fr)
         ms = (time.perf_counter() - t0) * 1000.0
         return FrameRecord(idx, time_s, "lost", None, fr, self._aid_state(idx), ms)
 
