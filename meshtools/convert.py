@@ -53,6 +53,7 @@ import numpy as np
 
 from mst import InputError, atomic_output, check_outputs
 from mst.core.config import Config, param
+from mst.meshtools.kernels import triangle_cross
 from mst.meshtools.model import PolygonModel
 from mst.meshtools.outlines import outlines
 from mst.meshtools.regions import (
@@ -195,9 +196,7 @@ def tin_to_polygons(V: np.ndarray, F: np.ndarray, config: ConvertConfig | None =
 
     # ---- 1. weld + drop degenerate
     F, n_welded = weld(X, F, cfg.weld_tol_m)
-    a, b, c = X[F[:, 0]], X[F[:, 1]], X[F[:, 2]]
-    cr = np.cross(b - a, c - a)
-    area2 = np.linalg.norm(cr, axis=1)
+    cr, area2 = triangle_cross(X, F)  # (b - a) x (c - a) and its norm (= twice the area)
     degenerate = (F[:, 0] == F[:, 1]) | (F[:, 1] == F[:, 2]) | (F[:, 0] == F[:, 2]) | (area2 <= 2e-12 * diag**2)
     stats.update(welded_vertices=int(n_welded), degenerate_dropped=int(degenerate.sum()))
     if degenerate.any():
@@ -214,8 +213,7 @@ def tin_to_polygons(V: np.ndarray, F: np.ndarray, config: ConvertConfig | None =
     F, flipped, comp, n_comp, closed = orient(X, F, E, area2, cr)
     stats.update(components=int(n_comp), closed_components=int(closed.sum()), flipped_triangles=int(flipped))
     if flipped:
-        a, b, c = X[F[:, 0]], X[F[:, 1]], X[F[:, 2]]
-        cr = np.cross(b - a, c - a)
+        cr = triangle_cross(X, F)[0]
         E = edges(F, len(X))
     N = cr / area2[:, None]
     step("orient")

@@ -1,13 +1,14 @@
 """Steps 5-6 of TIN -> polygons (:mod:`mst.meshtools.convert`): boundary loops of each planar region
 (outer loop + holes, chained by list ranking, pinch vertices resolved) simplified without cracks.
 
-Imports numpy, scipy and :mod:`mst.meshtools.polygons` only.
+Imports numpy, :mod:`mst.meshtools.kernels` (numba) and :mod:`mst.meshtools.polygons` only.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from mst.meshtools.kernels import components
 from mst.meshtools.regions import Edges
 
 
@@ -81,9 +82,6 @@ def _boundary_half_edges(X, F, region, E: Edges):
 def _chain_loops(X, bu, bv, br, nR):
     """Chain the boundary half-edges into loops: ``(order, loop label in that order, n_loops,
     n_pinch)``, ``order`` listing each loop's half-edges in turn (list ranking)."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
     B = len(bu)
     nv = len(X)
     # successor: next boundary half-edge of the same region leaving bv
@@ -100,9 +98,7 @@ def _chain_loops(X, bu, bv, br, nR):
     if len(multi):
         succ, n_pinch = resolve_pinches(X, bu, bv, br, nR, o, lo, hi, multi, succ)
     # cycles = loops
-    g = coo_matrix((np.ones(B, np.int8), (np.arange(B), succ)), shape=(B, B))
-    n_loops, lab = connected_components(g, directed=True, connection="weak")
-    lab = lab.astype(np.int64)
+    n_loops, lab = components(B, np.arange(B), succ)
     # rank inside each cycle by pointer jumping from the cycle's smallest half-edge
     startp = np.full(n_loops, B)
     np.minimum.at(startp, lab, np.arange(B))

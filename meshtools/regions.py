@@ -2,7 +2,7 @@
 consistent outward orientation, planar region growing (vectorised, with a queue-based regrowth for
 components that would chain) and the planarity check of the output polygons.
 
-Imports numpy and scipy only.
+Imports numpy, :mod:`mst.meshtools.kernels` (numba) and, for inconsistently wound input only, scipy.
 """
 
 from __future__ import annotations
@@ -10,6 +10,8 @@ from __future__ import annotations
 from collections import deque
 
 import numpy as np
+
+from mst.meshtools.kernels import components, edge_groups, pair_candidates, plane_ok, region_sums
 
 #: regrowth rounds in a thinner slab before failing regions are split into triangles
 PLANARITY_ROUNDS = 6
@@ -48,13 +50,7 @@ def weld(X: np.ndarray, F: np.ndarray, tol: float) -> tuple[np.ndarray, int]:
         k += 1
     if not I or sum(len(x) for x in I) == 0:
         return F, 0
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
-    I, J = np.concatenate(I), np.concatenate(J)
-    g = coo_matrix((np.ones(len(I), np.int8), (I, J)), shape=(n, n))
-    _, lab = connected_components(g, directed=False)
-    lab = lab.astype(np.int64)
+    _, lab = components(n, np.concatenate(I), np.concatenate(J))
     rep = np.full(lab.max() + 1, np.iinfo(np.int64).max)
     np.minimum.at(rep, lab, used)
     m = np.arange(len(X))
@@ -74,16 +70,8 @@ class Edges:
     def __init__(self, F: np.ndarray, nv: int):
         u = F.ravel()
         v = F[:, [1, 2, 0]].ravel()
-        key = np.minimum(u, v) * nv + np.maximum(u, v)
-        self.order = np.argsort(key)
-        ks = key[self.order]
-        brk = np.flatnonzero(np.diff(ks)) + 1
-        self.start = np.concatenate([[0], brk])
-        self.count = np.diff(np.concatenate([self.start, [len(ks)]]))
-        self.edge = np.empty(len(ks), np.int64)
-        self.edge[self.order] = np.repeat(np.arange(len(self.start)), self.count)
-        man = self.start[self.count == 2]
-        self.pair = np.stack([self.order[man], self.order[man + 1]], axis=1)
+        # = argsort of the undirected key min(u, v) * nv + max(u, v) (stable), grouped, in O(n)
+        self.order, self.start, self.count, self.edge, self.pair = edge_groups(u, v, nv)
         self.u, self.v = u, v
 
 
@@ -96,17 +84,15 @@ def orient(X, F, E: Edges, area2, cr):
 
     Returns ``(F, n_flipped, comp_label, n_comp, closed_per_comp)``.
     """
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import breadth_first_order, connected_components
-
     M = len(F)
     f1, f2 = E.pair[:, 0] // 3, E.pair[:, 1] // 3
     same_dir = E.u[E.pair[:, 0]] == E.u[E.pair[:, 1]]  # inconsistent pair
-    g = coo_matrix((np.ones(len(f1), np.int8), (f1, f2)), shape=(M, M))
-    n_comp, comp = connected_components(g, directed=False)
-    comp = comp.astype(np.int64)
+    n_comp, comp = components(M, f1, f2)
     flip = np.zeros(M, bool)
     if same_dir.any():
+        from scipy.sparse import coo_matrix
+        from scipy.sparse.csgraph import breadth_first_order
+
         # BFS tree from a virtual root linked to the first face of each component
         first = np.full(n_comp, M)
         np.minimum.at(first, comp, np.arange(M))
@@ -155,34 +141,19 @@ def orient(X, F, E: Edges, area2, cr):
 
 def grow_regions(X, F, N, area2, E: Edges, angle_tol: float, dist_tol: float) -> tuple[np.ndarray, int]:
     """Label each triangle with a region id (:mod:`mst.meshtools.convert` doc, step 4). Returns ``(labels, n_regrown)``."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
     M = len(F)
     f1, f2 = E.pair[:, 0] // 3, E.pair[:, 1] // 3
     # manifold, consistently oriented pairs with a small dihedral angle are growth candidates
     consistent = E.u[E.pair[:, 0]] == E.v[E.pair[:, 1]]
-    cos_pair = np.einsum("ij,ij->i", N[f1], N[f2])
-    cand = consistent & (cos_pair >= np.cos(angle_tol) - 1e-15)
+    cand = pair_candidates(N, f1, f2, consistent, np.cos(angle_tol) - 1e-15)
     f1, f2 = f1[cand], f2[cand]
-    g = coo_matrix((np.ones(len(f1), np.int8), (f1, f2)), shape=(M, M))
-    n_lab, lab = connected_components(g, directed=False)
-    lab = lab.astype(np.int64)
+    n_lab, lab = components(M, f1, f2)
     # region plane per component: area-weighted normal through the area-weighted centroid
-    w = area2
-    nsum = np.stack([np.bincount(lab, weights=N[:, k] * w, minlength=n_lab) for k in range(3)], 1)
+    nsum, cR, wsum = region_sums(X, F, N, area2, lab, n_lab)
     nn = np.linalg.norm(nsum, axis=1, keepdims=True)
     nR = np.divide(nsum, nn, out=np.zeros_like(nsum), where=nn > 0)
-    XF = X[F]
-    cen = XF.mean(axis=1)
-    cR = np.stack([np.bincount(lab, weights=cen[:, k] * w, minlength=n_lab) for k in range(3)], 1)
-    cR /= np.bincount(lab, weights=w, minlength=n_lab)[:, None]
-    half = np.cos(angle_tol / 2) - 1e-12
-    ok_ang = np.einsum("ij,ij->i", N, nR[lab]) >= half
-    nRl = nR[lab]
-    d = np.abs(np.einsum("ijk,ik->ij", XF, nRl) - np.einsum("ij,ij->i", cR[lab], nRl)[:, None]).max(axis=1)
-    del XF
-    ok = ok_ang & (d <= dist_tol)
+    cR /= wsum[:, None]
+    ok = plane_ok(X, F, N, lab, nR, cR, np.cos(angle_tol / 2) - 1e-12, dist_tol)
     comp_ok = np.bincount(lab, weights=~ok, minlength=n_lab) == 0
     bad = ~comp_ok[lab]
     n_bad = int(bad.sum())
@@ -232,16 +203,11 @@ def queue_grow(X, F, N, area2, sub, f1, f2, angle_tol, dist_tol) -> np.ndarray:
 def _facets(X, F, N, area2, sub, a, b, angle_tol, dist_tol):
     """The facets of :func:`queue_grow`: ``(facet per entry of sub, n_facets, facet normals,
     spreads, areas, centroids)``."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
     n = len(sub)
     Ns = N[sub]
     # facets: tight components, each checked against its own plane (else split into triangles)
     tight_edge = np.einsum("ij,ij->i", Ns[a], Ns[b]) >= np.cos(angle_tol / 10)
-    g = coo_matrix((np.ones(int(tight_edge.sum()), np.int8), (a[tight_edge], b[tight_edge])), shape=(n, n))
-    nf, fac = connected_components(g, directed=False)
-    fac = fac.astype(np.int64)
+    nf, fac = components(n, a[tight_edge], b[tight_edge])
     w = area2[sub]
     nsum = np.stack([np.bincount(fac, weights=Ns[:, k] * w, minlength=nf) for k in range(3)], 1)
     nF = nsum / np.maximum(np.linalg.norm(nsum, axis=1, keepdims=True), 1e-300)
@@ -276,15 +242,12 @@ def _facets(X, F, N, area2, sub, a, b, angle_tol, dist_tol):
 
 def _grow_facets(X, F, sub, fac, nf, nF, spread, areaF, cenF, a, b, angle_tol, dist_tol) -> list[int]:
     """Breadth-first region growing over the facet graph (:func:`queue_grow`): a label per facet."""
-    from scipy.sparse import csr_matrix
-
     fa, fb = fac[a], fac[b]
     cross_e = fa != fb
-    A = csr_matrix((np.ones(2 * int(cross_e.sum()), np.int8),
-                    (np.concatenate([fa[cross_e], fb[cross_e]]), np.concatenate([fb[cross_e], fa[cross_e]]))),
-                   shape=(nf, nf))
-    A.sum_duplicates()
-    indptr, indices = A.indptr.tolist(), A.indices.tolist()
+    # facet adjacency in CSR form: neighbours of each facet sorted, without duplicates
+    adj = np.unique(np.concatenate([fa[cross_e] * nf + fb[cross_e], fb[cross_e] * nf + fa[cross_e]]))
+    indptr = np.searchsorted(adj // nf, np.arange(nf + 1)).tolist()
+    indices = (adj % nf).tolist()
     # facet vertices (unique per facet) for the distance test
     fv = np.repeat(fac, 3)
     vv = F[sub].ravel()

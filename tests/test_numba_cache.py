@@ -25,15 +25,16 @@ def _warmup_json() -> dict:
 
 def _cached_kernels() -> set[str]:
     """Names of the module-level ``cache=True`` dispatchers of mst.eval.c2m.kernels and
-    mst.pipeline.tracking.kernels (prefixed ``tracking.``) that Python calls (the ``inline="always"``
+    mst.pipeline.tracking.kernels (prefixed ``tracking.``) and mst.meshtools.kernels (``convert.``) that Python calls (the ``inline="always"``
     helpers are compiled into their callers)."""
     import numba.core.registry
 
     from mst.eval.c2m import kernels
+    from mst.meshtools import kernels as convert_kernels
     from mst.pipeline.tracking import kernels as tracking_kernels
 
     out = set()
-    for mod, prefix in ((kernels, ""), (tracking_kernels, "tracking.")):
+    for mod, prefix in ((kernels, ""), (tracking_kernels, "tracking."), (convert_kernels, "convert.")):
         for name in dir(mod):
             d = getattr(mod, name)
             if isinstance(d, numba.core.registry.CPUDispatcher) and d.targetoptions.get("inline") != "always":
@@ -50,7 +51,7 @@ def test_second_process_loads_every_c2m_and_tracking_kernel_from_the_cache():
     for name, st in second.items():
         assert st["cache_misses"] == 0, f"{name} recompiled in the second process"
         assert st["cache_hits"] >= 1, name
-        idx = list(Path(st["cache_path"]).glob(f"kernels.{name.removeprefix('tracking.')}-*.nbi"))
+        idx = list(Path(st["cache_path"]).glob(f"kernels.{name.removeprefix('tracking.').removeprefix('convert.')}-*.nbi"))
         assert idx, f"no cache index file for {name} in {st['cache_path']}"
 
 

@@ -2,11 +2,14 @@
 
 Rows (see :mod:`mst.eval.bench`):
 
-* ``convert_city_1M``: the whole command (Python start-up, reading the binary PLY, welding,
-  orientation, region growing, outlines, writing the .wrl) timed as a subprocess with its peak RSS,
-  next to ``trimesh.Trimesh(V, F).facets`` on the same mesh in the same run (facets alone on a
-  fresh Trimesh; the construction is reported separately). Runs are interleaved, best of 3 each. Target from issue #2: command time <= 2x the
-  facets time, peak memory < 2 GB.
+* ``convert_city_1M``: the whole command (Python start-up, numba's cache load, reading the binary
+  PLY, welding, orientation, region growing, outlines, writing the .wrl) timed as a subprocess with
+  its peak RSS, next to ``trimesh.Trimesh(V, F).facets`` on the same mesh in the same run (facets
+  alone on a fresh Trimesh; the construction is reported separately). Runs are interleaved, 3 each.
+  The ratio is of CPU seconds (the command's user + system, facets' ``time.process_time``), medians
+  of the 3: on a shared machine wall time mostly measures the other processes. Target from issue
+  #14: command CPU <= 1.0x the facets CPU; from issue #2: peak memory < 2 GB. Wall times (best of 3)
+  and the load average are reported beside.
 * ``convert_city_1M_obj``: the same mesh read from OBJ text (parsing 47 MB of text), no target.
 * ``convert_cityjson``: the real CityJSON files of ../shared/data (when present), per file.
 """
@@ -36,31 +39,38 @@ def run(workdir: Path) -> list[dict]:
     # trimesh facets on the same mesh, interleaved with the command runs (the machine may be shared):
     # best of 3 each. facets is timed on a fresh Trimesh (its adjacency/normal caches cold, as a
     # user calling .facets gets it); the construction is reported separately.
+    import statistics
+
     import trimesh
 
-    facets_s, ctor_s, runs = [], [], []
+    facets_s, facets_cpu, ctor_s, runs = [], [], [], []
     for _ in range(3):
         t = time.perf_counter()
         mesh = trimesh.Trimesh(V, F)
         ctor_s.append(time.perf_counter() - t)
-        t = time.perf_counter()
+        t, c = time.perf_counter(), time.process_time()
         n_facets = len(mesh.facets)
+        facets_cpu.append(time.process_time() - c)
         facets_s.append(time.perf_counter() - t)
         del mesh
         runs.append(timed_command(mst_cmd("convert-model", ply, "-o", workdir / "city_block.wrl", "--json", "-q")))
-    facets = min(facets_s)
     best = min(runs, key=lambda r: r["wall_s"])
     s = json.loads(best["stdout"])
     peak = max(r["peak_rss_mib"] for r in runs)
+    cmd_cpu = statistics.median(r["cpu_s"] for r in runs)
+    fac_cpu = statistics.median(facets_cpu)
+    ratio = cmd_cpu / fac_cpu
     rows.append({
         "bench": "convert_city_1M", "triangles": int(len(F)), "vertices": int(len(V)),
-        "wall_s": round(best["wall_s"], 3), "stage_s": s["elapsed_s"], "peak_rss_mib": round(peak, 1),
-        "trimesh_facets_s": round(facets, 3), "trimesh_ctor_s": round(min(ctor_s), 3), "trimesh_facets": n_facets,
-        "ratio_vs_facets": round(best["wall_s"] / facets, 3),
+        "cpu_s": round(cmd_cpu, 3), "trimesh_facets_cpu_s": round(fac_cpu, 3), "ratio_cpu_vs_facets": round(ratio, 3),
+        "wall_s": round(best["wall_s"], 3), "trimesh_facets_s": round(min(facets_s), 3),
+        "ratio_vs_facets": round(best["wall_s"] / min(facets_s), 3),
+        "stage_s": s["elapsed_s"], "peak_rss_mib": round(peak, 1), "trimesh_ctor_s": round(min(ctor_s), 3),
+        "trimesh_facets": n_facets, "load_avg": round(max(r["load_avg"] for r in runs), 2),
         "regions": s["regions"], "polygons_out": s["polygons_out"], "holes": s["holes"],
         "vertices_out": s["vertices_out"], "regrown_triangles": s["regrown_triangles"],
-        "target": "whole command <= 2x trimesh facets, peak < 2048 MiB",
-        "ok": bool(best["wall_s"] <= 2 * facets and peak < 2048),
+        "target": "whole command CPU <= 1.0x trimesh facets CPU (medians of 3), peak < 2048 MiB",
+        "ok": bool(ratio <= 1.0 and peak < 2048),
     })
 
     obj = workdir / "city_block.obj"

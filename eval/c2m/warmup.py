@@ -8,7 +8,7 @@ argument types ``mst c2m`` uses (dense grid and binned grid, signed and unsigned
 points far outside the grid), so that the first real ``mst c2m`` does not compile; and the edge
 tracker's kernels (:mod:`mst.pipeline.tracking.kernels`: moving edges on 8-bit and float32 images,
 with and without a contrast reference, VVS with and without KLT points), so that ``mst track``
-does not compile either.
+does not compile either; and ``convert-model``'s kernels (:mod:`mst.meshtools.kernels`).
 
 ``python -m mst.eval.c2m.warmup --json`` prints, per kernel, the signatures loaded from the cache
 (``cache_hits``) and compiled in this process (``cache_misses``): a second run must show no misses.
@@ -79,16 +79,34 @@ def warm_tracking() -> None:
         solve_pose(T0, K, X, e, A, B, cand, **kw)
 
 
+def warm_convert() -> None:
+    """Run ``convert-model``'s kernels (:mod:`mst.meshtools.kernels`): a small building, once wound
+    consistently and once with flipped triangles and duplicated vertices (weld, orientation, regions,
+    the regrowth queue, outlines)."""
+    from mst.meshtools.convert import tin_to_polygons
+    from mst.meshtools.generate import gabled_house, uneven_arc
+
+    V, F = (np.asarray(a) for a in gabled_house(split=2)[:2])
+    tin_to_polygons(V, F)
+    F2 = np.asarray(F, np.int64).copy()
+    F2[::3] = F2[::3, ::-1]
+    tin_to_polygons(np.concatenate([V, V]), np.where(np.arange(len(F2))[:, None] % 2 == 1, F2 + len(V), F2))
+    V, F = (np.asarray(a) for a in uneven_arc()[:2])
+    tin_to_polygons(V, F)
+
+
 def kernel_stats() -> dict[str, dict]:
-    """Per compiled kernel of :mod:`mst.eval.c2m.kernels` and :mod:`mst.pipeline.tracking.kernels`:
+    """Per compiled kernel of :mod:`mst.eval.c2m.kernels`, :mod:`mst.pipeline.tracking.kernels` and
+    :mod:`mst.meshtools.kernels`:
     signatures loaded from the cache and compiled in this process, and the cache folder."""
     import numba.core.registry
 
     from mst.eval.c2m import kernels
+    from mst.meshtools import kernels as convert_kernels
     from mst.pipeline.tracking import kernels as tracking_kernels
 
     out = {}
-    for mod, prefix in ((kernels, ""), (tracking_kernels, "tracking.")):
+    for mod, prefix in ((kernels, ""), (tracking_kernels, "tracking."), (convert_kernels, "convert.")):
         for name in dir(mod):
             d = getattr(mod, name)
             if isinstance(d, numba.core.registry.CPUDispatcher) and d.signatures:
@@ -105,13 +123,14 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.perf_counter()
     warm_c2m()
     warm_tracking()
+    warm_convert()
     stats = kernel_stats()
     dt = time.perf_counter() - t0
     if a.json:
         print(json.dumps({"seconds": dt, "kernels": stats}))
     else:
         compiled = sum(s["cache_misses"] for s in stats.values())
-        print(f"mst warm-up: {len(stats)} C2M and tracking kernels ready in {dt:.1f} s ({compiled} compiled now, "
+        print(f"mst warm-up: {len(stats)} C2M, tracking and convert kernels ready in {dt:.1f} s ({compiled} compiled now, "
               f"the rest loaded from the cache)", file=sys.stderr)
     return 0
 
