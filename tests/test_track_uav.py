@@ -217,9 +217,27 @@ def test_fpv_rotterdam_no_slam_pose_beyond_the_budget(fpv_rotterdam):
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="`model` poses: the first 5 (from the clicks) are 1.5-4.8 % off, and after a "
-                   "74-frame loss the edge search from the held pose locks onto the facades 24 m off and passes "
-                   "the health score (frames 79-98)")
+def test_fpv_rotterdam_first_frames_from_an_exact_pose_within_the_budget(fpv_rotterdam):
+    """Frames 0-4 from the (exact) clicked pose: the first frame's tolerant search had moved it 20 px
+    (0.73 m, 2.4 %, 21 sigma of its own covariance) and frames 1-4 followed at 1.5-4.8 %; with the plain
+    fit kept they are 0.06-0.23 m. Bound: the issue's 1 % of the distance (nearest vertex) and 2 deg."""
+    from mst.core.poses import pose_error
+
+    run, V = fpv_rotterdam
+    first = run["idx"] < 5
+    assert first.sum() == 5 and all(run["status"][k] == "model" for k in range(5))
+    Tg = run["Tg"][run["idx"][first]]
+    dist = np.linalg.norm(Tg[:, None, :3, 3] - V[None], axis=2).min(1)
+    assert np.all(run["err"][first] <= 0.01 * dist), run["err"][first] / dist
+    assert np.all(pose_error(run["Te"][first], Tg)[1] <= 2.0)
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="frames 5-6 `model` 2.1 / 2.9 % off (0.65 / 0.89 m, ~10 sigma of their own "
+                   "covariance, health score 0.42 / 0.65), then lost to the end. Fixed by the first-frame fit check: "
+                   "frames 0-4 (the tolerant fit 0.73 m off from an exact pose: now the plain fit, 0.06-0.23 m); "
+                   "frames 79-98 (24 m off) are no longer output, but only because the history changed: no gate "
+                   "refuses a lock after a long loss")
 def test_fpv_rotterdam_no_wrong_output_pose(fpv_rotterdam):
     run, V = fpv_rotterdam
     Tg = run["Tg"][run["idx"]]
