@@ -77,8 +77,12 @@ def connect(cfg: BatchConfig):
             why = str(e).splitlines()[0] if str(e) else type(e).__name__
             raise SchedulerError(f"cannot reach the dask scheduler at {cfg.scheduler} "
                                  f"(within {cfg.connect_timeout_s:g} s): {why}") from None
+    # numba's thread pool sized to the worker's threads before the worker imports numba (its default
+    # is every core: N workers on N cores would each start N threads; set_num_threads in the task
+    # cannot shrink a pool already launched). 100M-point c2m on 2 cores: 1.56x -> 1.76x for 2 workers
     cluster = LocalCluster(n_workers=cfg.workers, threads_per_worker=cfg.threads_per_worker, processes=True,
-                           dashboard_address=None, silence_logs=logging.ERROR)
+                           dashboard_address=None, silence_logs=logging.ERROR,
+                           env={"NUMBA_NUM_THREADS": str(max(1, int(cfg.threads_per_worker)))})
     return Client(cluster)
 
 
