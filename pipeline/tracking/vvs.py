@@ -147,6 +147,34 @@ def _line_jacobian(nx, ny, x, y, iz, fx, fy) -> np.ndarray:
                             a * (1.0 + x * x) + b * x * y, b * x - a * y])
 
 
+def _vvs_result(T, H, w, r, w_tukey, wk, nk: int, klt_weight: float, has, n_samples: int, sigma: float,
+                it: int) -> VVSResult:
+    """The solve's result from its last linearisation: weights, residuals (px) and the Tukey inlier
+    mask back on all ``n_samples`` (NaN residual / zero weight where a sample had no candidate), the
+    covariance ``rms^2 H^-1`` and the status (degenerate H, non-finite pose)."""
+    sw = float(w.sum())
+    ssr = float(np.sum(w * r * r))
+    klt_in = None
+    if nk:
+        klt_in = (wk[:nk] > 0.5 * klt_weight) & (wk[nk:] > 0.5 * klt_weight)
+    rms = float(np.sqrt(ssr / max(sw, 1e-9)))
+    status = SolveStatus.OK
+    try:
+        cov = rms**2 * np.linalg.inv(H)
+    except np.linalg.LinAlgError:
+        cov = np.full((6, 6), np.inf)
+        status = SolveStatus.DEGENERATE
+    if not np.isfinite(T).all() or not np.isfinite(H).all():
+        status = SolveStatus.DIVERGED
+    W_full = np.zeros(n_samples)
+    W_full[has] = w
+    Wt_full = np.zeros(n_samples)
+    Wt_full[has] = w_tukey
+    R_full = np.full(n_samples, np.nan)
+    R_full[has] = r
+    return VVSResult(T, H, cov, W_full, R_full, Wt_full > 0.5, sigma, rms, it, klt_in, status)
+
+
 def solve_pose(T0: np.ndarray, K: np.ndarray, X_model: np.ndarray, edge: np.ndarray, A_model: np.ndarray,
                B_model: np.ndarray, cand_uv: np.ndarray, *, iters: int = 30, lm_mu: float = 0.01,
                min_mad_px: float = 1.0, tukey_c: float = TUKEY_C, klt_X_model: np.ndarray | None = None,
@@ -266,27 +294,7 @@ def solve_pose(T0: np.ndarray, K: np.ndarray, X_model: np.ndarray, edge: np.ndar
             r_old = r_all[rows, prev[2]]
             if float(np.sum(prev[3] * r_old * r_old)) > prev[1] * (1 + 1e-9):
                 T = prev[0]
-    sw = float(w.sum())
-    ssr = float(np.sum(w * r * r))
-    klt_in = None
-    if nk:
-        klt_in = (wk[:nk] > 0.5 * klt_weight) & (wk[nk:] > 0.5 * klt_weight)
-    rms = float(np.sqrt(ssr / max(sw, 1e-9)))
-    status = SolveStatus.OK
-    try:
-        cov = rms**2 * np.linalg.inv(H)
-    except np.linalg.LinAlgError:
-        cov = np.full((6, 6), np.inf)
-        status = SolveStatus.DEGENERATE
-    if not np.isfinite(T).all() or not np.isfinite(H).all():
-        status = SolveStatus.DIVERGED
-    W_full = np.zeros(len(X_model))
-    W_full[has] = w
-    Wt_full = np.zeros(len(X_model))
-    Wt_full[has] = w_tukey
-    R_full = np.full(len(X_model), np.nan)
-    R_full[has] = r
-    return VVSResult(T, H, cov, W_full, R_full, Wt_full > 0.5, sigma, rms, it, klt_in, status)
+    return _vvs_result(T, H, w, r, w_tukey, wk, nk, klt_weight, has, len(X_model), sigma, it)
 
 
 def solve_pose_numpy(T0: np.ndarray, K: np.ndarray, X_model: np.ndarray, edge: np.ndarray, A_model: np.ndarray,
@@ -411,24 +419,4 @@ def solve_pose_numpy(T0: np.ndarray, K: np.ndarray, X_model: np.ndarray, edge: n
             r_old = r_all[rows, prev[2]]
             if float(np.sum(prev[3] * r_old * r_old)) > prev[1] * (1 + 1e-9):
                 T = prev[0]
-    sw = float(w.sum())
-    ssr = float(np.sum(w * r * r))
-    klt_in = None
-    if nk:
-        klt_in = (wk[:nk] > 0.5 * klt_weight) & (wk[nk:] > 0.5 * klt_weight)
-    rms = float(np.sqrt(ssr / max(sw, 1e-9)))
-    status = SolveStatus.OK
-    try:
-        cov = rms**2 * np.linalg.inv(H)
-    except np.linalg.LinAlgError:
-        cov = np.full((6, 6), np.inf)
-        status = SolveStatus.DEGENERATE
-    if not np.isfinite(T).all() or not np.isfinite(H).all():
-        status = SolveStatus.DIVERGED
-    W_full = np.zeros(len(X_model))
-    W_full[has] = w
-    Wt_full = np.zeros(len(X_model))
-    Wt_full[has] = w_tukey
-    R_full = np.full(len(X_model), np.nan)
-    R_full[has] = r
-    return VVSResult(T, H, cov, W_full, R_full, Wt_full > 0.5, sigma, rms, it, klt_in, status)
+    return _vvs_result(T, H, w, r, w_tukey, wk, nk, klt_weight, has, len(X_model), sigma, it)
