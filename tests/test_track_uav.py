@@ -19,6 +19,8 @@ import json
 import numpy as np
 import pytest
 
+from mst.eval.traj.metrics import view_distance_m
+
 
 def _cli(*args) -> None:
     from mst.cli.main import main
@@ -60,20 +62,7 @@ def _model_px(seq) -> np.ndarray:
     return np.array([int(r["model_px"]) for r in csv.DictReader(open(seq / "frames.csv"))])
 
 
-def _view_distance(Tg: np.ndarray, V: np.ndarray, cam: dict, frames, q: float = 50.0) -> float:
-    """Median over ``frames`` of the ``q``-th percentile distance (m) from the camera to the model
-    vertices in its view (q = 50: the buildings in view; q = 0: the nearest corner)."""
-    out = []
-    for k in frames:
-        T = np.linalg.inv(Tg[k])
-        X = V @ T[:3, :3].T + T[:3, 3]
-        ok = X[:, 2] > 0
-        u = cam["fx"] * X[ok, 0] / X[ok, 2] + cam["cx"]
-        v = cam["fy"] * X[ok, 1] / X[ok, 2] + cam["cy"]
-        inside = (u >= 0) & (u < cam["width"]) & (v >= 0) & (v < cam["height"])
-        if inside.any():
-            out.append(np.percentile(np.linalg.norm(X[ok][inside], axis=1), q))
-    return float(np.median(out))
+_view_distance = view_distance_m  # eval.traj.metrics: shared with the UAV bench
 
 
 def _rms(a) -> float:

@@ -136,22 +136,6 @@ SURVEY_SETS = ("rotterdam_subset.json", "DH_01_subs.city.json", "delft_1b.json",
 SURVEY_PITCH = {("DH_01_subs.city.json", 40): 30.0}
 
 
-def _view_distance(Tg: np.ndarray, V: np.ndarray, cam: dict, frames) -> float:
-    """Median over ``frames`` of the median distance (m) from the camera to the model vertices in
-    its view: the camera-building distance of issue 11's "0.1 % of the distance"."""
-    out = []
-    for k in frames:
-        T = np.linalg.inv(Tg[k])
-        X = V @ T[:3, :3].T + T[:3, 3]
-        ok = X[:, 2] > 0
-        u = cam["fx"] * X[ok, 0] / X[ok, 2] + cam["cx"]
-        v = cam["fy"] * X[ok, 1] / X[ok, 2] + cam["cy"]
-        inside = (u >= 0) & (u < cam["width"]) & (v >= 0) & (v < cam["height"])
-        if inside.any():
-            out.append(np.median(np.linalg.norm(X[ok][inside], axis=1)))
-    return float(np.median(out)) if out else float("nan")
-
-
 def survey_row(name: str, altitude: float, workdir: Path, frames: int = 240,
                size: tuple[int, int] = (640, 480)) -> list[dict]:
     """``mst synth uav`` at ``altitude`` over ``model``, tracked in the default mode and with
@@ -193,6 +177,7 @@ def survey_metrics(d: Path, model: Path, label: str) -> list[dict]:
     import json
 
     from mst.core.trajectory import read_tum
+    from mst.eval.traj.metrics import view_distance_m
     from mst.meshtools.formats import load_model
 
     seq = d / "seq"
@@ -200,7 +185,7 @@ def survey_metrics(d: Path, model: Path, label: str) -> list[dict]:
     tg, Tg = read_tum(seq / "gt.txt")
     n = len(tg)
     cam = json.loads((seq / "camera.json").read_text())
-    dist = _view_distance(Tg, load_model(model).vertices, cam, np.flatnonzero(px > 0))
+    dist = view_distance_m(Tg, load_model(model).vertices, cam, np.flatnonzero(px > 0))
     rows = []
     for slam in ("auto", "off"):
         out = d / f"traj_{slam}.txt"

@@ -157,6 +157,26 @@ def camera_yaw_deg(T_model_cam: np.ndarray) -> np.ndarray:
     return np.degrees(np.arctan2(v[..., 1], v[..., 0]))
 
 
+def view_distance_m(T_model_cam: np.ndarray, V_model: np.ndarray, cam: dict, frames, q: float = 50.0) -> float:
+    """Median over ``frames`` of the ``q``-th percentile distance (m) from the camera to the model
+    vertices in its view: the camera-building distance that issue 11's "0.1 % of the distance" is
+    relative to (q = 50: the buildings in view; q = 0: the nearest corner, the strict reading).
+
+    ``T_model_cam`` (N, 4, 4) camera poses in the model frame, ``V_model`` (M, 3), ``cam`` the camera
+    dict (fx fy cx cy width height); NaN when no vertex is in view in any of ``frames``."""
+    out = []
+    for k in frames:
+        T = inv_T(T_model_cam[k])
+        X = V_model @ T[:3, :3].T + T[:3, 3]
+        ok = X[:, 2] > 0
+        u = cam["fx"] * X[ok, 0] / X[ok, 2] + cam["cx"]
+        v = cam["fy"] * X[ok, 1] / X[ok, 2] + cam["cy"]
+        inside = (u >= 0) & (u < cam["width"]) & (v >= 0) & (v < cam["height"])
+        if inside.any():
+            out.append(np.percentile(np.linalg.norm(X[ok][inside], axis=1), q))
+    return float(np.median(out)) if out else float("nan")
+
+
 def wrap_deg(a: np.ndarray) -> np.ndarray:
     """Wrap angles (degrees) to (-180, 180]."""
     return -((-np.asarray(a, np.float64) + 180.0) % 360.0 - 180.0)
