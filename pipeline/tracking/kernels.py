@@ -1,8 +1,8 @@
 """Numba kernels of the edge tracker's hot loops (issue #14; compiled once, cached on disk).
 
 * :func:`me_gather` and :func:`me_select`: the moving-edge search of a frame in two passes over all
-  its samples: the pixels read along each normal (gathered for the float32 matrix product with the
-  oriented masks, which stays numpy's: the convolutions, and every decision on them, are those of
+  its samples: the pixels read along each normal (gathered for the float32 dot products with the
+  oriented masks, :func:`mst.pipeline.tracking.exact.masked_conv`: the convolutions, and every decision on them, are those of
   :func:`mst.pipeline.tracking.moving_edges.search_edges_numpy` to the bit), then ViSP's contrast
   and likelihood tests, the polarity vote of each model edge, local maxima, the best candidates and
   their parabolic sub-pixel refinement (float32 where the numpy formulation is float32, thresholds
@@ -10,8 +10,9 @@
 * :func:`vvs_residuals`, :func:`vvs_linearise`: one VVS iteration's residuals at a pose (each
   sample's candidates against its projected model line) and its linearisation (candidate choice,
   Tukey weights on the MAD scale, the edge-spread re-weighting, the point-to-line Jacobian and its
-  weighted copy). The rigid transforms, ``J^T W J``, ``J^T W r`` and the costs stay numpy's (BLAS
-  and pairwise sums), so that the solved poses are those of the numpy formulation to the bit.
+  weighted copy). The rigid transforms (elementwise), ``J^T W J``, ``J^T W r`` and the 6x6 solve
+  (:mod:`mst.pipeline.tracking.exact`, no BLAS: the same bits on every CPU) and the costs (numpy's
+  pairwise sums) are shared with the numpy formulation, so that the solved poses are its to the bit.
 * :func:`sobel_at`: the Sobel gradient at sample positions (the health tests).
 
 No fastmath (reproducible bit for bit), single-threaded (the tracker's one-core budget).
@@ -215,7 +216,7 @@ def vvs_linearise(r_all, ch, r, w, w_tukey, min_scale, tukey_c, e, nE, spread, s
     weights on the MAD scale floored at ``min_scale`` (``w_tukey``), the edge-spread re-weighting
     (``w``, when ``spread``: an edge whose inlier residuals scatter counts less), the point-to-line
     Jacobian ``J (N, 6)`` and ``wJ = w J``. Returns the robust scale sigma (px). The products
-    ``J^T wJ`` and ``wJ^T r`` are left to numpy's BLAS (the numpy formulation's values to the bit)."""
+    ``J^T wJ`` and ``wJ^T r`` are :func:`mst.pipeline.tracking.exact.normal_equations`'s."""
     n = r.shape[0]
     C = r_all.shape[1]
     for i in range(n):

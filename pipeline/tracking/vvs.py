@@ -32,8 +32,34 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from mst.core.poses import matmul_exact, transform_points
 from mst.core.poses import se3_exp as _se3_exp_batch
 from mst.errors import SolveStatus
+
+
+def _rigid(T: np.ndarray, X: np.ndarray) -> np.ndarray:
+    """``T`` applied to the points ``X (N, 3)``, elementwise (the same bits on every CPU; a BLAS
+    product rounds per CPU, see :mod:`mst.pipeline.tracking.exact`)."""
+    return transform_points(T, X, elementwise=True)
+
+
+def _solve(A: np.ndarray, b: np.ndarray) -> np.ndarray:
+    from mst.pipeline.tracking.exact import solve
+
+    return solve(A, b)
+
+
+def _inverse(A: np.ndarray) -> np.ndarray:
+    from mst.pipeline.tracking.exact import inverse
+
+    return inverse(A)
+
+
+def normal_equations(J: np.ndarray, wJ: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(J^T wJ, wJ^T r)`` summed in a fixed order (:func:`mst.pipeline.tracking.exact.normal_equations`)."""
+    from mst.pipeline.tracking.exact import normal_equations as ne
+
+    return ne(J, wJ, r)
 
 
 def se3_exp(xi: np.ndarray) -> np.ndarray:
@@ -114,7 +140,7 @@ def tukey_weights(r: np.ndarray, min_scale: float, c: float = TUKEY_C) -> tuple[
 
 
 def _project(T: np.ndarray, X: np.ndarray, fx: float, fy: float, cx: float, cy: float):
-    Xc = X @ T[:3, :3].T + T[:3, 3]
+    Xc = _rigid(T, X)
     z = Xc[:, 2]
     iz = 1.0 / np.where(np.abs(z) < 1e-9, 1e-9, z)
     x, y = Xc[:, 0] * iz, Xc[:, 1] * iz
@@ -160,7 +186,7 @@ def _vvs_result(T, H, w, r, w_tukey, wk, nk: int, klt_weight: float, has, n_samp
     rms = float(np.sqrt(ssr / max(sw, 1e-9)))
     status = SolveStatus.OK
     try:
-        cov = rms**2 * np.linalg.inv(H)
+        cov = rms**2 * _inverse(H)
     except np.linalg.LinAlgError:
         cov = np.full((6, 6), np.inf)
         status = SolveStatus.DEGENERATE
@@ -190,8 +216,9 @@ def solve_pose(T0: np.ndarray, K: np.ndarray, X_model: np.ndarray, edge: np.ndar
 
     The per-sample work of an iteration runs in two numba kernels (:mod:`mst.pipeline.tracking.kernels`:
     residuals; candidate choice, Tukey and edge-spread weights, Jacobian) into buffers allocated once
-    per solve; the rigid transforms, the 6x6 normal equations and the costs stay numpy's (BLAS), so
-    the result is :func:`solve_pose_numpy`'s to the bit.
+    per solve; the rigid transforms (elementwise), the 6x6 normal equations and solve
+    (:mod:`mst.pipeline.tracking.exact`: no BLAS, whose rounding differs between CPUs) and the costs
+    are shared with :func:`solve_pose_numpy`, so the result is its to the bit, on every CPU.
     """
     from mst.pipeline.tracking.kernels import vvs_linearise, vvs_residuals
 
@@ -210,7 +237,7 @@ def solve_pose(T0: np.ndarray, K: np.ndarray, X_model: np.ndarray, edge: np.ndar
     mu = lm_mu
     n = len(X)
     fmax = max(fx, fy)
-    Xc0 = X @ T[:3, :3].T + T[:3, 3]
+    Xc0 = _rigid(T, X)
     iz_max = float(1.0 / max(Xc0[:, 2].min(), 1e-9)) if n else 1.0
     xy_max = float(np.abs(Xc0[:, :2] / np.maximum(Xc0[:, 2:3], 1e-9)).max()) if n else 1.0
     # per-solve buffers, filled in place by the kernels at every iteration
@@ -226,11 +253,10 @@ def solve_pose(T0: np.ndarray, K: np.ndarray, X_model: np.ndarray, edge: np.ndar
     slot = 0
 
     def evaluate(Tc):
-        R, t = Tc[:3, :3], Tc[:3, 3]
-        vvs_residuals(X @ R.T + t, AB @ R.T + t, nE, e, cu, cv, fx, fy, cx, cy, r_all, nx, ny, x, y, iz)
+        vvs_residuals(_rigid(Tc, X), _rigid(Tc, AB), nE, e, cu, cv, fx, fy, cx, cy, r_all, nx, ny, x, y, iz)
 
     def evaluate_klt(Tc):
-        Xc = klt_X_model @ Tc[:3, :3].T + Tc[:3, 3]
+        Xc = _rigid(Tc, klt_X_model)
         izk = 1.0 / Xc[:, 2]
         xk, yk = Xc[:, 0] * izk, Xc[:, 1] * izk
         rk = np.concatenate([fx * xk + cx - klt_uv[:, 0], fy * yk + cy - klt_uv[:, 1]])
@@ -259,32 +285,32 @@ def solve_pose(T0: np.ndarray, K: np.ndarray, X_model: np.ndarray, edge: np.ndar
                 mu *= 10.0
                 T_prev, _, _, _, _, Hp, gp = prev
                 try:
-                    xi = -np.linalg.solve(Hp + mu * np.diag(np.diag(Hp) + 1e-9), gp)
+                    xi = -_solve(Hp + mu * np.diag(np.diag(Hp) + 1e-9), gp)
                 except np.linalg.LinAlgError:  # the damped system of an accepted step: not finite
                     return _no_pose(T0, len(X_model), SolveStatus.DIVERGED, min_mad_px)
-                T = se3_exp(xi) @ T_prev
+                T = matmul_exact(se3_exp(xi), T_prev)
                 continue
             mu = max(mu / 10.0, 1e-7)
         ch, r, w = ch_buf[slot], r_buf[slot], w_buf[slot]
         slot = 1 - slot  # the other slot holds the accepted linearisation (prev) until the next one
         sigma = vvs_linearise(r_all, ch, r, w, w_tukey, float(min_mad_px), float(tukey_c), e, nE,
                               bool(edge_spread_weight), SPREAD_K, nx, ny, x, y, iz, fx, fy, J, wJ)
-        H = J.T @ wJ
-        g = wJ.T @ r
+        H, g = normal_equations(J, wJ, r)
         cost = float(np.sum(w * r * r))
         if nk:
             wk, _ = tukey_weights(rk, min_mad_px, tukey_c)
             wk = wk * klt_weight
-            H = H + Jk.T @ (wk[:, None] * Jk)
-            g = g + Jk.T @ (wk * rk)
+            Hk, gk = normal_equations(Jk, wk[:, None] * Jk, rk)
+            H = H + Hk
+            g = g + gk
             cost += float(np.sum(wk * rk * rk))
         try:
-            xi = -np.linalg.solve(H + mu * np.diag(np.diag(H) + 1e-9), g)
+            xi = -_solve(H + mu * np.diag(np.diag(H) + 1e-9), g)
         except np.linalg.LinAlgError:
             break
         prev = (T, cost, ch, w, wk, H, g)
         step_px = fmax * (np.abs(xi[:3]).max() * iz_max + np.abs(xi[3:]).max() * (1.0 + xy_max))
-        T = se3_exp(xi) @ T
+        T = matmul_exact(se3_exp(xi), T)
         if step_px < stop_px:
             break
     else:
@@ -325,17 +351,16 @@ def solve_pose_numpy(T0: np.ndarray, K: np.ndarray, X_model: np.ndarray, edge: n
     mu = lm_mu
     rows = np.arange(len(X))
     fmax = max(fx, fy)
-    Xc0 = X @ T[:3, :3].T + T[:3, 3]
+    Xc0 = _rigid(T, X)
     iz_max = float(1.0 / max(Xc0[:, 2].min(), 1e-9)) if len(X) else 1.0
     xy_max = float(np.abs(Xc0[:, :2] / np.maximum(Xc0[:, 2:3], 1e-9)).max()) if len(X) else 1.0
 
     def evaluate(Tc):
-        R, t = Tc[:3, :3], Tc[:3, 3]
-        Xc = X @ R.T + t
+        Xc = _rigid(Tc, X)
         iz = 1.0 / Xc[:, 2]
         x, y = Xc[:, 0] * iz, Xc[:, 1] * iz
         u, v = fx * x + cx, fy * y + cy
-        P = AB @ R.T + t
+        P = _rigid(Tc, AB)
         pu = fx * P[:, 0] / P[:, 2]
         pv = fy * P[:, 1] / P[:, 2]
         du, dv = pu[nE:] - pu[:nE], pv[nE:] - pv[:nE]
@@ -345,7 +370,7 @@ def solve_pose_numpy(T0: np.ndarray, K: np.ndarray, X_model: np.ndarray, edge: n
         return r_all, nx, ny, x, y, iz
 
     def evaluate_klt(Tc):
-        Xc = klt_X_model @ Tc[:3, :3].T + Tc[:3, 3]
+        Xc = _rigid(Tc, klt_X_model)
         iz = 1.0 / Xc[:, 2]
         x, y = Xc[:, 0] * iz, Xc[:, 1] * iz
         rk = np.concatenate([fx * x + cx - klt_uv[:, 0], fy * y + cy - klt_uv[:, 1]])
@@ -375,10 +400,10 @@ def solve_pose_numpy(T0: np.ndarray, K: np.ndarray, X_model: np.ndarray, edge: n
                 mu *= 10.0
                 T_prev, _, _, _, _, Hp, gp = prev
                 try:
-                    xi = -np.linalg.solve(Hp + mu * np.diag(np.diag(Hp) + 1e-9), gp)
+                    xi = -_solve(Hp + mu * np.diag(np.diag(Hp) + 1e-9), gp)
                 except np.linalg.LinAlgError:  # the damped system of an accepted step: not finite
                     return _no_pose(T0, len(X_model), SolveStatus.DIVERGED, min_mad_px)
-                T = se3_exp(xi) @ T_prev
+                T = matmul_exact(se3_exp(xi), T_prev)
                 continue
             mu = max(mu / 10.0, 1e-7)
         ch = np.argmin(np.abs(r_all), axis=1)
@@ -394,22 +419,22 @@ def solve_pose_numpy(T0: np.ndarray, K: np.ndarray, X_model: np.ndarray, edge: n
             w = w / (1.0 + SPREAD_K * v_e[e] / (sigma * sigma))
         J = _line_jacobian(nx, ny, x, y, iz, fx, fy)
         wJ = w[:, None] * J
-        H = J.T @ wJ
-        g = wJ.T @ r
+        H, g = normal_equations(J, wJ, r)
         cost = float(np.sum(w * r * r))
         if nk:
             wk, _ = tukey_weights(rk, min_mad_px, tukey_c)
             wk = wk * klt_weight
-            H = H + Jk.T @ (wk[:, None] * Jk)
-            g = g + Jk.T @ (wk * rk)
+            Hk, gk = normal_equations(Jk, wk[:, None] * Jk, rk)
+            H = H + Hk
+            g = g + gk
             cost += float(np.sum(wk * rk * rk))
         try:
-            xi = -np.linalg.solve(H + mu * np.diag(np.diag(H) + 1e-9), g)
+            xi = -_solve(H + mu * np.diag(np.diag(H) + 1e-9), g)
         except np.linalg.LinAlgError:
             break
         prev = (T, cost, ch, w, wk, H, g)
         step_px = fmax * (np.abs(xi[:3]).max() * iz_max + np.abs(xi[3:]).max() * (1.0 + xy_max))
-        T = se3_exp(xi) @ T
+        T = matmul_exact(se3_exp(xi), T)
         if step_px < stop_px:
             break
     else:
