@@ -11,7 +11,7 @@ adds (numba without ``fastmath`` neither fuses nor reorders them), so the result
 every CPU and equals the numpy formulations that spell out the same order (the tests' references).
 
 * :func:`masked_conv`: the moving-edge convolutions, ``conv[i, m] = sum_s patches[i, m, s] *
-  masks[idx[i], s]`` in float32, ``s`` ascending.
+  masks[idx[i], s]``, ``s`` ascending, accumulated in float64 and rounded once to float32.
 * :func:`normal_equations`: ``H = J^T wJ`` (6x6) and ``g = wJ^T r`` (6) of a VVS iteration, sums
   over the samples in order, float64.
 * :func:`solve` / :func:`inverse`: Gaussian elimination with partial pivoting (LAPACK ``getrf``'s
@@ -36,7 +36,8 @@ F32 = np.float32
 def masked_conv(patches, masks, mask_idx, conv):
     """``conv (N, M)`` float32 (filled in place): the dot product of each gathered patch
     ``patches (N, M, S)`` float32 with its sample's oriented mask ``masks[mask_idx[i]] (S,)``,
-    accumulated in float32 over ``s = 0 .. S-1`` in order."""
+    accumulated in float64 over ``s = 0 .. S-1`` in order and rounded once to float32 (the
+    float32 sum in that order gives the same tea-box trajectory; float64 is the more accurate)."""
     N, M, S = patches.shape
     for i in range(N):
         k = mask_idx[i]
