@@ -1,11 +1,11 @@
 """The edge tracker's numba kernels (:mod:`mst.pipeline.tracking.kernels`, issue #14) against the numpy
 formulations they replaced (``search_edges_numpy``, ``reference_contrast_numpy``, ``solve_pose_numpy``).
 
-Budget: none needed, the kernels are exact. The moving-edge search keeps numpy's float32 matrix
-product for the convolutions and the VVS keeps numpy's BLAS products for the rigid transforms and
-the 6x6 normal equations; everything the kernels compute is elementwise IEEE arithmetic in the numpy
-formulation's order, sequential per-edge sums as ``np.bincount``'s and exact medians. So the outputs
-must be *identical* (NaN pattern, offsets, likelihoods, convolutions; poses, weights, inliers).
+Budget: the moving-edge convolutions are summed in float64 and rounded once to float32 (numpy's
+BLAS product rounds in float32), the decisions after them are elementwise IEEE arithmetic in the
+numpy formulation's order: the same matches except at rounding ties (see the test's budget). The
+whole VVS solve is one kernel whose sums run in a fixed order instead of BLAS's: the same
+iterations, inliers and status, the pose within rounding (see the test's budget).
 """
 
 from __future__ import annotations
@@ -37,11 +37,18 @@ def _scene(seed: int = 3):
 
 
 @pytest.mark.parametrize("dtype", [np.uint8, np.float32])
-def test_moving_edge_search_is_identical_to_numpy(dtype):
+def test_moving_edge_search_matches_numpy(dtype):
+    # The kernel sums each convolution in float64 and rounds once to float32; numpy's BLAS product
+    # rounds in float32 as it goes. Budget: the convolutions within a few float32 ulps (relative
+    # 1e-6 of max(|conv|, 1 gray level)); a decision differs only where two likelihoods or a
+    # likelihood and a threshold are within that rounding (ties): at most 1 % of the candidate
+    # slots, and a best candidate that both keep is at the same offset within 1e-4 px.
     img, uv, normal, midx, edge = _scene()
     img = img.astype(dtype)
     ref = me.reference_contrast(img, uv + 0.6, normal, midx, 5, 180)
-    assert np.array_equal(ref, me.reference_contrast_numpy(img, uv + 0.6, normal, midx, 5, 180))
+    ref_np = me.reference_contrast_numpy(img, uv + 0.6, normal, midx, 5, 180)
+    assert ref.dtype == ref_np.dtype == np.float32
+    np.testing.assert_allclose(ref, ref_np, rtol=0, atol=1e-6 * max(1.0, float(np.abs(ref_np).max())))
     for r in (None, ref):
         for e in (None, edge):
             for R, C in ((8, 2), (3, 3), (0, 1)):
@@ -49,11 +56,15 @@ def test_moving_edge_search_is_identical_to_numpy(dtype):
                           mask_idx=midx, edge=e)
                 a = me.search_edges(img, uv, normal, r, **kw)
                 b = me.search_edges_numpy(img, uv, normal, r, **kw)
-                assert np.isfinite(a.offset).sum() > 0
-                np.testing.assert_array_equal(a.offset, b.offset)
-                np.testing.assert_array_equal(a.likelihood, b.likelihood)
-                np.testing.assert_array_equal(a.conv, b.conv)
                 assert a.likelihood.dtype == b.likelihood.dtype and a.conv.dtype == b.conv.dtype
+                assert np.isfinite(b.offset).sum() > 100
+                assert (np.isnan(a.offset) != np.isnan(b.offset)).mean() <= 0.01
+                both = np.isfinite(a.offset[:, 0]) & np.isfinite(b.offset[:, 0])
+                assert both.mean() >= 0.99 * np.isfinite(b.offset[:, 0]).mean()
+                assert np.mean(np.abs(a.offset[both, 0] - b.offset[both, 0]) <= 1e-4) >= 0.99
+                same = both & (np.abs(a.offset[:, 0] - b.offset[:, 0]) <= 1e-4)
+                np.testing.assert_allclose(a.conv[same], b.conv[same], rtol=0,
+                                           atol=1e-6 * max(1.0, float(np.abs(b.conv).max())))
 
 
 def test_moving_edge_search_of_no_samples():
@@ -108,11 +119,13 @@ def test_vvs_kernels_solve_the_numpy_pose(seed, klt):
         a = solve_pose(T0, K, X, edge, A, B, cand, min_mad_px=mad, edge_spread_weight=spread, **kw)
         b = solve_pose_numpy(T0, K, X, edge, A, B, cand, min_mad_px=mad, edge_spread_weight=spread, **kw)
         assert a.status is b.status and a.iters == b.iters
-        np.testing.assert_array_equal(a.T_cam_model, b.T_cam_model)  # bit for bit
-        np.testing.assert_array_equal(a.weights, b.weights)
+        # the fused solve sums in a fixed order (no BLAS): a rounding difference only. Budget:
+        # ~1e-16 relative per operation, a few hundred operations per step, <= 30 steps: 1e-12
+        np.testing.assert_allclose(a.T_cam_model, b.T_cam_model, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(a.weights, b.weights, rtol=0, atol=1e-9)
         np.testing.assert_array_equal(a.inlier, b.inlier)
-        np.testing.assert_array_equal(a.W, b.W)
-        assert a.rms_px == b.rms_px and a.sigma_px == b.sigma_px
+        np.testing.assert_allclose(a.W, b.W, rtol=1e-9, atol=0)
+        assert abs(a.rms_px - b.rms_px) <= 1e-9 * b.rms_px and abs(a.sigma_px - b.sigma_px) <= 1e-9 * b.sigma_px
         # and it is a real solve: the start was ~5 mm / 0.8 deg off the cube's true pose
         assert np.abs(se3_log(a.T_cam_model @ inv_T(T0))).max() > 1e-3
         if klt:

@@ -1,20 +1,22 @@
 """Numba kernels of the edge tracker's hot loops (issue #14; compiled once, cached on disk).
 
-* :func:`me_gather` and :func:`me_select`: the moving-edge search of a frame in two passes over all
-  its samples: the pixels read along each normal (gathered for the float32 matrix product with the
-  oriented masks, which stays numpy's: the convolutions, and every decision on them, are those of
-  :func:`mst.pipeline.tracking.moving_edges.search_edges_numpy` to the bit), then ViSP's contrast
-  and likelihood tests, the polarity vote of each model edge, local maxima, the best candidates and
-  their parabolic sub-pixel refinement (float32 where the numpy formulation is float32, thresholds
-  rounded to float32 as numpy's weak Python scalars are, float64 elsewhere).
-* :func:`vvs_residuals`, :func:`vvs_linearise`: one VVS iteration's residuals at a pose (each
-  sample's candidates against its projected model line) and its linearisation (candidate choice,
-  Tukey weights on the MAD scale, the edge-spread re-weighting, the point-to-line Jacobian and its
-  weighted copy). The rigid transforms, ``J^T W J``, ``J^T W r`` and the costs stay numpy's (BLAS
-  and pairwise sums), so that the solved poses are those of the numpy formulation to the bit.
+* :func:`me_convolve` and :func:`me_select`: the moving-edge search of a frame in two passes over all
+  its samples: the oriented-mask convolutions at the pixels read along each normal (summed in float64,
+  rounded once to float32: no BLAS, the same on every CPU), then ViSP's contrast and likelihood tests,
+  the polarity vote of each model edge, local maxima, the best candidates and their parabolic
+  sub-pixel refinement (float32 where the numpy formulation
+  :func:`mst.pipeline.tracking.moving_edges.search_edges_numpy` is float32, thresholds rounded to
+  float32 as numpy's weak Python scalars are, float64 elsewhere).
+* :func:`vvs_solve`: the whole robust VVS of a frame (issue #14: the ~6 iterations of ~20 numpy
+  calls each were most of the solve's time) on :func:`vvs_residuals` (one iteration's residuals at a
+  pose: each sample's candidates against its projected model line) and :func:`vvs_linearise` (the
+  candidate choice, Tukey weights on the MAD scale, the edge-spread re-weighting, the point-to-line
+  Jacobian), with the normal equations, the KLT points, the damped step with undo and the stopping
+  test; every sum in a fixed order (no BLAS, no FMA), so the pose is the numpy formulation's within
+  rounding and the same on every CPU.
 * :func:`sobel_at`: the Sobel gradient at sample positions (the health tests).
 
-No fastmath (reproducible bit for bit), single-threaded (the tracker's one-core budget).
+No fastmath (reproducible bit for bit on every CPU), single-threaded (the tracker's one-core budget).
 Units: pixels, metres; ``R``, ``t`` the rotation and translation of ``T_cam_model``.
 """
 
@@ -27,11 +29,15 @@ F32 = np.float32
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def me_gather(img, uv, normal, ks, moff, patches, k_eff):
-    """The mask pixels around ``uv[i] + ks[m] * normal[i]`` (nearest pixel, clipped so that the mask
-    stays inside the image) into ``patches[i, m, :]`` (float32, the gray levels), and the signed
-    distance ``k_eff[i, m]`` (px) along the normal of the pixel actually read (see
-    :func:`~mst.pipeline.tracking.moving_edges.convolve_along`)."""
+def me_convolve(img, uv, normal, ks, moff, masks, mask_idx, conv, k_eff):
+    """The oriented-mask convolutions ``conv[i, m]`` (float32) at ``uv[i] + ks[m] * normal[i]`` (nearest
+    pixel, clipped so that the mask ``masks[mask_idx[i]]`` (offsets ``moff``) stays inside the image),
+    and ``k_eff[i, m]`` the signed distance (px) along the normal of the pixel actually read (see
+    :func:`~mst.pipeline.tracking.moving_edges.convolve_along`). Each
+    convolution is summed in float64 (every product of an 8-bit or float32 gray level and a float32
+    weight is exact there) in the mask's pixel order and rounded once to float32: the correctly
+    rounded value of the sum up to ~1e-16, the same on every CPU (numpy's float32 matrix product of
+    the gathered pixels went through BLAS, whose summation order depends on the CPU's kernel)."""
     H, W = img.shape
     S = moff.shape[0]
     r = 0
@@ -41,13 +47,16 @@ def me_gather(img, uv, normal, ks, moff, patches, k_eff):
     for i in range(uv.shape[0]):
         u, v = uv[i, 0], uv[i, 1]
         nx, ny = normal[i, 0], normal[i, 1]
+        mk = mask_idx[i]
         for m in range(ks.shape[0]):
             k = ks[m]
             ix = min(max(np.rint(u + k * nx), r), hi_x)
             iy = min(max(np.rint(v + k * ny), r), hi_y)
             jx, jy = int(ix), int(iy)
+            acc = 0.0
             for s in range(S):
-                patches[i, m, s] = F32(img[jy + moff[s, 1], jx + moff[s, 0]])
+                acc += np.float64(img[jy + moff[s, 1], jx + moff[s, 0]]) * np.float64(masks[mk, s])
+            conv[i, m] = F32(acc)
             k_eff[i, m] = (ix - u) * nx + (iy - v) * ny
 
 
@@ -291,3 +300,265 @@ def sobel_at(img, uv):
         out[i, 0] = (p2 + two * p5 + p8) - (p0 + two * p3 + p6)
         out[i, 1] = (p6 + two * p7 + p8) - (p0 + two * p1 + p2)
     return out
+
+
+# ---------------------------------------------------------------------------- the whole VVS solve
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _rigid(P, T, out):
+    """``out = P @ R.T + t`` for (N, 3) points, in a fixed order (no BLAS, no FMA)."""
+    for i in range(P.shape[0]):
+        p0, p1, p2 = P[i, 0], P[i, 1], P[i, 2]
+        for j in range(3):
+            out[i, j] = (p0 * T[j, 0] + p1 * T[j, 1]) + p2 * T[j, 2] + T[j, 3]
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _solve6(A, b, x):
+    """``x = A^-1 b`` for a 6x6 system by Gaussian elimination with partial pivoting (a fixed order
+    of operations, as ``dgesv``'s LU). Returns False when a pivot is exactly zero (singular)."""
+    M = np.empty((6, 7))
+    for i in range(6):
+        for j in range(6):
+            M[i, j] = A[i, j]
+        M[i, 6] = b[i]
+    for k in range(6):
+        p = k
+        for i in range(k + 1, 6):
+            if abs(M[i, k]) > abs(M[p, k]):
+                p = i
+        if M[p, k] == 0.0:
+            return False
+        if p != k:
+            for j in range(7):
+                tmp = M[k, j]
+                M[k, j] = M[p, j]
+                M[p, j] = tmp
+        for i in range(k + 1, 6):
+            f = M[i, k] / M[k, k]
+            for j in range(k, 7):
+                M[i, j] -= f * M[k, j]
+    for i in range(5, -1, -1):
+        s = M[i, 6]
+        for j in range(i + 1, 6):
+            s -= M[i, j] * x[j]
+        x[i] = s / M[i, i]
+    return True
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _se3_exp_left(xi, T, out):
+    """``out = exp(xi) @ T`` (the exact SE(3) exponential of :func:`mst.pipeline.tracking.vvs.se3_exp`)."""
+    v0, v1, v2, w0, w1, w2 = xi[0], xi[1], xi[2], xi[3], xi[4], xi[5]
+    th2 = w0 * w0 + w1 * w1 + w2 * w2
+    if th2 < 1e-16:  # small angle: the series of mst.core.poses.se3_exp
+        a, b, cc = 1.0 - th2 / 6.0, 0.5 - th2 / 24.0, 1.0 / 6.0 - th2 / 120.0
+    else:
+        th = np.sqrt(th2)
+        s, c = np.sin(th), np.cos(th)
+        a = s / th
+        b = (1.0 - c) / th2
+        cc = (th - s) / (th2 * th)
+    x00, x11, x22 = w0 * w0 - th2, w1 * w1 - th2, w2 * w2 - th2
+    x01, x02, x12 = w0 * w1, w0 * w2, w1 * w2
+    E = np.empty((3, 4))
+    E[0, 0], E[0, 1], E[0, 2] = 1.0 + b * x00, b * x01 - a * w2, b * x02 + a * w1
+    E[1, 0], E[1, 1], E[1, 2] = b * x01 + a * w2, 1.0 + b * x11, b * x12 - a * w0
+    E[2, 0], E[2, 1], E[2, 2] = b * x02 - a * w1, b * x12 + a * w0, 1.0 + b * x22
+    V00, V11, V22 = 1.0 + cc * x00, 1.0 + cc * x11, 1.0 + cc * x22
+    E[0, 3] = V00 * v0 + (cc * x01 - b * w2) * v1 + (cc * x02 + b * w1) * v2
+    E[1, 3] = (cc * x01 + b * w2) * v0 + V11 * v1 + (cc * x12 - b * w0) * v2
+    E[2, 3] = (cc * x02 - b * w1) * v0 + (cc * x12 + b * w0) * v1 + V22 * v2
+    for i in range(3):
+        for j in range(4):
+            out[i, j] = (E[i, 0] * T[0, j] + E[i, 1] * T[1, j]) + E[i, 2] * T[2, j] + (E[i, 3] if j == 3 else 0.0)
+    out[3, 0], out[3, 1], out[3, 2], out[3, 3] = 0.0, 0.0, 0.0, 1.0
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _tukey_into(r, min_scale, tukey_c, w):
+    """Tukey weights of ``r`` on its MAD scale floored at ``min_scale`` into ``w``; returns sigma."""
+    n = r.shape[0]
+    sigma = min_scale
+    if n:
+        med = _median(r)
+        sigma = max(1.4826 * _median(np.abs(r - med)), min_scale)
+    cs = tukey_c * sigma
+    for i in range(n):
+        u = r[i] / cs
+        w[i] = (1.0 - u * u) ** 2 if abs(u) < 1.0 else 0.0
+    return sigma
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def vvs_solve(X, e, AB, nE, cu, cv, Xk, uk, T0, fx, fy, cx, cy, iters, lm_mu, min_mad, tukey_c, klt_weight, stop_px,
+              spread, spread_k, T_out, H_out, w_out, r_out, wt_out, wk_out):
+    """The whole robust VVS of :func:`mst.pipeline.tracking.vvs.solve_pose` in one call (the loop of
+    :func:`~mst.pipeline.tracking.vvs.solve_pose_numpy`: residuals, candidate choice, Tukey and
+    edge-spread weights, the Levenberg-Marquardt step with undo, the stopping test), every sum and
+    product in a fixed order (no BLAS): the same pose as the numpy formulation within rounding
+    (~1e-15 relative), and the same on every CPU. ``X (n, 3)`` samples with a candidate, ``e`` their
+    edge, ``AB (2 nE, 3)`` the edge end points, ``cu, cv (n, C)`` candidates (1e9: none), ``Xk (nk,
+    3)`` / ``uk (nk, 2)`` KLT points (nk may be 0). Outputs in place: ``T_out`` the pose, ``H_out``
+    the last information matrix, ``w_out``, ``r_out``, ``wt_out`` the last edge weights, residuals,
+    Tukey weights, ``wk_out (2 nk)`` the KLT weights. Returns ``(iterations, sigma, status)`` with
+    status 0 = a pose, 1 = diverged (a damped retry could not be solved: no pose)."""
+    n = X.shape[0]
+    nk = Xk.shape[0]
+    C = cu.shape[1]
+    Xc = np.empty((n, 3))
+    P = np.empty((2 * nE, 3))
+    Xck = np.empty((nk, 3))
+    r_all = np.empty((n, C))
+    nx, ny, x, y, iz = np.empty(n), np.empty(n), np.empty(n), np.empty(n), np.empty(n)
+    ch = np.zeros(n, np.int64)
+    w = np.zeros(n)
+    r = np.zeros(n)
+    wt = np.zeros(n)
+    J = np.empty((n, 6))
+    wJ = np.empty((n, 6))
+    rk = np.zeros(2 * nk)
+    Jk = np.empty((2 * nk, 6))
+    wk = np.zeros(2 * nk)
+    # the accepted linearisation: its pose, cost, choice, weights, H and g
+    pT = np.empty((4, 4))
+    pch = np.zeros(n, np.int64)
+    pw = np.zeros(n)
+    pwk = np.zeros(2 * nk)
+    pH = np.zeros((6, 6))
+    pg = np.zeros(6)
+    pcost = 0.0
+    have_prev = False
+    H = np.zeros((6, 6))
+    g = np.zeros(6)
+    A = np.empty((6, 6))
+    xi = np.empty(6)
+    T = T0.copy()
+    Tn = np.empty((4, 4))
+    fmax = max(fx, fy)
+    _rigid(X, T, Xc)
+    iz_max, xy_max = 1.0, 1.0
+    if n:
+        zmin = Xc[0, 2]
+        xy_max = 0.0
+        for i in range(n):
+            zmin = min(zmin, Xc[i, 2])
+            zz = max(Xc[i, 2], 1e-9)
+            xy_max = max(xy_max, abs(Xc[i, 0] / zz), abs(Xc[i, 1] / zz))
+        iz_max = 1.0 / max(zmin, 1e-9)
+    mu = lm_mu
+    sigma = min_mad
+    it = 0
+    completed = True
+    for it in range(1, iters + 1):
+        # residuals of every candidate at T (vvs_residuals), and the KLT points' residuals and Jacobian
+        _rigid(X, T, Xc)
+        _rigid(AB, T, P)
+        vvs_residuals(Xc, P, nE, e, cu, cv, fx, fy, cx, cy, r_all, nx, ny, x, y, iz)
+        if nk:
+            _rigid(Xk, T, Xck)
+            for i in range(nk):
+                q = 1.0 / Xck[i, 2]
+                xk, yk = Xck[i, 0] * q, Xck[i, 1] * q
+                rk[i] = fx * xk + cx - uk[i, 0]
+                rk[nk + i] = fy * yk + cy - uk[i, 1]
+                Jk[i, 0], Jk[i, 1], Jk[i, 2] = fx * q, 0.0, -fx * xk * q
+                Jk[i, 3], Jk[i, 4], Jk[i, 5] = -fx * xk * yk, fx * (1.0 + xk * xk), -fx * yk
+                Jk[nk + i, 0], Jk[nk + i, 1], Jk[nk + i, 2] = 0.0, fy * q, -fy * yk * q
+                Jk[nk + i, 3], Jk[nk + i, 4], Jk[nk + i, 5] = -fy * (1.0 + yk * yk), fy * xk * yk, fy * xk
+        if have_prev:
+            cost_new = 0.0
+            for i in range(n):
+                ro = r_all[i, pch[i]]
+                cost_new += pw[i] * ro * ro
+            for i in range(2 * nk):
+                cost_new += pwk[i] * rk[i] * rk[i]
+            if cost_new > pcost * (1 + 1e-9) and mu < 1e8:
+                # undo: retry from the previous linearisation with more damping
+                mu *= 10.0
+                for i in range(6):
+                    for j in range(6):
+                        A[i, j] = pH[i, j]
+                    A[i, i] = pH[i, i] + mu * (pH[i, i] + 1e-9)
+                if not _solve6(A, pg, xi):
+                    return it, sigma, 1
+                for i in range(6):
+                    xi[i] = -xi[i]
+                _se3_exp_left(xi, pT, Tn)
+                T[:, :] = Tn
+                continue
+            mu = max(mu / 10.0, 1e-7)
+        # linearise (vvs_linearise), then the KLT points' Tukey weights
+        sigma = vvs_linearise(r_all, ch, r, w, wt, min_mad, tukey_c, e, nE, spread, spread_k, nx, ny, x, y, iz, fx,
+                              fy, J, wJ)
+        for p in range(6):  # H = J^T wJ, g = wJ^T r
+            for q in range(6):
+                s = 0.0
+                for i in range(n):
+                    s += J[i, p] * wJ[i, q]
+                H[p, q] = s
+            s = 0.0
+            for i in range(n):
+                s += wJ[i, p] * r[i]
+            g[p] = s
+        cost = 0.0
+        for i in range(n):
+            cost += w[i] * r[i] * r[i]
+        if nk:
+            _tukey_into(rk, min_mad, tukey_c, wk)
+            for i in range(2 * nk):
+                wk[i] *= klt_weight
+            for p in range(6):
+                for q in range(6):
+                    s = 0.0
+                    for i in range(2 * nk):
+                        s += Jk[i, p] * (wk[i] * Jk[i, q])
+                    H[p, q] += s
+                s = 0.0
+                for i in range(2 * nk):
+                    s += Jk[i, p] * (wk[i] * rk[i])
+                g[p] += s
+            for i in range(2 * nk):
+                cost += wk[i] * rk[i] * rk[i]
+        for i in range(6):
+            for j in range(6):
+                A[i, j] = H[i, j]
+            A[i, i] = H[i, i] + mu * (H[i, i] + 1e-9)
+        if not _solve6(A, g, xi):
+            completed = False
+            break
+        for i in range(6):
+            xi[i] = -xi[i]
+        pT[:, :] = T
+        pcost = cost
+        pch[:] = ch
+        pw[:] = w
+        pwk[:] = wk
+        pH[:, :] = H
+        pg[:] = g
+        have_prev = True
+        a0 = max(abs(xi[0]), abs(xi[1]), abs(xi[2]))
+        a1 = max(abs(xi[3]), abs(xi[4]), abs(xi[5]))
+        step_px = fmax * (a0 * iz_max + a1 * (1.0 + xy_max))
+        _se3_exp_left(xi, T, Tn)
+        T[:, :] = Tn
+        if step_px < stop_px:
+            completed = False
+            break
+    if completed and have_prev:
+        # iteration budget spent: keep the last accepted pose unless it is better
+        _rigid(X, T, Xc)
+        _rigid(AB, T, P)
+        vvs_residuals(Xc, P, nE, e, cu, cv, fx, fy, cx, cy, r_all, nx, ny, x, y, iz)
+        c2 = 0.0
+        for i in range(n):
+            ro = r_all[i, pch[i]]
+            c2 += pw[i] * ro * ro
+        if c2 > pcost * (1 + 1e-9):
+            T[:, :] = pT
+    T_out[:, :] = T
+    H_out[:, :] = H
+    w_out[:] = w
+    r_out[:] = r
+    wt_out[:] = wt
+    wk_out[:] = wk
+    return it, sigma, 0
