@@ -33,30 +33,45 @@ def me_convolve(img, uv, normal, ks, moff, masks, mask_idx, conv, k_eff):
     """The oriented-mask convolutions ``conv[i, m]`` (float32) at ``uv[i] + ks[m] * normal[i]`` (nearest
     pixel, clipped so that the mask ``masks[mask_idx[i]]`` (offsets ``moff``) stays inside the image),
     and ``k_eff[i, m]`` the signed distance (px) along the normal of the pixel actually read (see
-    :func:`~mst.pipeline.tracking.moving_edges.convolve_along`). Each
-    convolution is summed in float64 (every product of an 8-bit or float32 gray level and a float32
-    weight is exact there) in the mask's pixel order and rounded once to float32: the correctly
-    rounded value of the sum up to ~1e-16, the same on every CPU (numpy's float32 matrix product of
-    the gathered pixels went through BLAS, whose summation order depends on the CPU's kernel)."""
+    :func:`~mst.pipeline.tracking.moving_edges.convolve_along`). Each convolution is summed in
+    float64 (every product of an 8-bit or float32 gray level and a float32 weight is exact there;
+    four interleaved partial sums in the mask's pixel order) and rounded once to float32: within
+    one float32 rounding of the exact value, and the same on every CPU (numpy's float32 matrix
+    product of the gathered pixels went through BLAS, whose summation order depends on the CPU)."""
     H, W = img.shape
     S = moff.shape[0]
     r = 0
     for s in range(S):
         r = max(r, abs(moff[s, 0]), abs(moff[s, 1]))
     hi_x, hi_y = W - 1 - r, H - 1 - r
+    fo = np.empty(S, np.int64)  # flat pixel offsets of the mask
+    for s in range(S):
+        fo[s] = moff[s, 1] * W + moff[s, 0]
+    flat = img.ravel()
+    wrow = np.empty(S)
     for i in range(uv.shape[0]):
         u, v = uv[i, 0], uv[i, 1]
         nx, ny = normal[i, 0], normal[i, 1]
         mk = mask_idx[i]
+        for s in range(S):
+            wrow[s] = np.float64(masks[mk, s])
         for m in range(ks.shape[0]):
             k = ks[m]
             ix = min(max(np.rint(u + k * nx), r), hi_x)
             iy = min(max(np.rint(v + k * ny), r), hi_y)
-            jx, jy = int(ix), int(iy)
-            acc = 0.0
-            for s in range(S):
-                acc += np.float64(img[jy + moff[s, 1], jx + moff[s, 0]]) * np.float64(masks[mk, s])
-            conv[i, m] = F32(acc)
+            b = int(iy) * W + int(ix)
+            a0, a1, a2, a3 = 0.0, 0.0, 0.0, 0.0
+            s = 0
+            while s + 4 <= S:  # independent partial sums: the adds are not one latency-bound chain
+                a0 += np.float64(flat[b + fo[s]]) * wrow[s]
+                a1 += np.float64(flat[b + fo[s + 1]]) * wrow[s + 1]
+                a2 += np.float64(flat[b + fo[s + 2]]) * wrow[s + 2]
+                a3 += np.float64(flat[b + fo[s + 3]]) * wrow[s + 3]
+                s += 4
+            while s < S:
+                a0 += np.float64(flat[b + fo[s]]) * wrow[s]
+                s += 1
+            conv[i, m] = F32((a0 + a1) + (a2 + a3))
             k_eff[i, m] = (ix - u) * nx + (iy - v) * ny
 
 
@@ -562,3 +577,187 @@ def vvs_solve(X, e, AB, nE, cu, cv, Xk, uk, T0, fx, fy, cx, cy, iters, lm_mu, mi
     wt_out[:] = wt
     wk_out[:] = wk
     return it, sigma, 0
+
+
+# ---------------------------------------------------------------------------- edge sampling
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _nan_max(a, b):
+    """``np.maximum(a, b)`` (NaN propagates)."""
+    if a != a or b != b:
+        return a + b
+    return a if a >= b else b
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _nan_min(a, b):
+    """``np.minimum(a, b)`` (NaN propagates)."""
+    if a != a or b != b:
+        return a + b
+    return a if a <= b else b
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def edge_samples(Xv, E, small_face, near, far, K, R, t, x0, y0, x1, y1, step, use_lod, lod_min_line_px):
+    """The clipping and sampling steps of :func:`mst.pipeline.tracking.visibility.visible_samples`
+    for the candidate edges ``E (nE, 2)`` (vertex ids into the camera-frame vertices ``Xv``), in one
+    pass with the numpy formulation's operations in its order (so its values to the bit): near/far
+    clipping in 3D, projection with ``K``, the level-of-detail rule (``use_lod``: edges on small faces
+    (``small_face``) or shorter than ``lod_min_line_px``), the Liang-Barsky clip to the rectangle
+    ``x0..x1, y0..y1`` px, samples every ``step`` px with their inverse depth.
+
+    Returns ``(counts (5,) int64: behind, beyond_far, lod, outside, short; z_min (m, NaN: no edge in
+    front); keep (nE,) the index of each kept edge's row in E; pa, pb (k, 2) px the clipped end points;
+    A_model, B_model (k, 3) m the clipped end points in the model frame (R, t: T_cam_model); uv
+    (N, 2) px, nrm (N, 2), iz (N,) 1/m, Xc (N, 3) camera frame m, edge_id (N,) index into the kept
+    edges)``."""
+    nE = E.shape[0]
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    counts = np.zeros(5, np.int64)
+    z_min = np.nan
+    keep = np.empty(nE, np.int64)
+    pa = np.empty((nE, 2))
+    pb = np.empty((nE, 2))
+    iza = np.empty(nE)
+    izb = np.empty(nE)
+    Lk = np.empty(nE)
+    nsk = np.empty(nE, np.int64)
+    k = 0
+    for e in range(nE):
+        A0, A1, A2 = Xv[E[e, 0], 0], Xv[E[e, 0], 1], Xv[E[e, 0], 2]
+        B0, B1, B2 = Xv[E[e, 1], 0], Xv[E[e, 1], 1], Xv[E[e, 1], 2]
+        zA, zB = A2, B2
+        behind = (zA < near) and (zB < near)
+        if behind:
+            counts[0] += 1
+            continue
+        zm = _nan_min(zA, zB)
+        z_min = zm if z_min != z_min else min(z_min, zm)
+        # near/far clipping (_clip_near_far)
+        kp = not ((zA > far) and (zB > far))
+        dz = zB - zA
+        t_near = (near - zA) / dz
+        t_far = (far - zA) / dz
+        t0, t1 = 0.0, 1.0
+        if zA < near:
+            t0 = t_near
+        if zB < near:
+            t1 = t_near
+        if zA > far:
+            t0 = _nan_max(t0, t_far)
+        if zB > far:
+            t1 = _nan_min(t1, t_far)
+        kp = kp and (t1 > t0)
+        if not kp:
+            counts[1] += 1
+            continue
+        D0, D1, D2 = B0 - A0, B1 - A1, B2 - A2
+        a0, a1, a2 = A0 + t0 * D0, A1 + t0 * D1, A2 + t0 * D2
+        b0, b1, b2 = A0 + t1 * D0, A1 + t1 * D1, A2 + t1 * D2
+        # projection (_mat3(A, K), then the division)
+        ux = a0 * K[0, 0] + a1 * K[0, 1] + a2 * K[0, 2]
+        uy = a0 * K[1, 0] + a1 * K[1, 1] + a2 * K[1, 2]
+        uz = a0 * K[2, 0] + a1 * K[2, 1] + a2 * K[2, 2]
+        vx = b0 * K[0, 0] + b1 * K[0, 1] + b2 * K[0, 2]
+        vy = b0 * K[1, 0] + b1 * K[1, 1] + b2 * K[1, 2]
+        vz = b0 * K[2, 0] + b1 * K[2, 1] + b2 * K[2, 2]
+        uax, uay = ux / uz, uy / uz
+        ubx, uby = vx / vz, vy / vz
+        if use_lod:
+            ddx, ddy = ubx - uax, uby - uay
+            big = (not small_face[e]) and (np.sqrt(ddx * ddx + ddy * ddy) >= lod_min_line_px)
+            if not big:
+                counts[2] += 1
+                continue
+        # Liang-Barsky (_clip_rect)
+        dx, dy = ubx - uax, uby - uay
+        s0, s1 = 0.0, 1.0
+        inside = True
+        for side in range(4):
+            if side == 0:
+                p, q = -dx, uax - x0
+            elif side == 1:
+                p, q = dx, x1 - uax
+            elif side == 2:
+                p, q = -dy, uay - y0
+            else:
+                p, q = dy, y1 - uay
+            par = abs(p) < 1e-12
+            if par and q < 0:
+                inside = False
+            rr = q / p
+            if (not par) and p < 0:
+                s0 = _nan_max(s0, rr)
+            if (not par) and p > 0:
+                s1 = _nan_min(s1, rr)
+        inside = inside and (s1 > s0)
+        if not inside:
+            counts[3] += 1
+            continue
+        izA, izB = 1.0 / a2, 1.0 / b2
+        pax, pay = uax + s0 * dx, uay + s0 * dy
+        pbx, pby = uax + s1 * dx, uay + s1 * dy
+        ia = izA + s0 * (izB - izA)
+        ib = izA + s1 * (izB - izA)
+        lx, ly = pbx - pax, pby - pay
+        L = np.sqrt(lx * lx + ly * ly)
+        ns = np.int64(np.floor(L / step))
+        if not ns >= 1:
+            counts[4] += 1
+            continue
+        keep[k] = e
+        pa[k, 0], pa[k, 1], pb[k, 0], pb[k, 1] = pax, pay, pbx, pby
+        iza[k], izb[k], Lk[k], nsk[k] = ia, ib, L, ns
+        k += 1
+    A_model = np.empty((k, 3))
+    B_model = np.empty((k, 3))
+    n = 0
+    for j in range(k):
+        n += nsk[j]
+        for end in range(2):
+            px, py, izv = (pa[j, 0], pa[j, 1], iza[j]) if end == 0 else (pb[j, 0], pb[j, 1], izb[j])
+            c0 = ((px - cx) / fx) / izv - t[0]
+            c1 = ((py - cy) / fy) / izv - t[1]
+            c2 = 1.0 / izv - t[2]
+            out = A_model if end == 0 else B_model
+            out[j, 0] = c0 * R[0, 0] + c1 * R[1, 0] + c2 * R[2, 0]
+            out[j, 1] = c0 * R[0, 1] + c1 * R[1, 1] + c2 * R[2, 1]
+            out[j, 2] = c0 * R[0, 2] + c1 * R[1, 2] + c2 * R[2, 2]
+    uv = np.empty((n, 2))
+    nrm = np.empty((n, 2))
+    iz = np.empty(n)
+    Xc = np.empty((n, 3))
+    edge_id = np.empty(n, np.int64)
+    i = 0
+    for j in range(k):
+        ns = nsk[j]
+        dx, dy = pb[j, 0] - pa[j, 0], pb[j, 1] - pa[j, 1]
+        Lm = max(Lk[j], 1e-9)
+        tx, ty = dx / Lm, dy / Lm
+        diz = izb[j] - iza[j]
+        for q in range(ns):
+            s = (q + 0.5) / ns
+            u = pa[j, 0] + s * dx
+            v = pa[j, 1] + s * dy
+            zi = iza[j] + s * diz
+            uv[i, 0], uv[i, 1] = u, v
+            nrm[i, 0], nrm[i, 1] = -ty, tx
+            iz[i] = zi
+            Xc[i, 0] = ((u - cx) / fx) / zi
+            Xc[i, 1] = ((v - cy) / fy) / zi
+            Xc[i, 2] = 1.0 / zi
+            edge_id[i] = j
+            i += 1
+    return counts, z_min, keep[:k].copy(), pa[:k].copy(), pb[:k].copy(), A_model, B_model, uv, nrm, iz, Xc, edge_id
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def to_model(Xc, R, t):
+    """``_mat3(Xc - t, R.T)``: camera-frame points (N, 3) back to the model frame, in that order."""
+    n = Xc.shape[0]
+    out = np.empty((n, 3))
+    for i in range(n):
+        c0, c1, c2 = Xc[i, 0] - t[0], Xc[i, 1] - t[1], Xc[i, 2] - t[2]
+        out[i, 0] = c0 * R[0, 0] + c1 * R[1, 0] + c2 * R[2, 0]
+        out[i, 1] = c0 * R[0, 1] + c1 * R[1, 1] + c2 * R[2, 1]
+        out[i, 2] = c0 * R[0, 2] + c1 * R[1, 2] + c2 * R[2, 2]
+    return out
