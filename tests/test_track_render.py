@@ -128,6 +128,8 @@ def test_teabox_tin_matches_polygon(shared_data, tmp_path, mst):
                 "--slam", "off", "--edges", edges, "--json")
         s = json.loads(r.stdout)
         assert s["lost"] == 0 and s["edges"] == {"poly": "polygon"}.get(name, edges if edges != "auto" else "merged")
+        if name == "merged":
+            assert s["merged_mesh"]["triangles"] == len(F) and s["merged_mesh"]["polygons"] == 6
         outs[name] = read_tum(o)
     for name, bound_m in (("merged", 0.001), ("render", 0.003)):
         assert np.allclose(outs["poly"][0], outs[name][0])

@@ -56,9 +56,10 @@ def _time(d: Path, model_path: Path | None = None, mode: str = "render") -> dict
     tr, used = edge_tracker_for(model, model_path, cam, TrackConfig(use_klt=False, aid="off", edge_source=mode), T0)
     setup_cpu_ms = (time.process_time() - c0) * 1e3
     prov = tr.sample_provider
-    wall, cpu, rend, est, lost = [], [], [], [], 0
+    wall, cpu, rend, rend_cpu, est, lost = [], [], [], [], [], 0
     for k, g in enumerate(grays):
         r0 = prov.render_ms if prov else 0.0
+        rc0 = prov.render_cpu_ms if prov else 0.0
         t0, c0 = time.perf_counter(), time.process_time()
         fr = tr.track(g, T, first=k == 0)
         if fr.healthy:
@@ -70,6 +71,7 @@ def _time(d: Path, model_path: Path | None = None, mode: str = "render") -> dict
             wall.append((time.perf_counter() - t0) * 1e3)
             cpu.append((time.process_time() - c0) * 1e3)
             rend.append((prov.render_ms if prov else 0.0) - r0)
+            rend_cpu.append((prov.render_cpu_ms if prov else 0.0) - rc0)
         est.append(inv_T(T))
     n_r = prov.n_renders if prov else 0
     dist = float(np.linalg.norm(gt[0][:3, 3] - 0.5 * (model.vertices.min(0) + model.vertices.max(0))))
@@ -78,6 +80,9 @@ def _time(d: Path, model_path: Path | None = None, mode: str = "render") -> dict
             "cpu_mean_ms": float(np.mean(cpu)), "renders": n_r,
             "render_ms_median_when_rendering": float(np.median([r for r in rend if r > 0])) if n_r > 1 else float("nan"),
             "render_ms_per_frame_median": float(np.median(rend)), "render_ms_per_frame_mean": float(np.mean(rend)),
+            "render_cpu_ms_median_when_rendering": (float(np.median([r for r in rend_cpu if r > 0])) if n_r > 1
+                                                    else float("nan")),
+            "render_cpu_ms_per_frame_mean": float(np.mean(rend_cpu)),
             "mean_dt_pct_of_distance": float(100.0 * dt.mean() / dist), "mean_dr_deg": float(dr.mean())}
 
 

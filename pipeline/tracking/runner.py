@@ -85,7 +85,7 @@ class TrackSummary:
     ``frames`` processed, ``tracked`` (an output pose: model + slam + relocalised), per-status
     counts, timing (ms per frame), residual/health statistics, the aid used and its wake-ups, the
     effective ``config`` (``--config`` of it repeats the run) and the output paths. Optional parts
-    (``render_edges``, ``landmarks``, ``relocalisation``, ``static_world_frames``, ``map_refuted_frames``, ``aid_wake*``)
+    (``render_edges``, ``merged_mesh`` (triangles, polygons, merge CPU ms), ``landmarks``, ``relocalisation``, ``static_world_frames``, ``map_refuted_frames``, ``aid_wake*``)
     are left out of the JSON when they do not apply. Indexable like its JSON (``s["tracked"]``).
     """
 
