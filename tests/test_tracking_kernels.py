@@ -176,3 +176,28 @@ def test_edge_sampling_kernel_is_identical_to_numpy(model_name):
             assert a.stats == b.stats
             n_s += len(a)
     assert n_s > 500
+
+
+def test_depth_buffer_setup_kernel_is_identical_to_numpy():
+    # exact: the kernel moves and projects the vertices with the numpy formulation's operations in
+    # its order; poses around a city from afar and from inside it (faces crossing the near plane)
+    from mst.meshtools.generate import city_block_model
+    from mst.pipeline.tracking.depth_buffer import inverse_depth_buffer
+    from mst.pipeline.tracking.visibility import ModelGeometry, face_visibility
+
+    m = city_block_model(buildings=120)
+    g = ModelGeometry.from_model(m)
+    V = np.asarray(m.vertices)
+    c, rad = V.mean(0), float(np.ptp(V, 0).max())
+    n_px = 0
+    for k, (dist, h) in enumerate(((1.2, 0.5), (0.3, 0.02), (0.05, 0.01))):
+        eye = c + rad * np.array([dist * np.cos(k), dist * np.sin(k), h])
+        T = inv_T(look_at(eye, c + [0.0, 0.0, 0.01 * rad]))
+        fv = face_visibility(g, T, None, 80.0, 85.0)
+        for scale, near in ((0.5, 0.01 * rad), (1.0, 0.05 * rad)):
+            a, sa = inverse_depth_buffer(g, T, K, 640, 480, fv, near, scale)
+            b, sb = inverse_depth_buffer(g, T, K, 640, 480, fv, near, scale, _numpy_reference=True)
+            assert sa == sb
+            np.testing.assert_array_equal(a, b)
+            n_px += int((a > 0).sum())
+    assert n_px > 10_000

@@ -761,3 +761,44 @@ def to_model(Xc, R, t):
         out[i, 1] = c0 * R[0, 1] + c1 * R[1, 1] + c2 * R[2, 1]
         out[i, 2] = c0 * R[0, 2] + c1 * R[1, 2] + c2 * R[2, 2]
     return out
+
+
+# ---------------------------------------------------------------------------- depth buffer set-up
+@njit(cache=True, nogil=True, error_model="numpy")
+def zbuffer_faces(V, R, t, Ks, near, sel, d, loop_vid, loop_start, loop_end, ring_vid, face_vstart, uu, vv):
+    """The per-vertex set-up of :func:`mst.pipeline.tracking.depth_buffer.inverse_depth_buffer` for
+    the faces ``sel`` (K,) (their planes' ``d`` (K,) given): each face's depth range over its outer
+    loop (vertices ``V`` moved to the camera frame by ``R``, ``t`` as ``_mat3`` does, in its order),
+    the faces kept (``|d| >= 1e-12`` and not wholly behind ``near``) split into those wholly in front
+    (``inside``) and those crossing the near plane, and the buffer-pixel projection ``uu, vv`` (with
+    ``Ks``) of every ring vertex of the inside faces, written in place (the other entries are not
+    touched: the rasteriser reads no others). Returns ``(inside, crossing)`` face ids."""
+    k = sel.shape[0]
+    inside = np.empty(k, np.int64)
+    crossing = np.empty(k, np.int64)
+    ni, nc = 0, 0
+    for j in range(k):
+        f = sel[j]
+        zmin, zmax = np.inf, -np.inf
+        for q in range(loop_start[f], loop_end[f]):
+            vi = loop_vid[q]
+            z = ((V[vi, 0] * R[2, 0] + V[vi, 1] * R[2, 1]) + V[vi, 2] * R[2, 2]) + t[2]
+            zmin = min(zmin, z)
+            zmax = max(zmax, z)
+        if not (abs(d[j]) >= 1e-12 and zmax >= near):
+            continue
+        if zmin >= near:
+            inside[ni] = f
+            ni += 1
+            for q in range(face_vstart[f], face_vstart[f + 1]):
+                vi = ring_vid[q]
+                x0 = ((V[vi, 0] * R[0, 0] + V[vi, 1] * R[0, 1]) + V[vi, 2] * R[0, 2]) + t[0]
+                x1 = ((V[vi, 0] * R[1, 0] + V[vi, 1] * R[1, 1]) + V[vi, 2] * R[1, 2]) + t[1]
+                x2 = ((V[vi, 0] * R[2, 0] + V[vi, 1] * R[2, 1]) + V[vi, 2] * R[2, 2]) + t[2]
+                z = x2 if x2 > 1e-12 else 1e-12
+                uu[vi] = (Ks[0, 0] * x0 + Ks[0, 1] * x1) / z + Ks[0, 2]
+                vv[vi] = Ks[1, 1] * x1 / z + Ks[1, 2]
+        else:
+            crossing[nc] = f
+            nc += 1
+    return inside[:ni].copy(), crossing[:nc].copy()
