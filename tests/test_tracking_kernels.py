@@ -176,3 +176,93 @@ def test_edge_sampling_kernel_is_identical_to_numpy(model_name):
             assert a.stats == b.stats
             n_s += len(a)
     assert n_s > 500
+
+
+def test_depth_buffer_setup_kernel_is_identical_to_numpy():
+    # exact: the kernel moves and projects the vertices with the numpy formulation's operations in
+    # its order; poses around a city from afar and from inside it (faces crossing the near plane)
+    from mst.meshtools.generate import city_block_model
+    from mst.pipeline.tracking.depth_buffer import inverse_depth_buffer
+    from mst.pipeline.tracking.visibility import ModelGeometry, face_visibility
+
+    m = city_block_model(buildings=120)
+    g = ModelGeometry.from_model(m)
+    V = np.asarray(m.vertices)
+    c, rad = V.mean(0), float(np.ptp(V, 0).max())
+    n_px = 0
+    for k, (dist, h) in enumerate(((1.2, 0.5), (0.3, 0.02), (0.05, 0.01))):
+        eye = c + rad * np.array([dist * np.cos(k), dist * np.sin(k), h])
+        T = inv_T(look_at(eye, c + [0.0, 0.0, 0.01 * rad]))
+        fv = face_visibility(g, T, None, 80.0, 85.0)
+        for scale, near in ((0.5, 0.01 * rad), (1.0, 0.05 * rad)):
+            a, sa = inverse_depth_buffer(g, T, K, 640, 480, fv, near, scale)
+            b, sb = inverse_depth_buffer(g, T, K, 640, 480, fv, near, scale, _numpy_reference=True)
+            assert sa == sb
+            np.testing.assert_array_equal(a, b)
+            n_px += int((a > 0).sum())
+    assert n_px > 10_000
+
+
+def _health_numpy(img, X, A, B, edge, T, near, thr):
+    """The numpy formulation of the health tests and of the evidence gradients that the kernels
+    (``kernels.pose_health``, ``kernels.pose_gradients``) replaced (their reference)."""
+    from mst.pipeline.tracking.health import ORIENT_TOL_DEG, sobel_at_numpy
+
+    fx, fy = K[0, 0], K[1, 1]
+    Xc = X @ T[:3, :3].T + T[:3, 3]
+    ok_z = Xc[:, 2] > near * 0.5
+    z = np.where(ok_z, Xc[:, 2], 1.0)
+    uv = np.stack([fx * Xc[:, 0] / z + K[0, 2], fy * Xc[:, 1] / z + K[1, 2]], 1)
+    Ae, Be = A @ T[:3, :3].T + T[:3, 3], B @ T[:3, :3].T + T[:3, 3]
+    pa = Ae[:, :2] / Ae[:, 2:3] * [fx, fy] + K[:2, 2]
+    pb = Be[:, :2] / Be[:, 2:3] * [fx, fy] + K[:2, 2]
+    d = pb - pa
+    d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
+    n = np.stack([-d[:, 1], d[:, 0]], 1)[edge]
+    g = sobel_at_numpy(img, uv)
+    gn = np.linalg.norm(g, axis=1)
+    ang = np.degrees(np.arccos(np.clip(np.abs((g * n).sum(1)) / np.maximum(gn, 1e-9), 0, 1)))
+    strong = gn >= 2.0 * thr
+    health = (uv, bool(ok_z.all()), float(strong.mean()), float(ang[strong].mean()))
+    # evidence: depth floored at 1e-9, normals from the normalised coordinates, best of -1, 0, +1 px
+    z = np.maximum(Xc[:, 2], 1e-9)
+    uv = np.stack([fx * Xc[:, 0] / z + K[0, 2], fy * Xc[:, 1] / z + K[1, 2]], 1)
+    d = (Be[:, :2] / Be[:, 2:3] - Ae[:, :2] / Ae[:, 2:3]) * [fx, fy]
+    d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
+    n = np.stack([-d[:, 1], d[:, 0]], 1)[edge]
+    g = np.stack([sobel_at_numpy(img, uv + k * n) for k in (-1.0, 0.0, 1.0)])
+    proj = (g * n[None]).sum(2)
+    j = np.argmax(np.abs(proj), axis=0)
+    ii = np.arange(len(uv))
+    pbest, gbest = proj[j, ii], g[j, ii]
+    strong = np.abs(pbest) >= 2.0 * thr
+    oriented = np.abs(pbest) >= np.cos(np.radians(ORIENT_TOL_DEG)) * np.linalg.norm(gbest, axis=1)
+    sign = np.where(strong, np.sign(pbest), 0).astype(np.int8)
+    return health, (uv, n, sign, oriented & strong)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_health_kernels_match_numpy(seed):
+    # The kernels transform the points in a fixed order instead of numpy's BLAS product: positions
+    # within 1e-9 px (rounding ~1e-13 px); a nearest-pixel read changes only for a position within
+    # that of a half-pixel boundary (never, at these counts), so the gradients, polarities,
+    # orientation tests and the strong share are identical; the mean angle sums in another order
+    # (1e-9 deg)
+    from mst.pipeline.tracking.health import ORIENT_TOL_DEG
+    from mst.pipeline.tracking.kernels import pose_gradients, pose_health
+
+    img = _scene(seed)[0]
+    T0, X, edge, A, B, *_ = _box_problem(seed)
+    thr = 12.0
+    (uv_h, front, support, perr), (uv_e, n_e, sign_e, good_e) = _health_numpy(img, X, A, B, edge, T0, 0.01, thr)
+    args = (img, X, A, B, edge.astype(np.int64), T0, K[0, 0], K[1, 1], K[0, 2], K[1, 2])
+    uv, in_front, n_strong, ang_sum = pose_health(*args, 0.005, float(np.float32(2.0 * thr)))
+    np.testing.assert_allclose(uv, uv_h, rtol=0, atol=1e-9)
+    assert in_front == front and n_strong / len(uv) == support and 20 <= n_strong < len(uv)
+    assert abs(ang_sum / n_strong - perr) <= 1e-9
+    uv2, n2, sign2, good2 = pose_gradients(*args, 2.0 * thr, float(np.cos(np.radians(ORIENT_TOL_DEG))))
+    np.testing.assert_allclose(uv2, uv_e, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(n2, n_e, rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(sign2, sign_e)
+    np.testing.assert_array_equal(good2, good_e)
+    assert (sign2 != 0).sum() >= 20 and good2.sum() >= 10

@@ -764,3 +764,166 @@ def to_model(Xc, R, t):
         out[i, 1] = c0 * R[0, 1] + c1 * R[1, 1] + c2 * R[2, 1]
         out[i, 2] = c0 * R[0, 2] + c1 * R[1, 2] + c2 * R[2, 2]
     return out
+
+
+# ---------------------------------------------------------------------------- depth buffer set-up
+@njit(cache=True, nogil=True, error_model="numpy")
+def zbuffer_faces(V, R, t, Ks, near, sel, d, loop_vid, loop_start, loop_end, ring_vid, face_vstart, uu, vv):
+    """The per-vertex set-up of :func:`mst.pipeline.tracking.depth_buffer.inverse_depth_buffer` for
+    the faces ``sel`` (K,) (their planes' ``d`` (K,) given): each face's depth range over its outer
+    loop (vertices ``V`` moved to the camera frame by ``R``, ``t`` as ``_mat3`` does, in its order),
+    the faces kept (``|d| >= 1e-12`` and not wholly behind ``near``) split into those wholly in front
+    (``inside``) and those crossing the near plane, and the buffer-pixel projection ``uu, vv`` (with
+    ``Ks``) of every ring vertex of the inside faces, written in place (the other entries are not
+    touched: the rasteriser reads no others). Returns ``(inside, crossing)`` face ids."""
+    k = sel.shape[0]
+    inside = np.empty(k, np.int64)
+    crossing = np.empty(k, np.int64)
+    ni, nc = 0, 0
+    for j in range(k):
+        f = sel[j]
+        zmin, zmax = np.inf, -np.inf
+        for q in range(loop_start[f], loop_end[f]):
+            vi = loop_vid[q]
+            z = ((V[vi, 0] * R[2, 0] + V[vi, 1] * R[2, 1]) + V[vi, 2] * R[2, 2]) + t[2]
+            zmin = min(zmin, z)
+            zmax = max(zmax, z)
+        if not (abs(d[j]) >= 1e-12 and zmax >= near):
+            continue
+        if zmin >= near:
+            inside[ni] = f
+            ni += 1
+            for q in range(face_vstart[f], face_vstart[f + 1]):
+                vi = ring_vid[q]
+                x0 = ((V[vi, 0] * R[0, 0] + V[vi, 1] * R[0, 1]) + V[vi, 2] * R[0, 2]) + t[0]
+                x1 = ((V[vi, 0] * R[1, 0] + V[vi, 1] * R[1, 1]) + V[vi, 2] * R[1, 2]) + t[1]
+                x2 = ((V[vi, 0] * R[2, 0] + V[vi, 1] * R[2, 1]) + V[vi, 2] * R[2, 2]) + t[2]
+                z = x2 if x2 > 1e-12 else 1e-12
+                uu[vi] = (Ks[0, 0] * x0 + Ks[0, 1] * x1) / z + Ks[0, 2]
+                vv[vi] = Ks[1, 1] * x1 / z + Ks[1, 2]
+        else:
+            crossing[nc] = f
+            nc += 1
+    return inside[:ni].copy(), crossing[:nc].copy()
+
+
+# ---------------------------------------------------------------------------- health tests
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _sobel1(img, u, v):
+    """The Sobel gradient (gx, gy) float32 at the nearest pixel of (u, v) (as :func:`sobel_at`)."""
+    H, W = img.shape
+    ix = min(max(int(np.rint(u)), 1), W - 2) if np.isfinite(u) else 1
+    iy = min(max(int(np.rint(v)), 1), H - 2) if np.isfinite(v) else 1
+    two = F32(2.0)
+    p0 = F32(img[iy - 1, ix - 1])
+    p1 = F32(img[iy - 1, ix])
+    p2 = F32(img[iy - 1, ix + 1])
+    p3 = F32(img[iy, ix - 1])
+    p5 = F32(img[iy, ix + 1])
+    p6 = F32(img[iy + 1, ix - 1])
+    p7 = F32(img[iy + 1, ix])
+    p8 = F32(img[iy + 1, ix + 1])
+    return (p2 + two * p5 + p8) - (p0 + two * p3 + p6), (p6 + two * p7 + p8) - (p0 + two * p1 + p2)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def pose_health(img, X, A, B, edge, T, fx, fy, cx, cy, z_min, strong_min):
+    """The numeric part of ``EdgeTracker._absolute_health`` at the pose ``T``: the samples ``X (N, 3)``
+    (model frame) projected (``uv (N, 2)`` px; a sample at depth <= ``z_min`` is projected at z = 1
+    and reported in ``all_in_front``), the unit normal of each sample's projected model edge (``A``,
+    ``B`` (E, 3) its end points), the Sobel gradient there; a gradient of norm >= ``strong_min`` is
+    strong. Returns ``(uv, all_in_front, n_strong, sum of the strong samples' angles between gradient
+    and normal, deg)``. Transforms and sums in a fixed order (no BLAS)."""
+    N = X.shape[0]
+    nE = A.shape[0]
+    nx = np.empty(nE)
+    ny = np.empty(nE)
+    for k in range(nE):
+        a0 = ((A[k, 0] * T[0, 0] + A[k, 1] * T[0, 1]) + A[k, 2] * T[0, 2]) + T[0, 3]
+        a1 = ((A[k, 0] * T[1, 0] + A[k, 1] * T[1, 1]) + A[k, 2] * T[1, 2]) + T[1, 3]
+        a2 = ((A[k, 0] * T[2, 0] + A[k, 1] * T[2, 1]) + A[k, 2] * T[2, 2]) + T[2, 3]
+        b0 = ((B[k, 0] * T[0, 0] + B[k, 1] * T[0, 1]) + B[k, 2] * T[0, 2]) + T[0, 3]
+        b1 = ((B[k, 0] * T[1, 0] + B[k, 1] * T[1, 1]) + B[k, 2] * T[1, 2]) + T[1, 3]
+        b2 = ((B[k, 0] * T[2, 0] + B[k, 1] * T[2, 1]) + B[k, 2] * T[2, 2]) + T[2, 3]
+        dx = (b0 / b2 * fx + cx) - (a0 / a2 * fx + cx)
+        dy = (b1 / b2 * fy + cy) - (a1 / a2 * fy + cy)
+        ln = max(np.sqrt(dx * dx + dy * dy), 1e-12)
+        nx[k] = -(dy / ln)
+        ny[k] = dx / ln
+    uv = np.empty((N, 2))
+    in_front = True
+    n_strong = 0
+    ang_sum = 0.0
+    for i in range(N):
+        x0 = ((X[i, 0] * T[0, 0] + X[i, 1] * T[0, 1]) + X[i, 2] * T[0, 2]) + T[0, 3]
+        x1 = ((X[i, 0] * T[1, 0] + X[i, 1] * T[1, 1]) + X[i, 2] * T[1, 2]) + T[1, 3]
+        x2 = ((X[i, 0] * T[2, 0] + X[i, 1] * T[2, 1]) + X[i, 2] * T[2, 2]) + T[2, 3]
+        ok = x2 > z_min
+        in_front = in_front and ok
+        z = x2 if ok else 1.0
+        u = fx * x0 / z + cx
+        v = fy * x1 / z + cy
+        uv[i, 0], uv[i, 1] = u, v
+        gx, gy = _sobel1(img, u, v)
+        gn = np.sqrt(gx * gx + gy * gy)  # float32, as numpy's norm of the float32 gradient
+        if gn >= strong_min:
+            e = edge[i]
+            c = abs(np.float64(gx) * nx[e] + np.float64(gy) * ny[e]) / max(np.float64(gn), 1e-9)
+            c = min(max(c, 0.0), 1.0)
+            ang_sum += np.degrees(np.arccos(c))
+            n_strong += 1
+    return uv, in_front, n_strong, ang_sum
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def pose_gradients(img, X, A, B, edge, T, fx, fy, cx, cy, strong_min, cos_tol):
+    """The gradient part of ``EdgeTracker.evidence`` at the pose ``T``: the samples projected (``uv``
+    (N, 2) px, depth floored at 1e-9 m), each sample's projected model-edge normal ``n (N, 2)`` (fixed
+    by the edge direction A -> B), the Sobel gradient at -1, 0, +1 px along it (the one with the
+    largest |projection| on n kept, first on ties): ``sign`` (N,) int8 its polarity where it is at
+    least ``strong_min``, else 0, and ``good`` (N,) strong and within ``acos(cos_tol)`` of n.
+    Transforms in a fixed order (no BLAS)."""
+    N = X.shape[0]
+    nE = A.shape[0]
+    ex = np.empty(nE)
+    ey = np.empty(nE)
+    for k in range(nE):
+        a0 = ((A[k, 0] * T[0, 0] + A[k, 1] * T[0, 1]) + A[k, 2] * T[0, 2]) + T[0, 3]
+        a1 = ((A[k, 0] * T[1, 0] + A[k, 1] * T[1, 1]) + A[k, 2] * T[1, 2]) + T[1, 3]
+        a2 = ((A[k, 0] * T[2, 0] + A[k, 1] * T[2, 1]) + A[k, 2] * T[2, 2]) + T[2, 3]
+        b0 = ((B[k, 0] * T[0, 0] + B[k, 1] * T[0, 1]) + B[k, 2] * T[0, 2]) + T[0, 3]
+        b1 = ((B[k, 0] * T[1, 0] + B[k, 1] * T[1, 1]) + B[k, 2] * T[1, 2]) + T[1, 3]
+        b2 = ((B[k, 0] * T[2, 0] + B[k, 1] * T[2, 1]) + B[k, 2] * T[2, 2]) + T[2, 3]
+        dx = (b0 / b2 - a0 / a2) * fx
+        dy = (b1 / b2 - a1 / a2) * fy
+        ln = max(np.sqrt(dx * dx + dy * dy), 1e-12)
+        ex[k] = -(dy / ln)
+        ey[k] = dx / ln
+    uv = np.empty((N, 2))
+    n = np.empty((N, 2))
+    sign = np.zeros(N, np.int8)
+    good = np.zeros(N, np.bool_)
+    for i in range(N):
+        x0 = ((X[i, 0] * T[0, 0] + X[i, 1] * T[0, 1]) + X[i, 2] * T[0, 2]) + T[0, 3]
+        x1 = ((X[i, 0] * T[1, 0] + X[i, 1] * T[1, 1]) + X[i, 2] * T[1, 2]) + T[1, 3]
+        x2 = ((X[i, 0] * T[2, 0] + X[i, 1] * T[2, 1]) + X[i, 2] * T[2, 2]) + T[2, 3]
+        z = max(x2, 1e-9)
+        u = fx * x0 / z + cx
+        v = fy * x1 / z + cy
+        uv[i, 0], uv[i, 1] = u, v
+        e = edge[i]
+        a, b = ex[e], ey[e]
+        n[i, 0], n[i, 1] = a, b
+        best, bgx, bgy = -1.0, F32(0.0), F32(0.0)
+        pbest = 0.0
+        for kk in range(3):
+            s = np.float64(kk - 1)
+            gx, gy = _sobel1(img, u + s * a, v + s * b)
+            p = np.float64(gx) * a + np.float64(gy) * b
+            if abs(p) > best:
+                best, pbest, bgx, bgy = abs(p), p, gx, gy
+        if best >= strong_min:
+            sign[i] = 1 if pbest > 0 else (-1 if pbest < 0 else 0)
+            gn = np.sqrt(bgx * bgx + bgy * bgy)
+            good[i] = best >= cos_tol * np.float64(gn)
+    return uv, n, sign, good
