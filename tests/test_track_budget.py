@@ -20,8 +20,14 @@ import numpy as np
 
 from mst.core.poses import inv_T, se3_exp
 from mst.pipeline.tracking.edge_tracker import FrameResult
-from mst.pipeline.tracking.session import (REASON_AMBIGUOUS, REASON_UNCERTAIN, ModelDistance, PoseBudget,
-                                           TrackingPolicy, TrackingSession)
+from mst.pipeline.tracking.session import (
+    REASON_AMBIGUOUS,
+    REASON_UNCERTAIN,
+    ModelDistance,
+    PoseBudget,
+    TrackingPolicy,
+    TrackingSession,
+)
 
 D = 100.0  # m, camera to the model vertex
 
