@@ -1,11 +1,11 @@
 """The edge tracker's numba kernels (:mod:`mst.pipeline.tracking.kernels`, issue #14) against the numpy
 formulations they replaced (``search_edges_numpy``, ``reference_contrast_numpy``, ``solve_pose_numpy``).
 
-Budget: none needed, the kernels are exact. The moving-edge search keeps numpy's float32 matrix
-product for the convolutions and the VVS keeps numpy's BLAS products for the rigid transforms and
-the 6x6 normal equations; everything the kernels compute is elementwise IEEE arithmetic in the numpy
-formulation's order, sequential per-edge sums as ``np.bincount``'s and exact medians. So the outputs
-must be *identical* (NaN pattern, offsets, likelihoods, convolutions; poses, weights, inliers).
+Budget: the moving-edge convolutions are summed in float64 and rounded once to float32 (numpy's
+BLAS product rounds in float32), the decisions after them are elementwise IEEE arithmetic in the
+numpy formulation's order: the same matches except at rounding ties (see the test's budget). The
+whole VVS solve is one kernel whose sums run in a fixed order instead of BLAS's: the same
+iterations, inliers and status, the pose within rounding (see the test's budget).
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ import cv2
 import numpy as np
 import pytest
 
-from mst.core.poses import inv_T, se3_exp, se3_log
+from mst.core.poses import inv_T, look_at, se3_exp, se3_log
 from mst.pipeline.tracking import moving_edges as me
 from mst.pipeline.tracking.vvs import solve_pose, solve_pose_numpy
 
@@ -37,11 +37,18 @@ def _scene(seed: int = 3):
 
 
 @pytest.mark.parametrize("dtype", [np.uint8, np.float32])
-def test_moving_edge_search_is_identical_to_numpy(dtype):
+def test_moving_edge_search_matches_numpy(dtype):
+    # The kernel sums each convolution in float64 and rounds once to float32; numpy's BLAS product
+    # rounds in float32 as it goes. Budget: the convolutions within a few float32 ulps (relative
+    # 1e-6 of max(|conv|, 1 gray level)); a decision differs only where two likelihoods or a
+    # likelihood and a threshold are within that rounding (ties): at most 1 % of the candidate
+    # slots, and a best candidate that both keep is at the same offset within 1e-4 px.
     img, uv, normal, midx, edge = _scene()
     img = img.astype(dtype)
     ref = me.reference_contrast(img, uv + 0.6, normal, midx, 5, 180)
-    assert np.array_equal(ref, me.reference_contrast_numpy(img, uv + 0.6, normal, midx, 5, 180))
+    ref_np = me.reference_contrast_numpy(img, uv + 0.6, normal, midx, 5, 180)
+    assert ref.dtype == ref_np.dtype == np.float32
+    np.testing.assert_allclose(ref, ref_np, rtol=0, atol=1e-6 * max(1.0, float(np.abs(ref_np).max())))
     for r in (None, ref):
         for e in (None, edge):
             for R, C in ((8, 2), (3, 3), (0, 1)):
@@ -49,11 +56,15 @@ def test_moving_edge_search_is_identical_to_numpy(dtype):
                           mask_idx=midx, edge=e)
                 a = me.search_edges(img, uv, normal, r, **kw)
                 b = me.search_edges_numpy(img, uv, normal, r, **kw)
-                assert np.isfinite(a.offset).sum() > 0
-                np.testing.assert_array_equal(a.offset, b.offset)
-                np.testing.assert_array_equal(a.likelihood, b.likelihood)
-                np.testing.assert_array_equal(a.conv, b.conv)
                 assert a.likelihood.dtype == b.likelihood.dtype and a.conv.dtype == b.conv.dtype
+                assert np.isfinite(b.offset).sum() > 100
+                assert (np.isnan(a.offset) != np.isnan(b.offset)).mean() <= 0.01
+                both = np.isfinite(a.offset[:, 0]) & np.isfinite(b.offset[:, 0])
+                assert both.mean() >= 0.99 * np.isfinite(b.offset[:, 0]).mean()
+                assert np.mean(np.abs(a.offset[both, 0] - b.offset[both, 0]) <= 1e-4) >= 0.99
+                same = both & (np.abs(a.offset[:, 0] - b.offset[:, 0]) <= 1e-4)
+                np.testing.assert_allclose(a.conv[same], b.conv[same], rtol=0,
+                                           atol=1e-6 * max(1.0, float(np.abs(b.conv).max())))
 
 
 def test_moving_edge_search_of_no_samples():
@@ -108,11 +119,13 @@ def test_vvs_kernels_solve_the_numpy_pose(seed, klt):
         a = solve_pose(T0, K, X, edge, A, B, cand, min_mad_px=mad, edge_spread_weight=spread, **kw)
         b = solve_pose_numpy(T0, K, X, edge, A, B, cand, min_mad_px=mad, edge_spread_weight=spread, **kw)
         assert a.status is b.status and a.iters == b.iters
-        np.testing.assert_array_equal(a.T_cam_model, b.T_cam_model)  # bit for bit
-        np.testing.assert_array_equal(a.weights, b.weights)
+        # the fused solve sums in a fixed order (no BLAS): a rounding difference only. Budget:
+        # ~1e-16 relative per operation, a few hundred operations per step, <= 30 steps: 1e-12
+        np.testing.assert_allclose(a.T_cam_model, b.T_cam_model, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(a.weights, b.weights, rtol=0, atol=1e-9)
         np.testing.assert_array_equal(a.inlier, b.inlier)
-        np.testing.assert_array_equal(a.W, b.W)
-        assert a.rms_px == b.rms_px and a.sigma_px == b.sigma_px
+        np.testing.assert_allclose(a.W, b.W, rtol=1e-9, atol=0)
+        assert abs(a.rms_px - b.rms_px) <= 1e-9 * b.rms_px and abs(a.sigma_px - b.sigma_px) <= 1e-9 * b.sigma_px
         # and it is a real solve: the start was ~5 mm / 0.8 deg off the cube's true pose
         assert np.abs(se3_log(a.T_cam_model @ inv_T(T0))).max() > 1e-3
         if klt:
@@ -131,3 +144,35 @@ def test_sobel_kernel_is_identical_to_numpy(dtype):
         b = sobel_at_numpy(img, uv)
     assert a.dtype == b.dtype == np.float32
     np.testing.assert_array_equal(a, b)
+
+
+@pytest.mark.parametrize("model_name", ["l_shape", "city"])
+def test_edge_sampling_kernel_is_identical_to_numpy(model_name):
+    # exact: the kernel does the numpy formulation's elementwise IEEE operations in its order
+    # (clipping, projection, level of detail, rectangle clip, sampling), so every output and count
+    # must be identical, with and without the level-of-detail rule, near and far planes that cut
+    # edges, and a city with a face index (the edges of the faces in view only)
+    from mst.meshtools.generate import city_block_model, l_shape_model
+    from mst.pipeline.tracking.visibility import ModelGeometry, visible_samples
+
+    m = l_shape_model() if model_name == "l_shape" else city_block_model(buildings=200)
+    g = ModelGeometry.from_model(m)
+    V = np.asarray(m.vertices)
+    rad = float(np.ptp(V, 0).max())
+    rng = np.random.default_rng(1)
+    fields = ("uv", "normal", "X_model", "edge", "A_model", "B_model", "edge_uv", "face_visible", "model_edge")
+    n_s = 0
+    for k in range(6):
+        ang = 2 * np.pi * k / 6
+        eye = V.mean(0) + rad * np.array([1.2 * np.cos(ang), 1.2 * np.sin(ang), 0.5])
+        T = inv_T(look_at(eye, V.mean(0))) if k % 2 else se3_exp(rng.normal(0, 0.05, 6)) @ inv_T(look_at(eye, V.mean(0)))
+        for near, far, lod in ((0.01 * rad, None, (0.0, 0.0)), (0.9 * rad, 1.4 * rad, (12.0, 64.0))):
+            kw = dict(hidden_lines=True, zbuffer_scale=0.5, max_samples=600, lod_min_line_px=lod[0],
+                      lod_min_face_px2=lod[1])
+            a = visible_samples(g, T, K, 640, 480, 4.0, near, far, 80, 85, None, **kw)
+            b = visible_samples(g, T, K, 640, 480, 4.0, near, far, 80, 85, None, _numpy_reference=True, **kw)
+            for f in fields:
+                np.testing.assert_array_equal(getattr(a, f), getattr(b, f), err_msg=f)
+            assert a.stats == b.stats
+            n_s += len(a)
+    assert n_s > 500

@@ -66,6 +66,9 @@ RENDER_SCALE = 0.5
 #: moving-edge mask size of render-based edges, px (see the module doc)
 RENDER_MASK_PX = 3
 POLYGON_SUFFIXES = (".cao", ".wrl", ".vrml")
+#: --edges auto merges a closed polyhedral triangle mesh into planar polygons when they number at most this
+#: share of its triangles (a box TIN: 6 of 4,800; a scan whose "planes" are not planar stays render-based)
+MERGE_MAX_SHARE = 0.1
 
 
 def mesh_triangles(model, path=None) -> tuple[np.ndarray, np.ndarray]:
@@ -132,13 +135,54 @@ def choose_edges(model, model_path, mode: str) -> str:
     return "render" if curved_fraction(np.asarray(V, float), np.asarray(F, np.int64)) > CURVED_SHARE else "polygon"
 
 
+def _is_closed(F: np.ndarray) -> bool:
+    """Every edge of the triangles ``F`` is shared by exactly two of them (a closed, edge-manifold surface)."""
+    E = np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1)
+    key = E[:, 0] * (int(E.max()) + 1) + E[:, 1]
+    _, counts = np.unique(key, return_counts=True)
+    return bool((counts == 2).all())
+
+
+def merge_polyhedral_tin(model, model_path, mode: str):
+    """``--edges auto`` on a closed polyhedral triangle mesh with many faces (a box or building TIN): its coplanar,
+    edge-connected triangles merged into planar polygons (:func:`mst.meshtools.convert.tin_to_polygons`, what
+    ``mst convert-model`` does), or ``None`` (keep the model as it is).
+
+    The merged model is tracked with polygon edges: the same edges, the same samples along them (spacing, level of
+    detail, face visibility) as the polygon version of the object, where render-based edgelets of the TIN are a
+    different sample of the same contours (the real tea box: 2.1 mm / 0.37 deg from the polygon poses). Only
+    closed meshes are merged (an open patch has no outward side for the polygon path's face culling); a curved
+    mesh, or one whose planes do not merge (more than ``MERGE_MAX_SHARE`` polygons per triangle), stays
+    render-based.
+    """
+    if mode != "auto" or Path(model_path).suffix.lower() in POLYGON_SUFFIXES:
+        return None
+    faces = model.faces
+    if len(faces) <= MANY_FACES or any(len(f) != 3 for f in faces) or any(len(h) for h in model.holes):
+        return None
+    V, F = mesh_triangles(model, model_path)
+    if curved_fraction(V, F) > CURVED_SHARE or not _is_closed(F):
+        return None
+    from mst.meshtools.convert import tin_to_polygons
+
+    try:
+        poly, res = tin_to_polygons(V, F, path=str(model_path))
+    except InputError:
+        return None
+    if poly.n_faces > MERGE_MAX_SHARE * len(F):
+        return None
+    log.info(f"polyhedral mesh: {len(F)} triangles merged into {poly.n_faces} planar polygons, tracked with their "
+             "polygon edges")
+    return poly
+
+
 class RenderEdgeProvider:
     """Edge samples from renders of a triangle mesh (see the module doc).
 
     ``V`` (N,3) m, ``F`` (M,3) model frame; ``camera`` the full-resolution camera (K, width, height).
     ``samples(T_cam_model, K, W, H)`` -> :class:`mst.pipeline.tracking.visibility.Samples` for the image of
     intrinsics ``K`` (the tracker's pyramid levels pass scaled ones); statistics: ``n_renders``,
-    ``render_ms`` (total extraction time).
+    ``render_ms`` (total extraction time, wall), ``render_cpu_ms`` (its process CPU time).
     """
 
     def __init__(self, V: np.ndarray, F: np.ndarray, camera, *, scale: float = RENDER_SCALE, budget: int = 300,
@@ -159,7 +203,8 @@ class RenderEdgeProvider:
         self.radius_m = 0.5 * float(np.linalg.norm(hi - lo))
         self.cache = None  # Edgelets of the last render
         self.n_renders = 0
-        self.render_ms = 0.0
+        self.render_ms = 0.0  # wall
+        self.render_cpu_ms = 0.0  # process CPU time (every thread of the ray caster)
 
     def stats(self) -> dict:
         """Render statistics for the run summary: renders, total and mean extraction time (ms)."""
@@ -193,11 +238,12 @@ class RenderEdgeProvider:
         """Extract (and cache) the edgelets at this pose."""
         from mst.pipeline.tracking.edgelets import extract_edgelets
 
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         self.cache = extract_edgelets(self.renderer, T_cam_model, self.K, self.W, self.H, scale=self.scale,
                                       crease_deg=self.crease_deg, budget=self.budget, border_px=self.border_px,
                                       near_m=self.near_m)
         self.render_ms += (time.perf_counter() - t0) * 1000.0
+        self.render_cpu_ms += (time.process_time() - c0) * 1000.0
         self.n_renders += 1
         return self.cache
 
@@ -291,6 +337,24 @@ def contour_side_test(img, K, uv, n_out, X_model, offset, normal, ref_img, ref_T
     c = uv[:, None, :] + np.nan_to_num(offset)[..., None] * normal[:, None, :]  # (N, C, 2)
     g_in = _gray_at(img, c[None] - d[..., None] * n_out[None, :, None, :]).mean(0)
     return np.abs(g_in - ref_in[:, None]) <= tol[:, None]
+
+
+def edge_tracker_for(model, model_path, cam, config, T0: np.ndarray | None = None):
+    """``(EdgeTracker, edges used)`` for ``model`` per ``config.edge_source``: ``merged`` (a polyhedral triangle
+    mesh tracked with the polygon edges of its planar polygons, :func:`merge_polyhedral_tin`; the tracker's
+    ``merge_stats`` say what was merged and its one-off cost), ``polygon`` or ``render``
+    (:func:`attach_render_edges`)."""
+    from mst.pipeline.tracking.edge_tracker import EdgeTracker
+
+    t0 = time.process_time()
+    merged = merge_polyhedral_tin(model, model_path, config.edge_source)
+    if merged is None:
+        tracker = EdgeTracker(model, cam, config)
+        return tracker, attach_render_edges(tracker, model, model_path, config.edge_source, T0)
+    tracker = EdgeTracker(merged, cam, config)
+    tracker.merge_stats = {"triangles": len(model.faces), "polygons": merged.n_faces,
+                           "merge_cpu_ms": round((time.process_time() - t0) * 1000.0, 1)}
+    return tracker, "merged"
 
 
 def attach_render_edges(tracker, model, model_path, mode: str, T0: np.ndarray | None = None) -> str:
