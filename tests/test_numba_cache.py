@@ -18,7 +18,7 @@ import numpy as np
 
 
 def _warmup_json() -> dict:
-    r = subprocess.run([sys.executable, "-m", "mst.eval.c2m.warmup", "--json"], capture_output=True, text=True,
+    r = subprocess.run([sys.executable, "-m", "mst.eval.c2m.warmup", "--json", "--no-aot"], capture_output=True, text=True,
                        check=True, timeout=600)
     return json.loads(r.stdout.strip().splitlines()[-1])
 
