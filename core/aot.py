@@ -140,7 +140,7 @@ class Kernels:
         return isinstance(getattr(self, name), _AotFunction)
 
     def __getattr__(self, name: str):
-        if name.startswith("_"):
+        if name.startswith("__"):
             raise AttributeError(name)
         ext = self._load()
         fn = None

@@ -341,7 +341,7 @@ def row_blocks(nb, kernel: str, P: np.ndarray, query) -> tuple[np.ndarray, ...]:
     from mst.core.aot import threads
 
     t = min(threads(), len(P) // MIN_BLOCK_ROWS)
-    if t < 2 or not nb.is_aot(kernel):
+    if t < 2 or not getattr(nb, "is_aot", lambda k: False)(kernel):
         return query(P)
     from concurrent.futures import ThreadPoolExecutor
 
