@@ -83,6 +83,15 @@ def warm_tracking() -> None:
     for klt in (False, True):
         kw = {"klt_X_model": X[::4], "klt_uv": uvX[::4]} if klt else {}
         solve_pose(T0, K, X, e, A, B, cand, **kw)
+    # edge sampling (visibility.visible_samples -> kernels.edge_samples), with and without the LOD rule
+    from mst.meshtools.generate import l_shape_model
+    from mst.pipeline.tracking.visibility import ModelGeometry, visible_samples
+
+    geom = ModelGeometry.from_model(l_shape_model())
+    Tl = np.eye(4)
+    Tl[:3, 3] = -geom.vertices.mean(0) + [0.0, 0.0, 4.0 * geom.scale_m]
+    for lod in (0.0, 12.0):
+        visible_samples(geom, Tl, K, 80, 60, 4.0, 0.01, None, 80.0, 85.0, lod_min_line_px=lod)
 
 
 def warm_convert() -> None:
