@@ -262,8 +262,16 @@ class DenseGrid:
                 upk, pinv = np.unique(pkey, return_inverse=True)
                 pptr, ptri, _ = self._tg.candidates(upk, self.lo, self.h * 8, self.levels - 3, self.nb)
                 centres = self.lo + (ijk + 0.5) * self.h
-                ptr, tri, lb = self.nb.refine_cells(centres, 0.5 * self.h * np.sqrt(3.0), pinv.reshape(-1), pptr, ptri,
-                                                    1e-9 * self.ext, self.T)
+                r, tol, par = 0.5 * self.h * np.sqrt(3.0), 1e-9 * self.ext, pinv.reshape(-1)
+
+                def refine(rows):  # cells [a, b): (counts, triangles, lower bounds); each cell on its own
+                    a, b = int(rows[0]), int(rows[-1]) + 1
+                    p, t, lbs = self.nb.refine_cells(centres[a:b], r, par[a:b], pptr, ptri, tol, self.T)
+                    return np.diff(p), t, lbs
+
+                cnt, tri, lb = row_blocks(self.nb, "refine_cells", np.arange(len(flat)), refine, min_rows=2000)
+                ptr = np.zeros(len(cnt) + 1, np.int64)
+                np.cumsum(cnt, out=ptr[1:])
                 cells = flat
             else:
                 key = _key(ijk)
@@ -332,7 +340,7 @@ MIN_BLOCK_ROWS = 50_000
 _POOL = None
 
 
-def row_blocks(nb, kernel: str, P: np.ndarray, query) -> tuple[np.ndarray, ...]:
+def row_blocks(nb, kernel: str, P: np.ndarray, query, min_rows: int = MIN_BLOCK_ROWS) -> tuple[np.ndarray, ...]:
     """``query(P)`` (a tuple of per-row arrays), split into row blocks over :func:`mst.core.aot.threads`
     threads when ``kernel`` runs ahead of time (its calls release the GIL, one core each); the JIT
     kernels are ``parallel=True`` themselves and get ``P`` whole. Every row's result depends on its
@@ -340,7 +348,7 @@ def row_blocks(nb, kernel: str, P: np.ndarray, query) -> tuple[np.ndarray, ...]:
     global _POOL
     from mst.core.aot import threads
 
-    t = min(threads(), len(P) // MIN_BLOCK_ROWS)
+    t = min(threads(), len(P) // min_rows)
     if t < 2 or not getattr(nb, "is_aot", lambda k: False)(kernel):
         return query(P)
     from concurrent.futures import ThreadPoolExecutor
