@@ -432,7 +432,7 @@ class TrackingSession:
         d = p.distance_m(T)
         starts = []
         T_cv = p.predicted()
-        if T_cv is not None and _centre_gap(T, T_cv) > AMBIGUITY_SCREEN * b.rel * d:
+        if T_cv is not None and _centre_gap(T, self._modulo_symmetry(T, T_cv)) > AMBIGUITY_SCREEN * b.rel * d:
             starts.append(("the motion prediction", T_cv))
         if p.after_refusal and fr.cov is not None and np.isfinite(fr.cov).all():
             # after a refused frame: from +-BASIN_SIGMAS along the fit's weakest direction
@@ -446,8 +446,9 @@ class TrackingSession:
             fr_a = p.judge(tr.track(gray, T_alt, recover=p.recover), False, count=False)
             if not fr_a.healthy or fr_a.T_cam_model is None:
                 continue
-            gap = _centre_gap(T, fr_a.T_cam_model)
-            _, deg = pose_error(inv_T(T), inv_T(fr_a.T_cam_model))
+            T_a = self._modulo_symmetry(T, fr_a.T_cam_model)
+            gap = _centre_gap(T, T_a)
+            _, deg = pose_error(inv_T(T), inv_T(T_a))
             if gap > b.rel * d or float(deg) > b.deg:
                 fr.healthy = False
                 fr.reason = (f"{REASON_AMBIGUOUS}: the fit from {what} lies {gap / d:.1%} of the model distance, "
@@ -455,6 +456,12 @@ class TrackingSession:
                 break
         if hasattr(tr, "_klt_next"):
             tr._klt_next = klt
+
+    def _modulo_symmetry(self, T_ref: np.ndarray, T: np.ndarray) -> np.ndarray:
+        """``T`` turned about the model's axis of revolution onto ``T_ref`` (render-based edges of a body of
+        revolution: the turn is no difference of the image, :meth:`RenderEdgeProvider.align_to`); else ``T``."""
+        align = getattr(getattr(self.tracker, "sample_provider", None), "align_to", None)
+        return T if align is None else align(T_ref, T)
 
     def _first_frame_mode(self, gray: np.ndarray, T_init: np.ndarray, fr: FrameResult) -> FrameResult:
         """The first frame's tolerant fit ``fr`` against a plain fit from the user's pose ``T_init``:
@@ -467,7 +474,7 @@ class TrackingSession:
         fr_p = self.policy.judge(self.tracker.track(gray, T_init), True)
         if not fr_p.healthy or fr_p.T_cam_model is None:
             return fr
-        dx = se3_log(fr_p.T_cam_model @ inv_T(fr.T_cam_model))
+        dx = se3_log(self._modulo_symmetry(fr.T_cam_model, fr_p.T_cam_model) @ inv_T(fr.T_cam_model))
         try:
             d = float(np.sqrt(max(dx @ np.linalg.solve(fr.cov, dx), 0.0)))
         except np.linalg.LinAlgError:
