@@ -40,6 +40,11 @@ the distance, blob fast 1.1 -> 0.60 %). A polyhedral mesh (a TIN of a box, a bui
 crossing raised the box TIN orbit's errors from 1.07x to 1.37x the polygon model's): on the real tea box TIN
 the 3-px mask with the side test moved the poses 5.1 mm from the polygon model's (max), the 5-px one 2.1 mm.
 
+**Bodies of revolution.** A torus, a vase, a bottle (:func:`revolution_axis`) look the same from every camera
+turned about their axis: that twist is a gauge of the pose, not an uncertainty, so :meth:`RenderEdgeProvider.gauge_cov`
+fixes it in the covariance the error budget reads and :meth:`RenderEdgeProvider.align_to` compares two poses
+modulo it (the budget's ambiguity and first-frame tests).
+
 :func:`choose_edges` implements ``mst track --edges auto``: polygon edges for polygon formats
 (``.cao``, ``.wrl``) and small planar triangle files (today's behaviour), render-based edges for
 triangle meshes with many faces (> ``MANY_FACES``) or curved parts.
