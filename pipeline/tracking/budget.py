@@ -94,7 +94,7 @@ def beyond_budget(b: PoseBudget, cov: np.ndarray | None, T: np.ndarray | None, d
             f"(budget {b.rel:.0%}, {b.deg:g} deg)")
 
 
-def ambiguity(b: PoseBudget, fr, d: float, T_cv: np.ndarray | None, after_refusal: bool, refit) -> str:
+def ambiguity(b: PoseBudget, fr, d: float, T_cv: np.ndarray | None, after_refusal: bool, refit, align=None) -> str:
     """Why the healthy edge pose ``fr`` is ambiguous ('' when it is not); ``d`` its model distance (m),
     ``refit(T_start) -> FrameResult`` a judged fit of the same image from another start. With
     ``fr`` far from the motion prediction ``T_cv`` (the constant-velocity pose of the last two
@@ -104,10 +104,13 @@ def ambiguity(b: PoseBudget, fr, d: float, T_cv: np.ndarray | None, after_refusa
     budget apart (``b.rel`` x the distance, or ``b.deg``): at least one of them is beyond it and
     the image cannot tell which. A real acceleration (the object carried by hand) refits to the same pose.
     Measured, the fit from the prediction against the pose, % of the distance: Rotterdam FPV
-    frame 5 (2.1 % off) 1.74; correct frames 0.01-0.34 (real teabox edges only, `carried`)."""
+    frame 5 (2.1 % off) 1.74; correct frames 0.01-0.34 (real teabox edges only, `carried`).
+    ``align(T_ref, T)`` maps ``T`` onto ``T_ref`` modulo a symmetry of the model (a body of
+    revolution's turn about its axis is no difference of the image); identity when None."""
     T = fr.T_cam_model
+    sym = align if align is not None else (lambda T_ref, T_b: T_b)
     starts = []
-    if T_cv is not None and centre_gap(T, T_cv) > AMBIGUITY_SCREEN * b.rel * d:
+    if T_cv is not None and centre_gap(T, sym(T, T_cv)) > AMBIGUITY_SCREEN * b.rel * d:
         starts.append(("the motion prediction", T_cv))
     if after_refusal and fr.cov is not None and np.isfinite(fr.cov).all():
         # after a refused frame: from +-BASIN_SIGMAS along the fit's weakest direction
@@ -118,8 +121,9 @@ def ambiguity(b: PoseBudget, fr, d: float, T_cv: np.ndarray | None, after_refusa
         fr_a = refit(T_alt)
         if not fr_a.healthy or fr_a.T_cam_model is None:
             continue
-        gap = centre_gap(T, fr_a.T_cam_model)
-        _, deg = pose_error(inv_T(T), inv_T(fr_a.T_cam_model))
+        T_a = sym(T, fr_a.T_cam_model)
+        gap = centre_gap(T, T_a)
+        _, deg = pose_error(inv_T(T), inv_T(T_a))
         if gap > b.rel * d or float(deg) > b.deg:
             return (f"{REASON_AMBIGUOUS}: the fit from {what} lies {gap / d:.1%} of the model distance, "
                     f"{float(deg):.2f} deg away (budget {b.rel:.0%}, {b.deg:g} deg)")

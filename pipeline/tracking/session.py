@@ -328,7 +328,8 @@ class TrackingSession:
     def _ambiguous(self, gray: np.ndarray, fr: FrameResult) -> None:
         """Refuse ``fr`` (``healthy`` False, reason ``ambiguous``) when a second healthy fit of the image
         lies beyond the budget from it (:func:`mst.pipeline.tracking.budget.ambiguity`): from the
-        motion prediction of the last two model frames, and after a refused frame from +-3 sigma."""
+        motion prediction of the last two model frames, and after a refused frame from +-3 sigma;
+        poses compared modulo the model's axis of revolution (:meth:`_modulo_symmetry`)."""
         p, tr = self.policy, self.tracker
         if p.budget is None or p.distance_m is None or fr.T_cam_model is None:
             return
@@ -337,11 +338,18 @@ class TrackingSession:
         def refit(T_start):
             return p.judge(tr.track(gray, T_start, recover=p.recover), False, count=False)
 
-        why = ambiguity(p.budget, fr, p.distance_m(fr.T_cam_model), p.refusals.predicted(), p.refusals.after, refit)
+        why = ambiguity(p.budget, fr, p.distance_m(fr.T_cam_model), p.refusals.predicted(), p.refusals.after, refit,
+                        align=self._modulo_symmetry)
         if hasattr(tr, "_klt_next"):
             tr._klt_next = klt
         if why:
             fr.healthy, fr.reason = False, why
+
+    def _modulo_symmetry(self, T_ref: np.ndarray, T: np.ndarray) -> np.ndarray:
+        """``T`` turned about the model's axis of revolution onto ``T_ref`` (render-based edges of a body of
+        revolution: the turn is no difference of the image, :meth:`RenderEdgeProvider.align_to`); else ``T``."""
+        align = getattr(getattr(self.tracker, "sample_provider", None), "align_to", None)
+        return T if align is None else align(T_ref, T)
 
     def _first_frame_mode(self, gray: np.ndarray, T_init: np.ndarray, fr: FrameResult) -> FrameResult:
         """The first frame's tolerant fit ``fr`` against a plain fit from the user's pose ``T_init``:
@@ -354,7 +362,7 @@ class TrackingSession:
         fr_p = self.policy.judge(self.tracker.track(gray, T_init), True)
         if not fr_p.healthy or fr_p.T_cam_model is None:
             return fr
-        dx = se3_log(fr_p.T_cam_model @ inv_T(fr.T_cam_model))
+        dx = se3_log(self._modulo_symmetry(fr.T_cam_model, fr_p.T_cam_model) @ inv_T(fr.T_cam_model))
         try:
             d = float(np.sqrt(max(dx @ np.linalg.solve(fr.cov, dx), 0.0)))
         except np.linalg.LinAlgError:
