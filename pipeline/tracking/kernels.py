@@ -924,3 +924,28 @@ def pose_gradients(img, X, A, B, edge, T, fx, fy, cx, cy, strong_min, cos_tol):
             gn = np.sqrt(bgx * bgx + bgy * bgy)
             good[i] = best >= cos_tol * np.float64(gn)
     return uv, n, sign, good
+
+
+# ---------------------------------------------------------------------------- face visibility
+@njit(cache=True, nogil=True, error_model="numpy")
+def face_angles(V, N, loop_vid, loop_start, loop_end, sel, c_model):
+    """The smallest angle (deg) between each face's outward normal ``N[f]`` and the rays from its
+    outer-loop vertices to the camera centre ``c_model`` (model frame), for the faces ``sel`` (K,):
+    the test of :func:`mst.pipeline.tracking.visibility.face_visibility` (rays normalised, cosines
+    summed in a fixed order; numpy's einsum and arccos differ from it by an ulp, which moves a face
+    across an appear/disappear angle only when it lies within ~1e-13 deg of it)."""
+    k = sel.shape[0]
+    ang = np.empty(k)
+    for j in range(k):
+        f = sel[j]
+        n0, n1, n2 = N[f, 0], N[f, 1], N[f, 2]
+        best = -np.inf
+        for q in range(loop_start[f], loop_end[f]):
+            vi = loop_vid[q]
+            r0, r1, r2 = c_model[0] - V[vi, 0], c_model[1] - V[vi, 1], c_model[2] - V[vi, 2]
+            ln = max(np.sqrt(r0 * r0 + r1 * r1 + r2 * r2), 1e-12)
+            cs = (r0 / ln) * n0 + (r1 / ln) * n1 + (r2 / ln) * n2
+            if cs > best or cs != cs:
+                best = cs
+        ang[j] = np.degrees(np.arccos(min(max(best, -1.0), 1.0)))
+    return ang
