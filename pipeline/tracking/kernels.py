@@ -18,6 +18,9 @@
 
 No fastmath (reproducible bit for bit on every CPU), single-threaded (the tracker's one-core budget).
 Units: pixels, metres; ``R``, ``t`` the rotation and translation of ``T_cam_model``.
+
+Longer than 500 lines: the search, VVS and Sobel kernels share private jitted helpers and one
+warm-up list; it grew with the whole-frame VVS kernel (#14) and may be split along those lines.
 """
 
 from __future__ import annotations
