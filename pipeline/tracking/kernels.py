@@ -14,13 +14,19 @@
   Jacobian), with the normal equations, the KLT points, the damped step with undo and the stopping
   test; every sum in a fixed order (no BLAS, no FMA), so the pose is the numpy formulation's within
   rounding and the same on every CPU.
-* :func:`sobel_at`: the Sobel gradient at sample positions (the health tests).
+* :func:`sobel_at`: the Sobel gradient at sample positions; :func:`pose_health` and
+  :func:`pose_gradients`: the health tests and the evidence gradients of a solved pose.
+* :func:`edge_samples`, :func:`face_angles`, :func:`zbuffer_faces`: the visibility
+  pass (clipping and sampling of the candidate edges, the face angle test, the depth buffer's
+  per-vertex set-up), the numpy formulations' values to the bit (face angles: to an ulp).
 
 No fastmath (reproducible bit for bit on every CPU), single-threaded (the tracker's one-core budget).
 Units: pixels, metres; ``R``, ``t`` the rotation and translation of ``T_cam_model``.
 
-Longer than 500 lines: the search, VVS and Sobel kernels share private jitted helpers and one
-warm-up list; it grew with the whole-frame VVS kernel (#14) and may be split along those lines.
+Longer than 500 lines: one module for every per-frame kernel of the tracker (moving edges, VVS,
+health, visibility), which share private jitted helpers (``_rigid``, ``_sobel1``, ``_median``) and
+one warm-up and cache-statistics list (:mod:`mst.eval.c2m.warmup`); it may be split along those
+lines (search / pose / visibility) when the warm-up lists modules instead.
 """
 
 from __future__ import annotations
@@ -751,19 +757,6 @@ def edge_samples(Xv, E, small_face, near, far, K, R, t, x0, y0, x1, y1, step, us
             edge_id[i] = j
             i += 1
     return counts, z_min, keep[:k].copy(), pa[:k].copy(), pb[:k].copy(), A_model, B_model, uv, nrm, iz, Xc, edge_id
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def to_model(Xc, R, t):
-    """``_mat3(Xc - t, R.T)``: camera-frame points (N, 3) back to the model frame, in that order."""
-    n = Xc.shape[0]
-    out = np.empty((n, 3))
-    for i in range(n):
-        c0, c1, c2 = Xc[i, 0] - t[0], Xc[i, 1] - t[1], Xc[i, 2] - t[2]
-        out[i, 0] = c0 * R[0, 0] + c1 * R[1, 0] + c2 * R[2, 0]
-        out[i, 1] = c0 * R[0, 1] + c1 * R[1, 1] + c2 * R[2, 1]
-        out[i, 2] = c0 * R[0, 2] + c1 * R[1, 2] + c2 * R[2, 2]
-    return out
 
 
 # ---------------------------------------------------------------------------- depth buffer set-up
