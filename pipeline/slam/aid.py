@@ -147,7 +147,8 @@ class ModelAidedSlam(FrontEnd, Landmarks, AidPolicy, KeyframeMap, LocalBA, Drift
         self.stats = {"keyframes": 0, "ba_runs": 0, "ba_prior_accepted": 0, "ba_prior_downweighted": 0,
                       "ba_prior_dropped": 0, "ba_errors": 0, "gate_rejects": 0, "consensus_resets": 0,
                       "relocalisations": 0, "reloc_attempts": 0, "reanchors": 0, "contradictions": 0,
-                      "weak_contradictions": 0, "static_world_breaks": 0, "image_refutations": 0}
+                      "weak_contradictions": 0, "static_world_breaks": 0, "image_refutations": 0,
+                      "budget_overrides": 0}
         self.timing_ms = {"predict": 0.0, "update": 0.0, "ba": 0.0}
         self.moving_hold = False          # static-world check fired: the map does not bridge
         self._disagree_streak = 0
@@ -189,8 +190,12 @@ class ModelAidedSlam(FrontEnd, Landmarks, AidPolicy, KeyframeMap, LocalBA, Drift
 
     def update(self, k: int, gray: np.ndarray, T_cam_model_edges: np.ndarray | None,
                W: np.ndarray | None, healthy: bool, weak_edge_pose: np.ndarray | None = None,
-               cov_edges: np.ndarray | None = None) -> tuple[np.ndarray | None, str]:
+               cov_edges: np.ndarray | None = None, distance_fn=None) -> tuple[np.ndarray | None, str]:
         """Fuse the edge tracker's pose for frame ``k``; return ``(T_cam_model_out or None, status)``.
+
+        ``distance_fn``: ``T_cam_model -> metres`` to the model (the drift budget's distance): a map
+        pose beyond its budget there does not judge a healthy edge pose that is within it by its
+        own covariance (:meth:`AidPolicy._judge`).
 
         ``cov_edges``: the edge pose's 6x6 twist covariance (its residual RMS^2 x W^-1, the tracker's
         ``FrameResult.cov``): the uncertainty that model-anchored landmarks inherit (drift budget,
@@ -213,7 +218,11 @@ class ModelAidedSlam(FrontEnd, Landmarks, AidPolicy, KeyframeMap, LocalBA, Drift
         W = np.asarray(W, float) if W_ok else None
         if self.P is not None:
             self.P = self.P + self._process_noise()
-        v = self._judge(k, T_cam_model_edges, W, st, edge_ok, slam_ok)
+        over = False
+        if edge_ok and slam_ok and distance_fn is not None and st.sig is not None and cov_edges is not None:
+            d = distance_fn(T_cam_model_edges)
+            over = not self.sig_within_budget(st.sig, d) and self.sig_within_budget(self._anchor_sig(cov_edges), d)
+        v = self._judge(k, T_cam_model_edges, W, st, edge_ok, slam_ok, over_budget=over)
         if (not healthy and slam_ok and not v.contradicted and weak_edge_pose is not None
                 and np.isfinite(weak_edge_pose).all() and self._beyond_bound(weak_edge_pose, st.T)):
             v.contradicted = True

@@ -126,12 +126,26 @@ class DriftBudget:
         rot = sr + math.sqrt(max(float(np.trace(C[3:, 3:])), 0.0))
         return np.c_[sm + point_sigmas(X, C), np.abs(X[:, 2]) * RGBD_DEPTH_SIGMA_REL, np.full(len(X), rot)]
 
+    def _anchor_sig(self, cov_edges: np.ndarray) -> tuple[float, float, np.ndarray]:
+        """``(0, 0, C)`` of an edge pose with the tracker's covariance ``cov_edges`` (its residual
+        RMS^2 x W^-1) x ``anchor_sigma_scale``^2: the uncertainty it is judged by against the drift
+        budget when it competes with a map pose beyond it."""
+        return 0.0, 0.0, self.cfg.anchor_sigma_scale**2 * np.asarray(cov_edges, float)
+
     def drift_bound(self) -> tuple[float, float] | None:
         """The bound of the last map pose: ``drift_sigmas`` x (camera-centre sigma m, rotation sigma
         deg); None when the last output was no map pose."""
-        if self._out_sig is None:
-            return None
-        sm, sr, C = self._out_sig
+        return None if self._out_sig is None else self._bound_of(self._out_sig)
+
+    def sig_within_budget(self, sig: tuple, distance_m: float) -> bool:
+        """Whether a pose with the uncertainty ``sig`` (``(sm, sr, C)``, see :meth:`_pnp_sig`) is
+        within the drift budget at ``distance_m`` from the model."""
+        b = self._bound_of(sig)
+        return b[0] <= self.cfg.drift_budget_rel * distance_m and b[1] <= self.cfg.drift_budget_deg
+
+    def _bound_of(self, sig: tuple) -> tuple[float, float]:
+        """``drift_sigmas`` x (camera-centre sigma m, rotation sigma deg) of a pose uncertainty ``sig``."""
+        sm, sr, C = sig
         sc, sr_fit = pose_sigmas(C)
         k = self.cfg.drift_sigmas
         # rotation: the views' rotation passed on, the fit's, and the landmarks' common error seen
@@ -147,7 +161,7 @@ class DriftBudget:
         if b is None:
             return True
         self.drift_log[int(k)] = (b[0] / max(distance_m, 1e-12), b[1])
-        ok = b[0] <= self.cfg.drift_budget_rel * distance_m and b[1] <= self.cfg.drift_budget_deg
+        ok = self.sig_within_budget(self._out_sig, distance_m)
         if not ok:
             self.drift_budget_frames.append(int(k))
         return ok
