@@ -63,7 +63,7 @@ from mst.core.klt import to_gray
 from mst.pipeline.depth_io import DepthConfig, list_depth_frames
 from mst.pipeline.slam.ba import LocalBA
 from mst.pipeline.slam.config import SlamConfig, slam_depth_config
-from mst.pipeline.slam.drift import DriftBudget
+from mst.pipeline.slam.drift import DriftBudget, camera_centre
 from mst.pipeline.slam.frontend import FrontEnd
 from mst.pipeline.slam.keyframes import KeyframeMap
 from mst.pipeline.slam.landmarks import Landmarks
@@ -122,8 +122,9 @@ class ModelAidedSlam(FrontEnd, Landmarks, AidPolicy, KeyframeMap, LocalBA, Drift
         # landmarks: id -> model point, and whether it was anchored under a model (edge) pose
         self.lm: dict[int, np.ndarray] = {}
         self.lm_model: dict[int, bool] = {}
-        self.lm_sig: dict[int, tuple[float, float, float]] = {}  #: (corr m, ind m, rot rad) 1-sigma (:mod:`.drift`)
-        self._pose_sig = (0.0, 0.0, np.zeros((6, 6)))  # sigmas of the pose the map is being extended under
+        self.lm_sig: dict[int, tuple] = {}  #: (corr m, ind m, rot rad, scale, triangulation view centre xyz m) (:mod:`.drift`)
+        self._pose_sig = (0.0, 0.0, np.zeros((6, 6)), 0.0, 0.0)  # sigmas of the pose the map is being extended under
+        self._pose_c = np.zeros(3)  # ... and its camera centre (model frame, m)
         self._out_sig: tuple | None = None  # sigmas of the last output map pose
         self._reloc_sig: tuple | None = None
         self.drift_log: dict[int, tuple[float, float]] = {}  #: frame -> (bound / distance, bound deg)
@@ -232,9 +233,11 @@ class ModelAidedSlam(FrontEnd, Landmarks, AidPolicy, KeyframeMap, LocalBA, Drift
         if T_out is not None:
             if status == STATUS_MODEL:
                 ok_cov = cov_edges is not None and np.isfinite(cov_edges).all()
-                self._pose_sig = (0.0, 0.0, np.asarray(cov_edges, float).copy()) if ok_cov else self._model_pose_sig(W)
+                self._pose_sig = (0.0, 0.0, np.asarray(cov_edges, float).copy(), 0.0, 0.0) if ok_cov else self._model_pose_sig(W)
             else:
-                self._pose_sig = self._out_sig = st.sig if st.sig is not None else (math.inf, math.inf, np.full((6, 6), np.inf))
+                self._pose_sig = self._out_sig = st.sig if st.sig is not None else (
+                    math.inf, math.inf, np.full((6, 6), np.inf), math.inf, math.inf)
+            self._pose_c = camera_centre(T_out)
             W_prior = W if status == STATUS_MODEL else None
             T_out = self._maintain_map(k, gray, T_out, status, T_cam_model_edges if W_prior is not None else None,
                                        W_prior)
