@@ -409,9 +409,10 @@ class TrackingSession:
             # puts the object: the aid outputs no map pose that contradicts it
             weak = (fr.T_cam_model if not healthy and fr.T_cam_model is not None
                     and (fr.reason or "").startswith("health score") else None)
-            # the edge covariance anchors the drift budget of the aids that keep one (an aid of the
-            # plain hook contract takes the first six arguments only)
-            kw = {"cov_edges": fr.cov} if hasattr(aid, "within_budget") else {}
+            # the edge covariance anchors the drift budget of the aids that keep one, and with the
+            # distance to the model lets a healthy edge pose override a map pose beyond the budget
+            # (an aid of the plain hook contract takes the first six arguments only)
+            kw = {"cov_edges": fr.cov, "distance_fn": lambda T: model_distance(tr, T)} if hasattr(aid, "within_budget") else {}
             T_out, status = aid.update(idx, gray, fr.T_cam_model, fr.W, healthy or withheld, weak_edge_pose=weak, **kw)
             if withheld and status != "slam":
                 return self._withhold_edge(idx, time_s, gray, fr, t0)
