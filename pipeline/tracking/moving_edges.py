@@ -70,8 +70,6 @@ def convolve_along(img: np.ndarray, uv: np.ndarray, normal: np.ndarray, offsets:
     Returns ``(conv (N, M) float32, k_eff (N, M))`` where ``k_eff`` is the signed distance (px)
     along the normal of the pixel actually sampled (rounding moves it off ``k``).
     """
-    from mst.pipeline.tracking.exact import masked_conv_numpy
-
     H, W = img.shape
     r = int(np.abs(mask_off).max())
     ix = np.clip(np.rint(uv[:, None, 0] + offsets[None, :] * normal[:, None, 0]), r, W - 1 - r)
@@ -79,7 +77,7 @@ def convolve_along(img: np.ndarray, uv: np.ndarray, normal: np.ndarray, offsets:
     base = (iy * W + ix).astype(np.int32)
     flat_off = (mask_off[:, 1] * W + mask_off[:, 0]).astype(np.int32)
     patches = img.ravel()[base[..., None] + flat_off[None, None, :]]  # (N, M, S), uint8 or float
-    conv = masked_conv_numpy(patches.astype(np.float32, copy=False), masks, mask_idx)
+    conv = np.matmul(patches.astype(np.float32, copy=False), masks[mask_idx][:, :, None])[..., 0]
     k_eff = (ix - uv[:, None, 0]) * normal[:, None, 0] + (iy - uv[:, None, 1]) * normal[:, None, 1]
     return conv, k_eff
 
@@ -111,20 +109,16 @@ def _image(img: np.ndarray) -> np.ndarray:
 
 def _convolve(img: np.ndarray, uv: np.ndarray, normal: np.ndarray, ks: np.ndarray, mask_idx: np.ndarray,
               masks: np.ndarray, moff: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`convolve_along` with the pixel gathering in a numba kernel
-    (:func:`mst.pipeline.tracking.kernels.me_gather`) and the same float32 sums in the same order
-    (:func:`mst.pipeline.tracking.exact.masked_conv`, not a BLAS product, whose rounding depends on
-    the CPU), so that the convolutions are those of :func:`convolve_along` to the bit."""
-    from mst.pipeline.tracking.exact import masked_conv
-    from mst.pipeline.tracking.kernels import me_gather
+    """:func:`convolve_along` in one numba kernel (:func:`mst.pipeline.tracking.kernels.me_convolve`:
+    the same pixels, each convolution summed in float64 and rounded once to float32, so within one
+    float32 rounding of numpy's BLAS product, and the same on every CPU)."""
+    from mst.pipeline.tracking.kernels import me_convolve
 
-    N, M, S = len(uv), len(ks), len(moff)
-    patches = np.empty((N, M, S), np.float32)
-    k_eff = np.empty((N, M))
-    me_gather(_image(img), np.ascontiguousarray(uv, np.float64), np.ascontiguousarray(normal, np.float64), ks, moff,
-              patches, k_eff)
+    N, M = len(uv), len(ks)
     conv = np.empty((N, M), np.float32)
-    masked_conv(patches, masks, np.ascontiguousarray(mask_idx, np.int64), conv)
+    k_eff = np.empty((N, M))
+    me_convolve(_image(img), np.ascontiguousarray(uv, np.float64), np.ascontiguousarray(normal, np.float64), ks, moff,
+                masks, np.ascontiguousarray(mask_idx, np.int64), conv, k_eff)
     return conv, k_eff
 
 
@@ -156,8 +150,8 @@ def search_edges(img: np.ndarray, uv: np.ndarray, normal: np.ndarray, ref: np.nd
 
     The pixels are gathered and the decisions taken (contrast test, polarity vote, local maxima,
     candidates, sub-pixel refinement) in numba kernels (:mod:`mst.pipeline.tracking.kernels`), the
-    convolutions by the same float32 sums in the same order as :func:`search_edges_numpy` (see there
-    for the tests and the vote; :mod:`mst.pipeline.tracking.exact`): the same outputs to the bit.
+    convolutions by the same float32 matrix product as :func:`search_edges_numpy` (see there for the
+    tests and the vote): the same outputs to the bit.
     """
     from mst.pipeline.tracking.kernels import me_select
 
