@@ -18,7 +18,7 @@ import numpy as np
 
 
 def _warmup_json() -> dict:
-    r = subprocess.run([sys.executable, "-m", "mst.eval.c2m.warmup", "--json"], capture_output=True, text=True,
+    r = subprocess.run([sys.executable, "-m", "mst.eval.c2m.warmup", "--json", "--no-aot"], capture_output=True, text=True,
                        check=True, timeout=600)
     return json.loads(r.stdout.strip().splitlines()[-1])
 
@@ -64,7 +64,7 @@ def test_mst_c2m_process_only_loads_the_cache(tmp_path):
     save_triangles(tmp_path / "m.obj", np.asarray(V, float), np.asarray(F))
     P = np.random.default_rng(1).uniform(np.min(V, 0), np.max(V, 0), (500, 3))
     np.savetxt(tmp_path / "c.xyz", P)
-    env = dict(os.environ, NUMBA_DEBUG_CACHE="1")
+    env = dict(os.environ, NUMBA_DEBUG_CACHE="1", MST_AOT="0")  # the JIT path (tests/test_aot.py: the other one)
     r = subprocess.run([sys.executable, "-m", "mst.cli.main", "c2m", str(tmp_path / "c.xyz"), str(tmp_path / "m.obj"),
                         "-q"], capture_output=True, text=True, env=env, timeout=300, check=True)
     log = r.stdout + r.stderr
