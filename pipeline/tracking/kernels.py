@@ -198,7 +198,7 @@ def me_select(conv, k_eff, ks, R, ref, has_ref, threshold, mu1, mu2, edge, vote,
     return off, lk, cbest
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")  # called from vvs_solve only
 def vvs_residuals(Xc, P, nE, e, cu, cv, fx, fy, cx, cy, r_all, nx, ny, x, y, iz):
     """Residuals ``r_all (N, C)`` px of every candidate against its sample's projected model line,
     from the samples ``Xc (N, 3)`` and the edge end points ``P (2 nE, 3)`` (A then B) in the camera
@@ -240,7 +240,7 @@ def _median(a):
     return s[h]
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")  # called from vvs_solve only
 def vvs_linearise(r_all, ch, r, w, w_tukey, min_scale, tukey_c, e, nE, spread, spread_k, nx, ny, x, y, iz, fx, fy,
                   J, wJ):
     """One VVS linearisation at the residuals ``r_all`` of :func:`vvs_residuals` (all outputs in
@@ -336,7 +336,7 @@ def _rigid(P, T, out):
             out[i, j] = (p0 * T[j, 0] + p1 * T[j, 1]) + p2 * T[j, 2] + T[j, 3]
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")  # called from vvs_solve only
 def _solve6(A, b, x):
     """``x = A^-1 b`` for a 6x6 system by Gaussian elimination with partial pivoting (a fixed order
     of operations, as ``dgesv``'s LU). Returns False when a pivot is exactly zero (singular)."""
@@ -369,7 +369,7 @@ def _solve6(A, b, x):
     return True
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")  # called from vvs_solve only
 def _se3_exp_left(xi, T, out):
     """``out = exp(xi) @ T`` (the exact SE(3) exponential of :func:`mst.pipeline.tracking.vvs.se3_exp`)."""
     v0, v1, v2, w0, w1, w2 = xi[0], xi[1], xi[2], xi[3], xi[4], xi[5]
@@ -398,7 +398,7 @@ def _se3_exp_left(xi, T, out):
     out[3, 0], out[3, 1], out[3, 2], out[3, 3] = 0.0, 0.0, 0.0, 1.0
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")  # called from vvs_solve only
 def _tukey_into(r, min_scale, tukey_c, w):
     """Tukey weights of ``r`` on its MAD scale floored at ``min_scale`` into ``w``; returns sigma."""
     n = r.shape[0]
