@@ -19,15 +19,9 @@ from __future__ import annotations
 import numpy as np
 
 from mst.core.poses import inv_T, se3_exp
+from mst.pipeline.tracking.budget import REASON_AMBIGUOUS, REASON_UNCERTAIN, ModelDistance, PoseBudget
 from mst.pipeline.tracking.edge_tracker import FrameResult
-from mst.pipeline.tracking.session import (
-    REASON_AMBIGUOUS,
-    REASON_UNCERTAIN,
-    ModelDistance,
-    PoseBudget,
-    TrackingPolicy,
-    TrackingSession,
-)
+from mst.pipeline.tracking.session import TrackingPolicy, TrackingSession
 
 D = 100.0  # m, camera to the model vertex
 
@@ -109,7 +103,7 @@ def test_second_minimum_far_from_the_prediction_is_refused_and_the_sequence_goes
     st = [r.status for r in recs]
     assert st == ["model"] * 5 + ["lost"] + ["model"] * 3, st
     assert recs[5].reason.startswith(REASON_AMBIGUOUS) and "motion prediction" in recs[5].reason
-    assert s.policy.ambiguous_frames == [5] and s.policy.budget_frames == []
+    assert s.policy.refusals.ambiguous_frames == [5] and s.policy.refusals.budget_frames == []
     # frame 6 starts from the refused pose (the image's estimate), then is fitted +-3 sigma along its
     # weakest direction (after a refusal): the truth again each time, so it is output
     starts6 = [T for k, T in tr.starts if k == 6]
@@ -125,7 +119,7 @@ def test_real_acceleration_refits_to_the_same_pose_and_is_output():
     tr = _Tracker(truth)
     s, recs = _run(tr, 8)
     assert [r.status for r in recs] == ["model"] * 8
-    assert s.policy.ambiguous_frames == []
+    assert s.policy.refusals.ambiguous_frames == []
     assert len([k for k, _ in tr.starts if k == 5]) == 2  # the fit, and the refit from the prediction
 
 

@@ -40,6 +40,11 @@ the distance, blob fast 1.1 -> 0.60 %). A polyhedral mesh (a TIN of a box, a bui
 crossing raised the box TIN orbit's errors from 1.07x to 1.37x the polygon model's): on the real tea box TIN
 the 3-px mask with the side test moved the poses 5.1 mm from the polygon model's (max), the 5-px one 2.1 mm.
 
+**Bodies of revolution.** A torus, a vase, a bottle (:func:`revolution_axis`) look the same from every camera
+turned about their axis: that twist is a gauge of the pose, not an uncertainty, so :meth:`RenderEdgeProvider.gauge_cov`
+fixes it in the covariance the error budget reads and :meth:`RenderEdgeProvider.align_to` compares two poses
+modulo it (the budget's ambiguity and first-frame tests).
+
 :func:`choose_edges` implements ``mst track --edges auto``: polygon edges for polygon formats
 (``.cao``, ``.wrl``) and small planar triangle files (today's behaviour), render-based edges for
 triangle meshes with many faces (> ``MANY_FACES``) or curved parts.
@@ -181,6 +186,50 @@ def merge_polyhedral_tin(model, model_path, mode: str):
     return poly
 
 
+#: a mesh is a body of revolution about a principal axis of its surface when its vertices turned about that axis
+#: by these angles lie within SYMMETRY_TOL x its diagonal of its surface (a tessellated one: within its facets'
+#: sagitta, 1e-4 of the size for the generated torus and vase)
+SYMMETRY_TURNS_DEG = (7.0, 31.0, 97.0)
+SYMMETRY_TOL = 2e-3
+
+
+def revolution_axis(renderer, max_points: int = 2000):
+    """``(axis (3,) unit, point (3,))`` in the model frame when the mesh of ``renderer`` is a body of revolution
+    (torus, vase, bottle, cylinder), else None. Candidates: the principal axes of the surface (area-weighted
+    triangle centroids) whose two other moments agree within 2 %; kept when the mesh turned about the axis by each
+    of ``SYMMETRY_TURNS_DEG`` maps onto itself (vertex distance to the surface, Embree)."""
+    import open3d as o3d
+
+    V, F = renderer.V, renderer.F
+    A = 0.5 * np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1)
+    if A.sum() <= 0:
+        return None
+    C = V[F].mean(1)
+    mu = (A[:, None] * C).sum(0) / A.sum()
+    D = C - mu
+    lam, vec = np.linalg.eigh((A[:, None, None] * D[:, :, None] * D[:, None, :]).sum(0) / A.sum())
+    diag = float(np.linalg.norm(np.ptp(V, axis=0)))
+    P = V[np.unique(np.linspace(0, len(V) - 1, min(max_points, len(V))).astype(np.int64))]
+    for k in range(3):
+        o = np.delete(lam, k)
+        if abs(o[0] - o[1]) > 0.02 * max(abs(o).max(), 1e-300):
+            continue
+        a = vec[:, k]
+        ok = True
+        for deg in SYMMETRY_TURNS_DEG:
+            th = np.radians(deg)
+            Kx = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
+            Rm = np.eye(3) + np.sin(th) * Kx + (1 - np.cos(th)) * Kx @ Kx
+            Q = (P - mu) @ Rm.T + mu - renderer.origin
+            d = renderer.scene.compute_distance(o3d.core.Tensor(Q.astype(np.float32))).numpy()
+            if float(d.max()) > SYMMETRY_TOL * diag:
+                ok = False
+                break
+        if ok:
+            return a, mu
+    return None
+
+
 class RenderEdgeProvider:
     """Edge samples from renders of a triangle mesh (see the module doc).
 
@@ -208,9 +257,46 @@ class RenderEdgeProvider:
         self.radius_m = 0.5 * float(np.linalg.norm(hi - lo))
         self.cache = None  # Edgelets of the last render
         self.curved = False  # a curved mesh: its rims' measurements move onto the ramp crossing (filter_matches)
+        self.axis = revolution_axis(self.renderer)  # (axis, point) model frame of a body of revolution, or None
         self.n_renders = 0
         self.render_ms = 0.0  # wall
         self.render_cpu_ms = 0.0  # process CPU time (every thread of the ray caster)
+
+    def gauge_cov(self, T_cam_model: np.ndarray, W: np.ndarray, cov: np.ndarray, rms_px: float) -> np.ndarray:
+        """The pose covariance ``cov`` (6x6, twist ``(v, w)`` of ``T_cam_model``) with the mesh's symmetry fixed:
+        for a body of revolution (:func:`revolution_axis`) a turn of the model about its axis changes no image, so
+        its twist is a gauge freedom (any value is as right as any other) and not an uncertainty of the pose: the
+        covariance is ``rms^2 (W + lambda n n^T)^-1`` for the unit twist ``n`` of that turn (lambda: 1e6 x the
+        largest diagonal of the information ``W``). Other meshes: ``cov`` unchanged."""
+        if self.axis is None or W is None or cov is None or not np.isfinite(W).all():
+            return cov
+        a, p = self.axis
+        R, t = T_cam_model[:3, :3], T_cam_model[:3, 3]
+        w = R @ a
+        n = np.concatenate([np.cross(R @ p + t, w), w])  # rotation about the axis through R p + t (camera frame)
+        n /= np.linalg.norm(n)
+        try:
+            return float(rms_px) ** 2 * np.linalg.inv(W + 1e6 * float(np.abs(np.diag(W)).max()) * np.outer(n, n))
+        except np.linalg.LinAlgError:
+            return cov
+
+    def align_to(self, T_ref: np.ndarray, T: np.ndarray) -> np.ndarray:
+        """``T`` (T_cam_model) with the model turned about its axis of revolution so that the camera centre's angle
+        about the axis is ``T_ref``'s: two poses of a body of revolution compared modulo its symmetry; ``T`` itself
+        for other meshes."""
+        if self.axis is None:
+            return T
+        a, p = self.axis
+        c, cr = -T[:3, :3].T @ T[:3, 3] - p, -T_ref[:3, :3].T @ T_ref[:3, 3] - p
+        c, cr = c - (c @ a) * a, cr - (cr @ a) * a  # in the plane normal to the axis
+        if np.linalg.norm(c) < 1e-12 or np.linalg.norm(cr) < 1e-12:
+            return T
+        th = math.atan2(float(np.cross(cr, c) @ a), float(cr @ c))  # turn of the model taking c's angle to cr's
+        Kx = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
+        Rm = np.eye(3) + math.sin(th) * Kx + (1 - math.cos(th)) * Kx @ Kx
+        M = np.eye(4)
+        M[:3, :3], M[:3, 3] = Rm, p - Rm @ p
+        return T @ M
 
     def stats(self) -> dict:
         """Render statistics for the run summary: renders, total and mean extraction time (ms)."""

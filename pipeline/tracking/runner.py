@@ -20,9 +20,10 @@ import numpy as np
 from mst import InputError, atomic_outputs
 from mst.errors import ConfigError
 from mst.meshtools.formats import load_tracking_model
+from mst.pipeline.tracking.budget import PoseBudget
 from mst.pipeline.tracking.config import TrackConfig
 from mst.pipeline.tracking.health import HealthMonitor
-from mst.pipeline.tracking.session import FrameRecord, PoseBudget, TrackingPolicy, TrackingSession
+from mst.pipeline.tracking.session import FrameRecord, TrackingPolicy, TrackingSession
 
 log = logging.getLogger(__name__)
 
@@ -166,12 +167,12 @@ def _summary(records: list[FrameRecord], session: TrackingSession, aid_mode: str
         # bound of every map pose: frame -> [bound / model distance, bound deg]
         opt["drift_budget_frames"] = [int(f) for f in beyond]
         opt["slam_uncertainty"] = {str(k): [float(a), float(b)] for k, (a, b) in sorted(aid.drift_log.items())}
-    pol = session.policy
-    if pol.budget_frames or pol.ambiguous_frames:
+    ref = session.policy.refusals
+    if ref.budget_frames or ref.ambiguous_frames:
         # edge poses refused by the error budget (lost): their own uncertainty beyond it, or two fits
         # of the image beyond it apart (TrackingPolicy.beyond_budget / TrackingSession._ambiguous)
-        opt["pose_budget_frames"] = list(pol.budget_frames)
-        opt["ambiguous_frames"] = list(pol.ambiguous_frames)
+        opt["pose_budget_frames"] = list(ref.budget_frames)
+        opt["ambiguous_frames"] = list(ref.ambiguous_frames)
     if aid is not None and "wakes" in getattr(aid, "stats", {}):
         # the default aid: how often (and where) the mono SLAM was switched on, its replay cost
         opt["aid_wakes"] = int(aid.stats["wakes"])

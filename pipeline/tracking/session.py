@@ -18,7 +18,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mst.core.poses import inv_T, pose_error, se3_exp
+from mst.core.poses import inv_T
+from mst.pipeline.tracking.budget import (
+    ModelDistance,
+    PoseBudget,
+    Refusals,
+    ambiguity,
+    beyond_budget,
+    is_refusal,
+)
 from mst.pipeline.tracking.edge_tracker import EdgeTracker, FrameResult
 from mst.pipeline.tracking.health import HealthMonitor
 
@@ -44,33 +52,6 @@ MAP_CHECK_MIN_VIEW = 0.5
 #: initial poses, Rotterdam FPV 30 m 21 sigma (the tolerant search moved 20 px, 0.73 m, 2.4 %; the
 #: plain one 0.17 m) and Delft 250 m 27 sigma (29 m; the plain one 0.74 m)
 FIRST_FRAME_AGREE_SIGMA = 10.0
-
-#: the reason (``traj.csv``) of an edge pose refused by the error budget: its own uncertainty beyond
-#: it, or two fits of the image beyond it apart
-REASON_UNCERTAIN = "pose uncertain"
-REASON_AMBIGUOUS = "ambiguous"
-
-
-@dataclass(frozen=True)
-class PoseBudget:
-    """The error budget of an output pose: its ``sigmas`` x 1-sigma bound within ``rel`` x its
-    distance to the model and ``deg`` degrees (the drift budget's values, ``slam.drift_*``)."""
-
-    rel: float = 0.01
-    deg: float = 2.0
-    sigmas: float = 2.0
-
-
-#: an edge pose is fitted again from the motion prediction (:meth:`TrackingSession._ambiguous`) when it
-#: lies more than this x the budget from it: a cost bound (one extra fit on those frames only); measured
-#: centre gaps pose-prediction, % of the distance: real teabox median 0.24 (default) / 0.44 (edges
-#: only), UAV passes 0.06-0.15, `carried` 0.16 (up to 3.3 while the hand accelerates the object)
-AMBIGUITY_SCREEN = 0.5
-
-#: after a refused frame the next edge pose is also fitted from this many sigma either side along its
-#: covariance's weakest direction (a unique minimum pulls both back; Rotterdam FPV frame 6, 2.9 % off
-#: after the refused frame 5: 1.7-2.1 % away; correct frames after a refusal 0.04-0.23 %)
-BASIN_SIGMAS = 3.0
 
 #: statuses of a frame's output pose
 OUTPUT_STATUSES = ("model", "slam", "relocalised", "lost")
@@ -143,10 +124,7 @@ class TrackingPolicy:
         self.n_ref: float | None = None  #: running mean of the visible edge samples of model frames
         self.budget = budget  #: the error budget of an output pose (None: not checked)
         self.distance_m = None  #: ``distance_m(T_cam_model) -> m`` to the model (set by the session)
-        self.after_refusal = False  #: the last frame's edge pose was refused by the error budget
-        self.model_pair: list[np.ndarray] = []  #: the last two frames' poses while both were model poses
-        self.budget_frames: list[int] = []     #: frames refused: the pose's own uncertainty beyond the budget
-        self.ambiguous_frames: list[int] = []  #: frames refused: two fits of one image, beyond the budget apart
+        self.refusals = Refusals()  #: the error budget's state: refused frames, the model-pose pair
 
     # -------------------------------------------------------------- before the edge tracker
     def start_pose(self, T_pred: np.ndarray | None, aided: bool, shift_px) -> np.ndarray:
@@ -202,22 +180,10 @@ class TrackingPolicy:
 
     def beyond_budget(self, fr: FrameResult) -> str:
         """Why an edge pose's own uncertainty exceeds the error budget ('' when it does not, or
-        without a budget): its ``sigmas`` x 1-sigma camera-centre bound (from the fit's 6x6
-        covariance, the trace of its position block) beyond ``rel`` x the distance to the model, or
-        its rotation bound beyond ``deg``. The same budget as a map pose's (the drift budget,
-        ``slam.drift_budget_rel`` / ``_deg`` / ``drift_sigmas``): a pose is output only where its
-        image pins it to the budget (Delft at 250 m, 640x480: 1-sigma 0.6-1.4 % of the distance,
-        errors 0.3-3 %)."""
-        b, cov, T = self.budget, fr.cov, fr.T_cam_model
-        if b is None or self.distance_m is None or cov is None or T is None or not np.isfinite(cov).all():
+        without a budget or a model distance): :func:`mst.pipeline.tracking.budget.beyond_budget`."""
+        if self.budget is None or self.distance_m is None:
             return ""
-        pos = b.sigmas * float(np.sqrt(max(np.trace(cov[:3, :3]), 0.0)))
-        rot = b.sigmas * float(np.degrees(np.sqrt(max(np.linalg.eigvalsh(0.5 * (cov[3:, 3:] + cov[3:, 3:].T)).max(), 0.0))))
-        d = self.distance_m(T)
-        if pos <= b.rel * d and rot <= b.deg:
-            return ""
-        return (f"{REASON_UNCERTAIN}: {b.sigmas:g} sigma = {pos / d:.1%} of the model distance, {rot:.2f} deg "
-                f"(budget {b.rel:.0%}, {b.deg:g} deg)")
+        return beyond_budget(self.budget, fr.cov, fr.T_cam_model, self.distance_m)
 
     def map_pose_refuted(self, ev) -> str:
         """Why the image refutes a map (``slam``) pose, from its evidence ``ev`` at that pose ('' when
@@ -275,37 +241,10 @@ class TrackingPolicy:
         if fr.healthy and fr.T_cam_model is not None:
             self.T_hint = fr.T_cam_model
 
-    def output(self, status: str, T_out: np.ndarray | None) -> None:
-        """The frame's output: two consecutive model (or relocalised) poses give the motion
-        prediction of :meth:`predicted`; any other frame breaks the pair."""
-        if status in ("model", "relocalised") and T_out is not None:
-            self.model_pair = (self.model_pair[-1:] + [T_out])[-2:]
-        else:
-            self.model_pair = []
-
-    def predicted(self) -> np.ndarray | None:
-        """Constant-velocity prediction from the last two frames when both were model poses (None otherwise)."""
-        if len(self.model_pair) < 2:
-            return None
-        Ta, Tb = self.model_pair
-        return (Tb @ inv_T(Ta)) @ Tb
-
-    def refused(self, idx: int, reason: str) -> None:
-        """A lost frame: counted when the error budget refused its edge pose (uncertain or ambiguous)."""
-        if reason.startswith(REASON_UNCERTAIN):
-            self.budget_frames.append(int(idx))
-        elif reason.startswith(REASON_AMBIGUOUS):
-            self.ambiguous_frames.append(int(idx))
-
     def frame_done(self, fr: FrameResult) -> None:
         if self.first:
             self.first_reason = fr.reason
         self.first = False
-
-
-def _centre_gap(T_a: np.ndarray, T_b: np.ndarray) -> float:
-    """Distance (m) between the camera centres of two ``T_cam_model`` poses."""
-    return float(np.linalg.norm(T_a[:3, :3].T @ T_a[:3, 3] - T_b[:3, :3].T @ T_b[:3, 3]))
 
 
 def _shift_px(tracker: EdgeTracker, T_a: np.ndarray, T_b: np.ndarray) -> float:
@@ -331,28 +270,6 @@ def model_distance(tracker: EdgeTracker, T_cam_model: np.ndarray) -> float:
     c = -T_cam_model[:3, :3].T @ T_cam_model[:3, 3]
     V = np.asarray(tracker.geom.vertices, float)
     return float(np.sqrt(((V - c) ** 2).sum(1).min())) if len(V) else float("inf")
-
-
-class ModelDistance:
-    """``distance(T_cam_model)``: a lower bound (m) on the distance from the camera centre to the
-    nearest model vertex, within 5 % of it. The distance is 1-Lipschitz in the centre c, so the
-    last exact value d0 at c0 gives ``d0 - |c - c0|``; it is recomputed (all vertices) once the
-    centre has moved more than 5 % of d0."""
-
-    def __init__(self, vertices: np.ndarray):
-        self.V = np.asarray(vertices, float)
-        self.c0: np.ndarray | None = None
-        self.d0 = float("inf")
-
-    def __call__(self, T_cam_model: np.ndarray) -> float:
-        c = -T_cam_model[:3, :3].T @ T_cam_model[:3, 3]
-        if self.c0 is not None:
-            moved = float(np.linalg.norm(c - self.c0))
-            if moved <= 0.05 * self.d0:
-                return self.d0 - moved
-        self.c0 = c
-        self.d0 = float(np.sqrt(((self.V - c) ** 2).sum(1).min())) if len(self.V) else float("inf")
-        return self.d0
 
 
 def _standby(aid) -> bool | None:
@@ -406,55 +323,33 @@ class TrackingSession:
                     fr, relocalised = fr_r, True
                     tr.discard_klt_matches()
                     break
-        if fr.healthy and not p.first:
-            # the error budget judges the pose that the rescues above settled on (applied inside
-            # them, a refusal set off other fits: the demo's UAV pass lost its return after the turn)
-            why = p.beyond_budget(fr)
-            if why:
-                fr.healthy, fr.reason = False, why
-            elif not relocalised:
-                self._ambiguous(gray, fr)
         return fr, relocalised
 
     def _ambiguous(self, gray: np.ndarray, fr: FrameResult) -> None:
-        """A healthy edge pose ``fr`` far from the motion prediction (the constant-velocity pose of
-        the last two model frames, beyond ``AMBIGUITY_SCREEN`` x the budget at the model distance):
-        the image is fitted again from the prediction. Two healthy fits of one image more than the
-        budget apart (``budget.rel`` x the distance, or ``budget.deg``): at least one of them is
-        beyond it and the image cannot tell which, so ``fr`` is refused (``healthy`` False, reason
-        ``ambiguous``). A real acceleration (the object carried by hand) refits to the same pose.
-        Measured, the fit from the prediction against the pose, % of the distance: Rotterdam FPV
-        frame 5 (2.1 % off) 1.74; correct frames 0.01-0.34 (real teabox edges only, `carried`)."""
-        p, tr, b = self.policy, self.tracker, self.policy.budget
-        if b is None or p.distance_m is None or fr.T_cam_model is None:
-            return
-        T = fr.T_cam_model
-        d = p.distance_m(T)
-        starts = []
-        T_cv = p.predicted()
-        if T_cv is not None and _centre_gap(T, T_cv) > AMBIGUITY_SCREEN * b.rel * d:
-            starts.append(("the motion prediction", T_cv))
-        if p.after_refusal and fr.cov is not None and np.isfinite(fr.cov).all():
-            # after a refused frame: from +-BASIN_SIGMAS along the fit's weakest direction
-            lam, vec = np.linalg.eigh(0.5 * (fr.cov + fr.cov.T))
-            step = vec[:, -1] * np.sqrt(max(lam[-1], 0.0)) * BASIN_SIGMAS
-            starts += [(f"{BASIN_SIGMAS:g} sigma off", se3_exp(k * step) @ T) for k in (1.0, -1.0)]
-        if not starts:
+        """Refuse ``fr`` (``healthy`` False, reason ``ambiguous``) when a second healthy fit of the image
+        lies beyond the budget from it (:func:`mst.pipeline.tracking.budget.ambiguity`): from the
+        motion prediction of the last two model frames, and after a refused frame from +-3 sigma;
+        poses compared modulo the model's axis of revolution (:meth:`_modulo_symmetry`)."""
+        p, tr = self.policy, self.tracker
+        if p.budget is None or p.distance_m is None or fr.T_cam_model is None:
             return
         klt = getattr(tr, "_klt_next", None)  # the KLT inliers of the kept fit (the refits' are not kept)
-        for what, T_alt in starts:
-            fr_a = p.judge(tr.track(gray, T_alt, recover=p.recover), False, count=False)
-            if not fr_a.healthy or fr_a.T_cam_model is None:
-                continue
-            gap = _centre_gap(T, fr_a.T_cam_model)
-            _, deg = pose_error(inv_T(T), inv_T(fr_a.T_cam_model))
-            if gap > b.rel * d or float(deg) > b.deg:
-                fr.healthy = False
-                fr.reason = (f"{REASON_AMBIGUOUS}: the fit from {what} lies {gap / d:.1%} of the model distance, "
-                             f"{float(deg):.2f} deg away (budget {b.rel:.0%}, {b.deg:g} deg)")
-                break
+
+        def refit(T_start):
+            return p.judge(tr.track(gray, T_start, recover=p.recover), False, count=False)
+
+        why = ambiguity(p.budget, fr, p.distance_m(fr.T_cam_model), p.refusals.predicted(), p.refusals.after, refit,
+                        align=self._modulo_symmetry)
         if hasattr(tr, "_klt_next"):
             tr._klt_next = klt
+        if why:
+            fr.healthy, fr.reason = False, why
+
+    def _modulo_symmetry(self, T_ref: np.ndarray, T: np.ndarray) -> np.ndarray:
+        """``T`` turned about the model's axis of revolution onto ``T_ref`` (render-based edges of a body of
+        revolution: the turn is no difference of the image, :meth:`RenderEdgeProvider.align_to`); else ``T``."""
+        align = getattr(getattr(self.tracker, "sample_provider", None), "align_to", None)
+        return T if align is None else align(T_ref, T)
 
     def _first_frame_mode(self, gray: np.ndarray, T_init: np.ndarray, fr: FrameResult) -> FrameResult:
         """The first frame's tolerant fit ``fr`` against a plain fit from the user's pose ``T_init``:
@@ -467,7 +362,7 @@ class TrackingSession:
         fr_p = self.policy.judge(self.tracker.track(gray, T_init), True)
         if not fr_p.healthy or fr_p.T_cam_model is None:
             return fr
-        dx = se3_log(fr_p.T_cam_model @ inv_T(fr.T_cam_model))
+        dx = se3_log(self._modulo_symmetry(fr.T_cam_model, fr_p.T_cam_model) @ inv_T(fr.T_cam_model))
         try:
             d = float(np.sqrt(max(dx @ np.linalg.solve(fr.cov, dx), 0.0)))
         except np.linalg.LinAlgError:
@@ -487,11 +382,21 @@ class TrackingSession:
         reacq = p.reacquiring(aid is not None)
         fr, relocalised = self._edge_pose(idx, gray, T_start, reacq)
         healthy = p.gate_recovery(fr, reacq)
+        if healthy and not p.first:
+            # the error budget judges the pose that the rescues and gates above settled on, and only
+            # a pose that passed them all (inside the rescues a refusal set off other fits: the demo's
+            # UAV pass lost its return after the turn; before the recovery gate, a pose that it
+            # refuses was withheld and followed: the 40 m pass, 2.5-3.3 % off after its return)
+            why = p.beyond_budget(fr)
+            if why:
+                fr.healthy, fr.reason = False, why
+            elif not relocalised:
+                self._ambiguous(gray, fr)
+            healthy = fr.healthy
         recovering = reacq or p.lost_streak > 0
         # an edge pose refused by the error budget (uncertain, ambiguous) is not output, but it is the
         # image's best estimate: the sequence goes on from it as from a model frame (see _withhold_edge)
-        withheld = (not healthy and fr.T_cam_model is not None
-                    and (fr.reason or "").startswith((REASON_UNCERTAIN, REASON_AMBIGUOUS)))
+        withheld = not healthy and fr.T_cam_model is not None and is_refusal(fr.reason)
         if aid is not None and relocalised:
             # a relocalised pose passed the health test on its own image after a loss: the map of
             # the lost stretch (the object may have been moved meanwhile) does not gate it
@@ -504,9 +409,10 @@ class TrackingSession:
             # puts the object: the aid outputs no map pose that contradicts it
             weak = (fr.T_cam_model if not healthy and fr.T_cam_model is not None
                     and (fr.reason or "").startswith("health score") else None)
-            # the edge covariance anchors the drift budget of the aids that keep one (an aid of the
-            # plain hook contract takes the first six arguments only)
-            kw = {"cov_edges": fr.cov} if hasattr(aid, "within_budget") else {}
+            # the edge covariance anchors the drift budget of the aids that keep one, and with the
+            # distance to the model lets a healthy edge pose override a map pose beyond the budget
+            # (an aid of the plain hook contract takes the first six arguments only)
+            kw = {"cov_edges": fr.cov, "distance_fn": lambda T: model_distance(tr, T)} if hasattr(aid, "within_budget") else {}
             T_out, status = aid.update(idx, gray, fr.T_cam_model, fr.W, healthy or withheld, weak_edge_pose=weak, **kw)
             if withheld and status != "slam":
                 return self._withhold_edge(idx, time_s, gray, fr, t0)
@@ -549,8 +455,7 @@ class TrackingSession:
             p.lost(fr)
             T_out, status = None, "lost"
         p.frame_done(fr)
-        p.output(status, T_out)
-        p.after_refusal = False
+        p.refusals.output(status, T_out)
         ms = (time.perf_counter() - t0) * 1000.0
         return FrameRecord(idx, time_s, status, T_out, fr, self._aid_state(idx), ms)
 
@@ -567,9 +472,7 @@ class TrackingSession:
         p.prev_status = "model"
         p.slam_streak = 0
         p.frame_done(fr)
-        p.output("lost", None)
-        p.refused(idx, fr.reason)
-        p.after_refusal = True
+        p.refusals.refused(idx, fr.reason)
         ms = (time.perf_counter() - t0) * 1000.0
         return FrameRecord(idx, time_s, "lost", None, fr, self._aid_state(idx), ms)
 
@@ -584,7 +487,7 @@ class TrackingSession:
         p.prev_status = "slam"
         p.slam_streak += 1
         p.frame_done(fr)
-        p.output("lost", None)
+        p.refusals.output("lost", None)
         ms = (time.perf_counter() - t0) * 1000.0
         return FrameRecord(idx, time_s, "lost", None, fr, self._aid_state(idx), ms)
 
