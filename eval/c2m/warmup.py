@@ -83,15 +83,6 @@ def warm_tracking() -> None:
     for klt in (False, True):
         kw = {"klt_X_model": X[::4], "klt_uv": uvX[::4]} if klt else {}
         solve_pose(T0, K, X, e, A, B, cand, **kw)
-    # the edge tracker's pose evidence (EdgeTracker._absolute_health, pose_evidence) on the cube's edges
-    from mst.pipeline.tracking.kernels import pose_gradients, pose_health
-    from mst.pipeline.tracking.moving_edges import _image
-
-    geo = (np.ascontiguousarray(X, np.float64), np.ascontiguousarray(A[e], np.float64),
-           np.ascontiguousarray(B[e], np.float64), np.ascontiguousarray(e, np.int64), T, 500.0, 500.0, 40.0, 30.0)
-    for im in (img, img.astype(np.float32)):
-        pose_health(_image(im), *geo, 0.5, float(np.float32(20.0)))
-        pose_gradients(_image(im), *geo, 20.0, float(np.cos(np.radians(10.0))))
     # edge sampling (visibility.visible_samples -> kernels.edge_samples), with and without the LOD rule
     from mst.meshtools.generate import l_shape_model
     from mst.pipeline.tracking.visibility import ModelGeometry, visible_samples
