@@ -28,19 +28,28 @@ def _cached_kernels() -> set[str]:
     """Names of the module-level ``cache=True`` dispatchers of mst.eval.c2m.kernels and
     mst.pipeline.tracking.kernels (prefixed ``tracking.``) and mst.meshtools.kernels (``convert.``) that Python calls (the ``inline="always"``
     helpers are compiled into their callers)."""
+    import re
+
     import numba.core.registry
 
     from mst.eval.c2m import kernels
     from mst.meshtools import kernels as convert_kernels
     from mst.pipeline.tracking import kernels as tracking_kernels
 
+    root = Path(kernels.__file__).resolve().parents[2]
+    mods = (kernels, tracking_kernels, convert_kernels)
+    # the Python code outside the kernel modules: a kernel only ever called from other kernels is
+    # compiled into them (its dispatcher gets no signature when its caller is loaded from the cache)
+    others = "\n".join(p.read_text() for p in root.rglob("*.py")
+                       if p.resolve() not in {Path(m.__file__).resolve() for m in mods} and "tests" not in p.parts)
     out = set()
-    for mod, prefix in ((kernels, ""), (tracking_kernels, "tracking."), (convert_kernels, "convert.")):
+    for mod, prefix in zip(mods, ("", "tracking.", "convert.")):
         for name in dir(mod):
             d = getattr(mod, name)
             if isinstance(d, numba.core.registry.CPUDispatcher) and d.targetoptions.get("inline") != "always":
                 assert d._cache.__class__.__name__ == "FunctionCache", f"{name} is not cache=True"
-                out.add(prefix + name)
+                if re.search(rf"\b{name}\(|import[^\n]*\b{name}\b", others):  # called or imported
+                    out.add(prefix + name)
     return out
 
 
