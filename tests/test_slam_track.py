@@ -85,12 +85,20 @@ def test_corridor_rgbd_carries_the_pose_while_the_model_is_away(corridor, runs_d
     # while the model is away the map runs, but its poses are output only within the drift budget
     # (1 % / 2 deg at a 2-sigma bound): at 320x240 the edge poses that anchor it are uncertain to
     # 0.3-0.5 % (1 sigma), so most of the stretch is withheld (`lost`, aid `drift-budget`); at
-    # 640x480 it is carried (test_slam_drift.py). The frames not output are the budget's, no others
-    assert ((st == "lost") == np.isin(e["frame"], summ["drift_budget_frames"])).all()
+    # 640x480 it is carried (test_slam_drift.py). The frames not output are the budgets', no others:
+    # the map's drift budget, or the edge pose's own (uncertain / ambiguous: the corridor's last
+    # frames see 40-47 samples, 2 sigma = 2 % of the distance)
+    refused = summ["drift_budget_frames"] + summ["pose_budget_frames"] + summ["ambiguous_frames"]
+    assert ((st == "lost") == np.isin(e["frame"], refused)).all()
     assert ((st[hidden] == "slam") | (st[hidden] == "lost")).all()
     # the model pose takes over again after the return; no re-initialisation was needed
     ret = np.flatnonzero(hidden)[-1] + 1
-    assert (st[ret + 5:] == "model").mean() > 0.8
+    # (or refused by the edge pose's own budget: the corridor's last frames see 40-47 samples and their
+    # fits claim 2 sigma = 2 % of the distance; at 320x240 that covariance is ~2x pessimistic, a
+    # cost of the honest rule, measured in the closing note of session 5)
+    after = st[ret + 5:]
+    own = np.isin(e["frame"][ret + 5:], summ["pose_budget_frames"] + summ["ambiguous_frames"])
+    assert (after[~own] == "model").mean() > 0.8 and own.mean() < 0.5
     assert np.nanmax(e["rel"][hidden]) < 0.01          # drift while away: < 1 % of the distance
     assert np.nanmax(e["rel"][ret + 5:]) < 0.008       # 320x240 edge-tracker noise level
     assert recovery_frames(e["rel"], hidden, bound=0.008) <= 5

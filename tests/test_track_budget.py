@@ -130,3 +130,40 @@ def test_no_prediction_check_close_to_the_prediction():
     # one fit a frame after the first (its tolerant and plain fits): every pose within half the
     # budget of its prediction
     assert [k for k, _ in tr.starts if k > 0] == [1, 2, 3, 4, 5]
+
+
+def test_refit_with_clearly_better_evidence_replaces_the_pose():
+    # frame 5's first fit lands in the image's worse minimum (health score 0.5); the refit from the
+    # prediction is the truth with a typical score (0.95 > 0.5 + SCORE_MARGIN): the frame takes it
+    from mst.pipeline.tracking.budget import SCORE_MARGIN
+
+    truth = lambda k: _T(0.1 * k)  # noqa: E731
+    wrong = _T(0.1 * 5 + 2.0)
+
+    class Scored(_Tracker):
+        def track(self, gray, T_init, recover=False, first=False):
+            fr = super().track(gray, T_init, recover, first)
+            fr.score = 0.5 if np.allclose(fr.T_cam_model, wrong) else 0.95
+            return fr
+
+    assert 0.95 > 0.5 + SCORE_MARGIN
+    tr = Scored(truth, {5: wrong})
+    s, recs = _run(tr, 8)
+    assert [r.status for r in recs] == ["model"] * 8
+    assert np.allclose(recs[5].T_cam_model, truth(5))
+    assert s.policy.refusals.ambiguous_frames == []
+
+
+def test_refit_with_similar_evidence_stays_ambiguous():
+    # the same two minima with scores 0.8 and 0.9 (within SCORE_MARGIN): the image cannot choose
+    truth = lambda k: _T(0.1 * k)  # noqa: E731
+    wrong = _T(0.1 * 5 + 2.0)
+
+    class Scored(_Tracker):
+        def track(self, gray, T_init, recover=False, first=False):
+            fr = super().track(gray, T_init, recover, first)
+            fr.score = 0.8 if np.allclose(fr.T_cam_model, wrong) else 0.9
+            return fr
+
+    s, recs = _run(Scored(truth, {5: wrong}), 8)
+    assert recs[5].status == "lost" and recs[5].reason.startswith(REASON_AMBIGUOUS)

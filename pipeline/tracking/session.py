@@ -325,25 +325,34 @@ class TrackingSession:
                     break
         return fr, relocalised
 
-    def _ambiguous(self, gray: np.ndarray, fr: FrameResult) -> None:
+    def _ambiguous(self, gray: np.ndarray, fr: FrameResult) -> FrameResult:
         """Refuse ``fr`` (``healthy`` False, reason ``ambiguous``) when a second healthy fit of the image
         lies beyond the budget from it (:func:`mst.pipeline.tracking.budget.ambiguity`): from the
         motion prediction of the last two model frames, and after a refused frame from +-3 sigma;
-        poses compared modulo the model's axis of revolution (:meth:`_modulo_symmetry`)."""
+        poses compared modulo the model's axis of revolution (:meth:`_modulo_symmetry`). A refit
+        with clearly better evidence (:data:`mst.pipeline.tracking.budget.SCORE_MARGIN`) is returned
+        in its place: the first fit settled in the image's worse minimum."""
         p, tr = self.policy, self.tracker
         if p.budget is None or p.distance_m is None or fr.T_cam_model is None:
-            return
+            return fr
         klt = getattr(tr, "_klt_next", None)  # the KLT inliers of the kept fit (the refits' are not kept)
 
         def refit(T_start):
             return p.judge(tr.track(gray, T_start, recover=p.recover), False, count=False)
 
-        why = ambiguity(p.budget, fr, p.distance_m(fr.T_cam_model), p.refusals.predicted(), p.refusals.after, refit,
-                        align=self._modulo_symmetry)
+        why, better = ambiguity(p.budget, fr, p.distance_m(fr.T_cam_model), p.refusals.predicted(), p.refusals.after,
+                                refit, align=self._modulo_symmetry)
+        if better is not None:
+            tr.discard_klt_matches()  # the KLT inliers were those of the discarded fit
+            why = p.beyond_budget(better)
+            if why:
+                better.healthy, better.reason = False, why
+            return better
         if hasattr(tr, "_klt_next"):
             tr._klt_next = klt
         if why:
             fr.healthy, fr.reason = False, why
+        return fr
 
     def _modulo_symmetry(self, T_ref: np.ndarray, T: np.ndarray) -> np.ndarray:
         """``T`` turned about the model's axis of revolution onto ``T_ref`` (render-based edges of a body of
@@ -391,7 +400,7 @@ class TrackingSession:
             if why:
                 fr.healthy, fr.reason = False, why
             elif not relocalised:
-                self._ambiguous(gray, fr)
+                fr = self._ambiguous(gray, fr)
             healthy = fr.healthy
         recovering = reacq or p.lost_streak > 0
         # an edge pose refused by the error budget (uncertain, ambiguous) is not output, but it is the
