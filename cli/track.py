@@ -57,7 +57,8 @@ CONFIG_CLASSES["mst track"] = "mst.pipeline.tracking.config:TrackConfig"  # --sh
 @click.option("--edges", type=click.Choice(["auto", "polygon", "render"]), default=None,
               help="Edges to track (default auto): polygon = the model's polygon edges; render = contours and creases from CPU renders "
                    "of the mesh (curved objects, raw TINs); auto = polygon for .cao/.wrl and small planar meshes, "
-                   "render for triangle meshes with many faces or curved parts.")
+                   "the polygon edges of its planar faces (merged) for a closed polyhedral triangle mesh with many "
+                   "faces (a box or building TIN), render for curved or open triangle meshes with many faces.")
 @config_options(presets=True)
 @json_option
 @quiet_option

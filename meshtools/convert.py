@@ -53,7 +53,7 @@ import numpy as np
 
 from mst import InputError, atomic_output, check_outputs
 from mst.core.config import Config, param
-from mst.meshtools.kernels import triangle_cross
+from mst.meshtools.compiled import triangle_cross
 from mst.meshtools.model import PolygonModel
 from mst.meshtools.outlines import outlines
 from mst.meshtools.regions import (

@@ -232,17 +232,7 @@ def edge_groups(u, v, nv):
     return order, start, count, edge, pair
 
 
-def components(n: int, a: np.ndarray, b: np.ndarray) -> tuple[int, np.ndarray]:
-    """``(n_components, label per node)`` of the undirected graph on nodes ``0..n-1`` with edges
-    ``a[k] - b[k]``; components numbered by their smallest node (scipy's numbering)."""
-    a = np.ascontiguousarray(a, np.int64)
-    b = np.ascontiguousarray(b, np.int64)
-    if len(a) != len(b):
-        raise ValueError("edge arrays differ in length")
-    if len(a) and (min(a.min(), b.min()) < 0 or max(a.max(), b.max()) >= n):
-        raise ValueError("edge endpoint out of range")
-    c, lab = _components(int(n), a, b)
-    return int(c), lab
-
+# the validating wrapper of _components lives in mst.meshtools.compiled (no numba import there)
+from mst.meshtools.compiled import components  # noqa: E402
 
 __all__ = ["components", "edge_groups", "edge_order", "triangle_cross", "pair_candidates", "plane_ok", "region_sums"]

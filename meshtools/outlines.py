@@ -1,14 +1,15 @@
 """Steps 5-6 of TIN -> polygons (:mod:`mst.meshtools.convert`): boundary loops of each planar region
 (outer loop + holes, chained by list ranking, pinch vertices resolved) simplified without cracks.
 
-Imports numpy, :mod:`mst.meshtools.kernels` (numba) and :mod:`mst.meshtools.polygons` only.
+Imports numpy, the kernels of :mod:`mst.meshtools.kernels` (through :mod:`mst.meshtools.compiled`) and
+:mod:`mst.meshtools.polygons` only.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from mst.meshtools.kernels import components
+from mst.meshtools.compiled import components
 from mst.meshtools.regions import Edges
 
 

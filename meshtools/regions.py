@@ -2,7 +2,8 @@
 consistent outward orientation, planar region growing (vectorised, with a queue-based regrowth for
 components that would chain) and the planarity check of the output polygons.
 
-Imports numpy, :mod:`mst.meshtools.kernels` (numba) and, for inconsistently wound input only, scipy.
+Imports numpy, the kernels of :mod:`mst.meshtools.kernels` (through :mod:`mst.meshtools.compiled`: ahead of time,
+or numba) and, for inconsistently wound input only, scipy.
 """
 
 from __future__ import annotations
@@ -11,7 +12,7 @@ from collections import deque
 
 import numpy as np
 
-from mst.meshtools.kernels import components, edge_groups, pair_candidates, plane_ok, region_sums
+from mst.meshtools.compiled import components, edge_groups, pair_candidates, plane_ok, region_sums
 
 #: regrowth rounds in a thinner slab before failing regions are split into triangles
 PLANARITY_ROUNDS = 6

@@ -108,3 +108,36 @@ def test_a_weak_edge_pose_never_votes():
 def test_output_bound():
     aid = _aid()
     assert aid._beyond_bound(_shift(0.04), T_TRUE) and not aid._beyond_bound(_shift(0.02), T_TRUE)
+
+
+def _update(aid, k, T_edges, sig, cov_edges, distance_m=3.0):
+    """One :meth:`ModelAidedSlam.update` on frame ``k`` with the map pose (the truth) and its drift
+    uncertainty ``sig`` given (no image work: the map's prediction is set as predict() leaves it)."""
+    st = _map_pose(k)
+    st.sig = sig
+    aid._cur, aid._cur_gray = st, np.zeros((240, 320), np.uint8)
+    aid.prev_gray = aid._cur_gray
+    aid._maintain_map = lambda k, g, T, *a, **kw: T  # the map's upkeep (KLT, keyframes) needs images
+    return aid.update(k, aid._cur_gray, T_edges, W_EDGE, True, cov_edges=cov_edges, distance_fn=lambda T: distance_m)
+
+
+def test_a_map_beyond_its_drift_budget_does_not_refuse_a_healthy_edge_pose():
+    """After an occluder the map (its landmarks tracked on the occluder) ran 100-270 % beyond its
+    drift budget and refused 27 healthy edge poses as weak: a map pose that could not be output does
+    not judge a healthy edge pose whose own (inflated) uncertainty is within the budget; an edge pose
+    beyond the budget itself (a partial view) is judged as before (here: refused as weak)."""
+    C_map = np.diag(np.r_[np.full(3, 1e-6), np.full(3, 1e-8)])
+    beyond = (0.5, 0.01, C_map)  # the map part: 0.5 m at 3 m, 2 sigma = 33 % of the distance
+    within = (0.001, 1e-4, C_map)  # 2 sigma ~ 0.07 %
+    # a weak (trace(W) far below its running mean) but healthy edge pose 1 cm off the map pose
+    T_e = _shift(0.01)
+    cov_good = np.diag(np.r_[np.full(3, 0.001**2), np.full(3, np.radians(0.01) ** 2)])  # 3 x 2 sigma = 0.6 cm: 0.2 %
+    cov_poor = np.diag(np.r_[np.full(3, 0.01**2), np.full(3, np.radians(0.1) ** 2)])    # 6 cm: 2 % of 3 m
+    for sig, cov, want in ((within, cov_good, "slam"), (beyond, cov_poor, "slam"), (beyond, cov_good, "model")):
+        aid = _aid()
+        aid.info_ref = float(np.trace(W_EDGE)) * 10.0
+        T, status = _update(aid, 0, T_e, sig, cov)
+        assert status == want, (sig, cov, status)
+        assert aid.stats["budget_overrides"] == (want == "model")
+        if want == "model":
+            assert np.allclose(T, T_e)  # the edge pose is output (mono: not fused with the map)

@@ -162,11 +162,7 @@ def test_issue_bounds_640_short(seq640, tmp_path, scenario):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("scenario", [pytest.param(sc, marks=pytest.mark.xfail(
-    strict=True, reason="open (#12, the aid's drift budget, merged from main at de5d23d): after the occluder "
-    "has passed, healthy edge poses (score 0.5-0.85) are withheld as `lost` ('drift budget: map pose uncertain "
-    "to 120-270 % of the model distance') for 27 frames; the relocaliser is not asked, the edge pose being "
-    "healthy")) if sc == "occluder" else sc for sc in SHORT_640])
+@pytest.mark.parametrize("scenario", list(SHORT_640))
 def test_issue_bounds_640_full_length(seq640, tmp_path, scenario):
     """The full-length sequences (``DEFAULT_FRAMES_DYNAMIC``) at 640x480, same bounds."""
     from mst.pipeline.synth.dynamic import DEFAULT_FRAMES_DYNAMIC

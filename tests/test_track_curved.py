@@ -58,6 +58,88 @@ def test_contour_side_test_rejects_background_edge():
     assert ok[:, 0].all() and not ok[:, 1].any()
 
 
+def _ramp_disc(rim: float, bg: float, slope: float = 6.0, r: float = 40.0, size: int = 160) -> np.ndarray:
+    """A disc of radius ``r`` px whose gray level rises by ``slope`` per px from ``rim`` at its contour over 6 px
+    inward (a smooth object's shading ramp: darker toward its rim), on a uniform background ``bg``; 4x4 anti-aliased."""
+    import cv2
+
+    s = 4
+    c = (size - 1) / 2.0
+    yy, xx = np.mgrid[0:size * s, 0:size * s]
+    rr = np.hypot((xx + 0.5) / s - 0.5 - c, (yy + 0.5) / s - 0.5 - c)
+    hi = np.where(rr < r, rim + slope * np.minimum(r - rr, 6.0), bg).astype(np.float32)
+    return np.clip(np.rint(cv2.resize(hi, (size, size), interpolation=cv2.INTER_AREA)), 0, 255).astype(np.uint8)
+
+
+@pytest.mark.parametrize("rim,bg,bias_sign", [(120.0, 90.0, -1.0), (60.0, 95.0, 1.0)])
+def test_rim_crossing_removes_the_shading_ramp_bias(rim, bg, bias_sign):
+    """Silhouette of a disc that darkens toward its rim (6 gray levels per px), brighter (120 -> 156 inside, on 90)
+    or darker (60 -> 96, on 95) than the background. The 3-px mask's peak (the moving-edge search) is pulled toward
+    the ramp's bright side: inward on the bright disc, outward on the dark one, by more than 0.1 px on average.
+    Moved onto the crossing with the middle of the step between the extrapolated object level and the background,
+    candidates started on the contour or 0.6 px off it land within 0.08 px of it on average and at most half the
+    peak's mean bias (budget: the bilinear profile of an oblique anti-aliased edge is off by up to ~0.15 px per
+    sample, 0.11 px without a ramp; 4x4 supersampling quantises the edge to 1/32 px), every one within 0.25 px."""
+    from mst.pipeline.tracking.moving_edges import search_edges
+    from mst.pipeline.tracking.render_edges import crossing_offsets
+
+    img = _ramp_disc(rim, bg)
+    c, r = (img.shape[0] - 1) / 2.0, 40.0
+    a = np.linspace(0, 2 * np.pi, 64, endpoint=False) + 0.01
+    n_out = np.stack([np.cos(a), np.sin(a)], 1)
+    uv = c + r * n_out
+    m = search_edges(img, uv, n_out, None, search_range=4, threshold=10.0, mu1=0.5, mu2=0.5, size=3, n_masks=180,
+                     n_candidates=1)
+    sgn = np.sign((m.normal * n_out).sum(1))  # search normal -> outward
+    peak = m.offset[:, 0] * sgn
+    assert np.isfinite(peak).all() and bias_sign * peak.mean() > 0.1, peak.mean()
+    for start in (0.0, 0.6, -0.6):
+        moved = crossing_offsets(img, uv, n_out, np.full((len(uv), 1), start) * sgn[:, None], m.normal)[:, 0] * sgn
+        assert np.isfinite(moved).all(), start
+        assert abs(moved.mean()) <= min(0.08, 0.5 * abs(peak.mean())) and np.abs(moved).max() <= 0.25, (
+            start, moved.mean(), np.abs(moved).max())
+
+
+def test_body_of_revolution_symmetry_is_a_gauge():
+    """The torus and the vase are found to be bodies of revolution about their z axis, the blob and a box are not.
+    Their turn about the axis changes no image, so (1) two poses that differ by that turn compare equal
+    (``align_to``: the camera centres coincide after it) and (2) the pose covariance does not count it as an
+    uncertainty: along the turn's twist the gauge-fixed variance is < 1e-6 of the free one, and a direction
+    orthogonal to it keeps its variance within 1 % (the information of the other directions is unchanged)."""
+    from mst.core.camera import Camera
+    from mst.core.poses import inv_T, look_at
+    from mst.meshtools.generate import blob, box, torus, vase
+    from mst.pipeline.tracking.render_edges import RenderEdgeProvider
+
+    cam = Camera(300.0, 300.0, 159.5, 119.5, 320, 240)
+    provs = {name: RenderEdgeProvider(*f(), cam) for name, f in (("torus", torus), ("vase", vase), ("blob", lambda: blob(subdivisions=3)),
+                                                                  ("box", lambda: box((0.3, 0.2, 0.1), split=5)))}
+    for name in ("torus", "vase"):
+        a, _ = provs[name].axis
+        assert abs(abs(a[2]) - 1.0) < 1e-6, (name, a)
+    assert provs["blob"].axis is None and provs["box"].axis is None
+    p = provs["vase"]
+    T1 = inv_T(look_at(np.array([0.6, 0.1, 0.3]), np.array([0.0, 0.0, 0.1]), (0, 0, 1)))
+    T2 = inv_T(look_at(np.array([0.1, 0.6, 0.3]), np.array([0.0, 0.0, 0.1]), (0, 0, 1)))
+    c = lambda T: -T[:3, :3].T @ T[:3, 3]  # noqa: E731
+    assert np.linalg.norm(c(p.align_to(T1, T2)) - c(T1)) < 1e-9 and provs["blob"].align_to(T1, T2) is T2
+    # an information matrix that cannot see the turn (its twist n in its null space) plus a full-rank rest
+    a, q = p.axis
+    w = T1[:3, :3] @ a
+    n = np.concatenate([np.cross(T1[:3, :3] @ q + T1[:3, 3], w), w])
+    n /= np.linalg.norm(n)
+    rng = np.random.default_rng(0)
+    B = rng.standard_normal((6, 6))
+    B -= np.outer(B @ n, n)
+    W = B.T @ B + 1e-9 * np.outer(n, n)
+    cov = np.linalg.inv(W)
+    cg = p.gauge_cov(T1, W, cov, 1.0)
+    u = np.linalg.svd(B)[2][0]  # a direction the rest sees, orthogonal to n
+    assert n @ cg @ n < 1e-6 * (n @ cov @ n)
+    assert abs(u @ cg @ u / (u @ np.linalg.pinv(W) @ u) - 1.0) < 0.01
+    assert provs["blob"].gauge_cov(T1, W, cov, 1.0) is cov
+
+
 def test_silhouette_normals_point_out_of_the_object():
     """The edgelets' 2D normals of a sphere's silhouette point away from its centre (the side test reads the
     object at -normal), at the render pose and once reprojected by the provider at another pose."""
@@ -113,17 +195,18 @@ def _errors(shape, est, gt):
     return pose_error(est, gt) if shape == "blob" else _error_modulo_z_symmetry(est, gt)
 
 
-# measured (this session, 640x480, 16 frames): mean % of distance / deg; the cases not yet at the issue's
-# 0.3 % / 0.3 deg are strict xfails, so that they are reported as soon as they pass
+# measured (640x480, 16 frames): mean % of distance / deg; the cases not yet at the issue's 0.3 % / 0.3 deg are
+# strict xfails, so that they are reported as soon as they pass. The edgelets lie on the rendered mesh's contour to
+# 1/256 px (the facet sagitta of these meshes is ~0.01 px, so a smooth n.v = 0 rim would not move them); the image
+# side limits. Rims are located on the crossing with the object's shading ramp (render_edges.crossing_offsets;
+# before it: vase 0.34 / 0.35 %, blob fast 1.1 %, which were xfails here too)
 _NOT_MET = {
-    ("blob", "fast", "off"): "1.1 % / 0.67 deg: 8 deg per frame views whose contour is weakly conditioned "
-                             "(0.3 px noise alone gives 0.36 %; the rim's shading ramp leaves 0.27 px spread)",
-    ("blob", "fast", "auto"): "1.2 % / 0.72 deg (the aid does not help an untextured object)",
-    ("vase", "orbit", "off"): "0.34 % / 0.28 deg",
-    ("vase", "orbit", "auto"): "0.34 % / 0.28 deg",
-    ("vase", "fast", "off"): "0.35 % / 0.24 deg (0.28 % / 0.20 deg with one intermediate state of main's tracking "
-                             "kernels: at the bound, not met with margin)",
-    ("vase", "fast", "auto"): "lost after frame 2: the edges cannot see the orbit about the vase's axis, the "
+    ("blob", "fast", "off"): "8 of 16 frames output: frames 3-9 and 15 are refused by the error budget as 'pose "
+                             "uncertain' (2 sigma 1.1-2.1 % of the distance): 8 deg per frame views with too little "
+                             "contour (at the true pose of frame 6 only 150 of 234 silhouette samples find a moving "
+                             "edge: bright side on a bright textured floor); without the budget 0.60 % / 0.36 deg",
+    ("blob", "fast", "auto"): "10 of 16 frames output (the same refusals; the aid does not help an untextured object)",
+    ("vase", "fast", "auto"): "7 of 16 frames output: the edges cannot see the orbit about the vase's axis, the "
                               "aid (on the floor) does, and its map of the two disagreeing motions is wrong",
 }
 _CASES = [pytest.param(sh, sc, sl, marks=[pytest.mark.slow] + ([pytest.mark.xfail(reason=_NOT_MET[(sh, sc, sl)],

@@ -5,8 +5,8 @@
   multi-modal image around the user's pose; unit test here, the FPV pass in test_track_uav.py);
 * Delft at 250 m above the ground, 640x480 (slow), where one building ~60 px wide (46-79 edge
   samples) gave frame 0 29 m (10 %) off from an exact initial pose: now within 1 %. The later
-  frames still drift 1-3 % as `model` (a strict xfail: their covariance is 2-5x optimistic, and
-  no gate on it separates them from correct poses elsewhere, see the xfail's reason).
+  frames drifted 1-3 % as `model`; their own 2-sigma bound is 1.3-2.8 % of the distance, so the
+  error budget (test_track_budget.py) refuses them: `lost`, "pose uncertain".
 """
 
 from __future__ import annotations
@@ -92,11 +92,20 @@ def test_delft_250m_first_frame_stays_near_an_exact_initial_pose(delft250, slam)
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="26 of the 60 frames are `model` 1-3 % off (default and edges only; frame 0 "
-                   "no longer among them): errors up to 5.6 sigma of their own covariance (sigma 0.69-1.8 % of the "
-                   "distance), while correct 320x240 poses of the corridor and the demo's UAV pass have sigma 0.50-0.93 %: "
-                   "a sigma gate at 0.5 % lost the demo's 79 re-acquired frames (median 0.09 % off)")
 def test_delft_250m_no_model_pose_beyond_one_percent(delft250):
+    """26 of the 60 frames were `model` 1-3 % off (both modes), up to 5.6 sigma of their own
+    covariance, whose 1-sigma is itself 0.6-1.4 % of the distance here: the image (one ~60 px
+    building, 46-79 edge samples) does not pin the pose to the issue's 1 %. With the error budget
+    (PoseBudget: 2 sigma within 1 % of the model distance, 2 deg) those frames are `lost` with their
+    cause and counted in --json; every pose still output is within the bound."""
+    import csv
+
     for slam in ("auto", "off"):
-        _, rel, deg = _track_delft(delft250, slam, "0:60")
+        s, rel, deg = _track_delft(delft250, slam, "0:60")
         assert np.all(rel <= 0.01) and np.all(deg <= 2.0), (slam, rel.max(), deg.max())
+        rows = {int(r["frame"]): r for r in csv.DictReader(open(s["csv"]))}
+        refused = s["pose_budget_frames"]
+        # the building stays in view: every lost frame is the budget's, each with its cause in the CSV
+        assert sorted(refused) == sorted(k for k, r in rows.items() if r["status"] == "lost"), slam
+        assert refused and all(rows[k]["reason"].startswith("pose uncertain") for k in refused)
+        assert s["model"] >= 1  # frame 0, the exact initial pose, is output

@@ -165,6 +165,10 @@ def test_uav_survey_band_default_mode(survey):
     # of the turn were 0.8-1.4 % (40 m) up to 3-5 m off; and where both output a pose, the default is
     # within the comparison's noise of edges only
     _assert_slam_within_budget(d, V)
+    # and no model (or relocalised) pose beyond 1 % / 2 deg in either mode, over the whole pass (before
+    # the error budget, test_track_budget.py: the turn frame at 40 m 1.4 %, at 120 m 2.1 % off)
+    for r in runs.values():
+        _assert_within_budget(r, V, ("model", "relocalised"))
     both = np.isin(d["idx"], o["idx"])
     e_d, e_o = d["err"][both], o["err"][np.isin(o["idx"], d["idx"])]
     assert _rms(e_d) <= _rms(e_o) + 0.2 * o["budget"], (_rms(e_d), _rms(e_o))
@@ -172,9 +176,15 @@ def test_uav_survey_band_default_mode(survey):
 
 def _assert_slam_within_budget(run, V) -> None:
     """Every `slam` pose of ``run`` within 1 % of its camera's distance to the nearest model vertex and 2 deg."""
+    _assert_within_budget(run, V, ("slam",))
+
+
+def _assert_within_budget(run, V, statuses) -> None:
+    """Every pose of ``run`` with one of ``statuses`` within 1 % of its camera's distance to the
+    nearest model vertex and 2 deg."""
     from mst.core.poses import pose_error
 
-    sl = np.array([run["status"].get(int(k)) == "slam" for k in run["idx"]], bool)
+    sl = np.array([run["status"].get(int(k)) in statuses for k in run["idx"]], bool)
     if not sl.any():
         return
     Tg = run["Tg"][run["idx"][sl]]
@@ -222,16 +232,19 @@ def test_fpv_rotterdam_first_frames_from_an_exact_pose_within_the_budget(fpv_rot
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="frames 5-6 `model` 2.1 / 2.9 % off (0.65 / 0.89 m, ~10 sigma of their own "
-                   "covariance, health score 0.42 / 0.65), then lost to the end. Fixed by the first-frame fit check: "
-                   "frames 0-4 (the tolerant fit 0.73 m off from an exact pose: now the plain fit, 0.06-0.23 m); "
-                   "frames 79-98 (24 m off) are no longer output, but only because the history changed: no gate "
-                   "refuses a lock after a long loss")
 def test_fpv_rotterdam_no_wrong_output_pose(fpv_rotterdam):
+    """Frames 5-6 were `model` 2.1 / 2.9 % off (~10 sigma of their own covariance, health score 0.42 /
+    0.65). Frame 5 lies 2.6 % of the distance from the constant-velocity prediction, and the refit from
+    the prediction converges 1.7 % away; frame 6 (after the refused frame 5) refits 1.7-2.1 % away from
+    +-3 sigma along its weakest direction: two fits of one image beyond the 1 % budget apart, so both
+    frames are `lost` ("ambiguous", --json ambiguous_frames). Bound: every output pose within 1 % of
+    the distance (nearest vertex)."""
     run, V = fpv_rotterdam
     Tg = run["Tg"][run["idx"]]
     dist = np.linalg.norm(Tg[:, None, :3, 3] - V[None], axis=2).min(1)
-    assert np.all(run["err"] <= 0.01 * dist)
+    assert np.all(run["err"] <= 0.01 * dist), run["err"] / dist
+    amb = run["summary"]["ambiguous_frames"]
+    assert amb and all(run["status"][k] == "lost" for k in amb)
 
 
 # ---------------------------------------------------------------------------- policy

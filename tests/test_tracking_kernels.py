@@ -1,11 +1,11 @@
 """The edge tracker's numba kernels (:mod:`mst.pipeline.tracking.kernels`, issue #14) against the numpy
 formulations they replaced (``search_edges_numpy``, ``reference_contrast_numpy``, ``solve_pose_numpy``).
 
-Budget: none needed, the kernels are exact. The moving-edge search keeps numpy's float32 matrix
-product for the convolutions and the VVS keeps numpy's BLAS products for the rigid transforms and
-the 6x6 normal equations; everything the kernels compute is elementwise IEEE arithmetic in the numpy
-formulation's order, sequential per-edge sums as ``np.bincount``'s and exact medians. So the outputs
-must be *identical* (NaN pattern, offsets, likelihoods, convolutions; poses, weights, inliers).
+Budget: the moving-edge convolutions are summed in float64 and rounded once to float32 (numpy's
+BLAS product rounds in float32), the decisions after them are elementwise IEEE arithmetic in the
+numpy formulation's order: the same matches except at rounding ties (see the test's budget). The
+whole VVS solve is one kernel whose sums run in a fixed order instead of BLAS's: the same
+iterations, inliers and status, the pose within rounding (see the test's budget).
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ import cv2
 import numpy as np
 import pytest
 
-from mst.core.poses import inv_T, se3_exp, se3_log
+from mst.core.poses import inv_T, look_at, se3_exp, se3_log
 from mst.pipeline.tracking import moving_edges as me
 from mst.pipeline.tracking.vvs import solve_pose, solve_pose_numpy
 
@@ -37,11 +37,18 @@ def _scene(seed: int = 3):
 
 
 @pytest.mark.parametrize("dtype", [np.uint8, np.float32])
-def test_moving_edge_search_is_identical_to_numpy(dtype):
+def test_moving_edge_search_matches_numpy(dtype):
+    # The kernel sums each convolution in float64 and rounds once to float32; numpy's BLAS product
+    # rounds in float32 as it goes. Budget: the convolutions within a few float32 ulps (relative
+    # 1e-6 of max(|conv|, 1 gray level)); a decision differs only where two likelihoods or a
+    # likelihood and a threshold are within that rounding (ties): at most 1 % of the candidate
+    # slots, and a best candidate that both keep is at the same offset within 1e-4 px.
     img, uv, normal, midx, edge = _scene()
     img = img.astype(dtype)
     ref = me.reference_contrast(img, uv + 0.6, normal, midx, 5, 180)
-    assert np.array_equal(ref, me.reference_contrast_numpy(img, uv + 0.6, normal, midx, 5, 180))
+    ref_np = me.reference_contrast_numpy(img, uv + 0.6, normal, midx, 5, 180)
+    assert ref.dtype == ref_np.dtype == np.float32
+    np.testing.assert_allclose(ref, ref_np, rtol=0, atol=1e-6 * max(1.0, float(np.abs(ref_np).max())))
     for r in (None, ref):
         for e in (None, edge):
             for R, C in ((8, 2), (3, 3), (0, 1)):
@@ -49,11 +56,15 @@ def test_moving_edge_search_is_identical_to_numpy(dtype):
                           mask_idx=midx, edge=e)
                 a = me.search_edges(img, uv, normal, r, **kw)
                 b = me.search_edges_numpy(img, uv, normal, r, **kw)
-                assert np.isfinite(a.offset).sum() > 0
-                np.testing.assert_array_equal(a.offset, b.offset)
-                np.testing.assert_array_equal(a.likelihood, b.likelihood)
-                np.testing.assert_array_equal(a.conv, b.conv)
                 assert a.likelihood.dtype == b.likelihood.dtype and a.conv.dtype == b.conv.dtype
+                assert np.isfinite(b.offset).sum() > 100
+                assert (np.isnan(a.offset) != np.isnan(b.offset)).mean() <= 0.01
+                both = np.isfinite(a.offset[:, 0]) & np.isfinite(b.offset[:, 0])
+                assert both.mean() >= 0.99 * np.isfinite(b.offset[:, 0]).mean()
+                assert np.mean(np.abs(a.offset[both, 0] - b.offset[both, 0]) <= 1e-4) >= 0.99
+                same = both & (np.abs(a.offset[:, 0] - b.offset[:, 0]) <= 1e-4)
+                np.testing.assert_allclose(a.conv[same], b.conv[same], rtol=0,
+                                           atol=1e-6 * max(1.0, float(np.abs(b.conv).max())))
 
 
 def test_moving_edge_search_of_no_samples():
@@ -108,11 +119,13 @@ def test_vvs_kernels_solve_the_numpy_pose(seed, klt):
         a = solve_pose(T0, K, X, edge, A, B, cand, min_mad_px=mad, edge_spread_weight=spread, **kw)
         b = solve_pose_numpy(T0, K, X, edge, A, B, cand, min_mad_px=mad, edge_spread_weight=spread, **kw)
         assert a.status is b.status and a.iters == b.iters
-        np.testing.assert_array_equal(a.T_cam_model, b.T_cam_model)  # bit for bit
-        np.testing.assert_array_equal(a.weights, b.weights)
+        # the fused solve sums in a fixed order (no BLAS): a rounding difference only. Budget:
+        # ~1e-16 relative per operation, a few hundred operations per step, <= 30 steps: 1e-12
+        np.testing.assert_allclose(a.T_cam_model, b.T_cam_model, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(a.weights, b.weights, rtol=0, atol=1e-9)
         np.testing.assert_array_equal(a.inlier, b.inlier)
-        np.testing.assert_array_equal(a.W, b.W)
-        assert a.rms_px == b.rms_px and a.sigma_px == b.sigma_px
+        np.testing.assert_allclose(a.W, b.W, rtol=1e-9, atol=0)
+        assert abs(a.rms_px - b.rms_px) <= 1e-9 * b.rms_px and abs(a.sigma_px - b.sigma_px) <= 1e-9 * b.sigma_px
         # and it is a real solve: the start was ~5 mm / 0.8 deg off the cube's true pose
         assert np.abs(se3_log(a.T_cam_model @ inv_T(T0))).max() > 1e-3
         if klt:
@@ -131,3 +144,155 @@ def test_sobel_kernel_is_identical_to_numpy(dtype):
         b = sobel_at_numpy(img, uv)
     assert a.dtype == b.dtype == np.float32
     np.testing.assert_array_equal(a, b)
+
+
+@pytest.mark.parametrize("model_name", ["l_shape", "city"])
+def test_edge_sampling_kernel_is_identical_to_numpy(model_name):
+    # exact: the kernel does the numpy formulation's elementwise IEEE operations in its order
+    # (clipping, projection, level of detail, rectangle clip, sampling), so every output and count
+    # must be identical, with and without the level-of-detail rule, near and far planes that cut
+    # edges, and a city with a face index (the edges of the faces in view only)
+    from mst.meshtools.generate import city_block_model, l_shape_model
+    from mst.pipeline.tracking.visibility import ModelGeometry, visible_samples
+
+    m = l_shape_model() if model_name == "l_shape" else city_block_model(buildings=200)
+    g = ModelGeometry.from_model(m)
+    V = np.asarray(m.vertices)
+    rad = float(np.ptp(V, 0).max())
+    rng = np.random.default_rng(1)
+    fields = ("uv", "normal", "X_model", "edge", "A_model", "B_model", "edge_uv", "face_visible", "model_edge")
+    n_s = 0
+    for k in range(6):
+        ang = 2 * np.pi * k / 6
+        eye = V.mean(0) + rad * np.array([1.2 * np.cos(ang), 1.2 * np.sin(ang), 0.5])
+        T = inv_T(look_at(eye, V.mean(0))) if k % 2 else se3_exp(rng.normal(0, 0.05, 6)) @ inv_T(look_at(eye, V.mean(0)))
+        for near, far, lod in ((0.01 * rad, None, (0.0, 0.0)), (0.9 * rad, 1.4 * rad, (12.0, 64.0))):
+            kw = dict(hidden_lines=True, zbuffer_scale=0.5, max_samples=600, lod_min_line_px=lod[0],
+                      lod_min_face_px2=lod[1])
+            a = visible_samples(g, T, K, 640, 480, 4.0, near, far, 80, 85, None, **kw)
+            b = visible_samples(g, T, K, 640, 480, 4.0, near, far, 80, 85, None, _numpy_reference=True, **kw)
+            for f in fields:
+                np.testing.assert_array_equal(getattr(a, f), getattr(b, f), err_msg=f)
+            assert a.stats == b.stats
+            n_s += len(a)
+    assert n_s > 500
+
+
+def test_depth_buffer_setup_kernel_is_identical_to_numpy():
+    # exact: the kernel moves and projects the vertices with the numpy formulation's operations in
+    # its order; poses around a city from afar and from inside it (faces crossing the near plane)
+    from mst.meshtools.generate import city_block_model
+    from mst.pipeline.tracking.depth_buffer import inverse_depth_buffer
+    from mst.pipeline.tracking.visibility import ModelGeometry, face_visibility
+
+    m = city_block_model(buildings=120)
+    g = ModelGeometry.from_model(m)
+    V = np.asarray(m.vertices)
+    c, rad = V.mean(0), float(np.ptp(V, 0).max())
+    n_px = 0
+    for k, (dist, h) in enumerate(((1.2, 0.5), (0.3, 0.02), (0.05, 0.01))):
+        eye = c + rad * np.array([dist * np.cos(k), dist * np.sin(k), h])
+        T = inv_T(look_at(eye, c + [0.0, 0.0, 0.01 * rad]))
+        fv = face_visibility(g, T, None, 80.0, 85.0)
+        for scale, near in ((0.5, 0.01 * rad), (1.0, 0.05 * rad)):
+            a, sa = inverse_depth_buffer(g, T, K, 640, 480, fv, near, scale)
+            b, sb = inverse_depth_buffer(g, T, K, 640, 480, fv, near, scale, _numpy_reference=True)
+            assert sa == sb
+            np.testing.assert_array_equal(a, b)
+            n_px += int((a > 0).sum())
+    assert n_px > 10_000
+
+
+def _health_numpy(img, X, A, B, edge, T, near, thr):
+    """The numpy formulation of the health tests and of the evidence gradients that the kernels
+    (``kernels.pose_health``, ``kernels.pose_gradients``) replaced (their reference)."""
+    from mst.pipeline.tracking.health import ORIENT_TOL_DEG, sobel_at_numpy
+
+    fx, fy = K[0, 0], K[1, 1]
+    Xc = X @ T[:3, :3].T + T[:3, 3]
+    ok_z = Xc[:, 2] > near * 0.5
+    z = np.where(ok_z, Xc[:, 2], 1.0)
+    uv = np.stack([fx * Xc[:, 0] / z + K[0, 2], fy * Xc[:, 1] / z + K[1, 2]], 1)
+    Ae, Be = A @ T[:3, :3].T + T[:3, 3], B @ T[:3, :3].T + T[:3, 3]
+    pa = Ae[:, :2] / Ae[:, 2:3] * [fx, fy] + K[:2, 2]
+    pb = Be[:, :2] / Be[:, 2:3] * [fx, fy] + K[:2, 2]
+    d = pb - pa
+    d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
+    n = np.stack([-d[:, 1], d[:, 0]], 1)[edge]
+    g = sobel_at_numpy(img, uv)
+    gn = np.linalg.norm(g, axis=1)
+    ang = np.degrees(np.arccos(np.clip(np.abs((g * n).sum(1)) / np.maximum(gn, 1e-9), 0, 1)))
+    strong = gn >= 2.0 * thr
+    health = (uv, bool(ok_z.all()), float(strong.mean()), float(ang[strong].mean()))
+    # evidence: depth floored at 1e-9, normals from the normalised coordinates, best of -1, 0, +1 px
+    z = np.maximum(Xc[:, 2], 1e-9)
+    uv = np.stack([fx * Xc[:, 0] / z + K[0, 2], fy * Xc[:, 1] / z + K[1, 2]], 1)
+    d = (Be[:, :2] / Be[:, 2:3] - Ae[:, :2] / Ae[:, 2:3]) * [fx, fy]
+    d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
+    n = np.stack([-d[:, 1], d[:, 0]], 1)[edge]
+    g = np.stack([sobel_at_numpy(img, uv + k * n) for k in (-1.0, 0.0, 1.0)])
+    proj = (g * n[None]).sum(2)
+    j = np.argmax(np.abs(proj), axis=0)
+    ii = np.arange(len(uv))
+    pbest, gbest = proj[j, ii], g[j, ii]
+    strong = np.abs(pbest) >= 2.0 * thr
+    oriented = np.abs(pbest) >= np.cos(np.radians(ORIENT_TOL_DEG)) * np.linalg.norm(gbest, axis=1)
+    sign = np.where(strong, np.sign(pbest), 0).astype(np.int8)
+    return health, (uv, n, sign, oriented & strong)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_health_kernels_match_numpy(seed):
+    # The kernels transform the points in a fixed order instead of numpy's BLAS product: positions
+    # within 1e-9 px (rounding ~1e-13 px); a nearest-pixel read changes only for a position within
+    # that of a half-pixel boundary (never, at these counts), so the gradients, polarities,
+    # orientation tests and the strong share are identical; the mean angle sums in another order
+    # (1e-9 deg)
+    from mst.pipeline.tracking.health import ORIENT_TOL_DEG
+    from mst.pipeline.tracking.kernels import pose_gradients, pose_health
+
+    img = _scene(seed)[0]
+    T0, X, edge, A, B, *_ = _box_problem(seed)
+    thr = 12.0
+    (uv_h, front, support, perr), (uv_e, n_e, sign_e, good_e) = _health_numpy(img, X, A, B, edge, T0, 0.01, thr)
+    args = (img, X, A, B, edge.astype(np.int64), T0, K[0, 0], K[1, 1], K[0, 2], K[1, 2])
+    uv, in_front, n_strong, ang_sum = pose_health(*args, 0.005, float(np.float32(2.0 * thr)))
+    np.testing.assert_allclose(uv, uv_h, rtol=0, atol=1e-9)
+    assert in_front == front and n_strong / len(uv) == support and 20 <= n_strong < len(uv)
+    assert abs(ang_sum / n_strong - perr) <= 1e-9
+    uv2, n2, sign2, good2 = pose_gradients(*args, 2.0 * thr, float(np.cos(np.radians(ORIENT_TOL_DEG))))
+    np.testing.assert_allclose(uv2, uv_e, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(n2, n_e, rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(sign2, sign_e)
+    np.testing.assert_array_equal(good2, good_e)
+    assert (sign2 != 0).sum() >= 20 and good2.sum() >= 10
+
+
+def test_face_visibility_kernel_matches_numpy():
+    # the kernel sums the ray cosines in a fixed order and uses libm's arccos; numpy's einsum and
+    # arccos differ by an ulp, which could move a face across the appear/disappear angle only when it
+    # lies within ~1e-13 deg of it: over these random poses the face sets must be identical
+    from mst.meshtools.generate import city_block_model, l_shape_model
+    from mst.pipeline.tracking.visibility import (
+        ModelGeometry,
+        face_visibility,
+        face_visibility_numpy,
+        view_faces,
+    )
+
+    rng = np.random.default_rng(4)
+    n_vis = 0
+    for m in (l_shape_model(), city_block_model(buildings=150)):
+        g = ModelGeometry.from_model(m)
+        V = np.asarray(m.vertices)
+        c, rad = V.mean(0), float(np.ptp(V, 0).max())
+        prev = None
+        for k in range(12):
+            eye = c + rad * np.array([np.cos(k), np.sin(k), 0.3]) * rng.uniform(0.3, 1.5)
+            T = se3_exp(rng.normal(0, 0.1, 6)) @ inv_T(look_at(eye, c))
+            among = view_faces(g, T, K, 640, 480, 0.01 * rad, None) if g.index is not None else None
+            a = face_visibility(g, T, prev, 70.0, 85.0, among=among)
+            b = face_visibility_numpy(g, T, prev, 70.0, 85.0, among=among)
+            np.testing.assert_array_equal(a, b)
+            prev, n_vis = a, n_vis + int(a.sum())
+    assert n_vis > 100

@@ -10,7 +10,8 @@ loading and writing included) in a fresh child process, with the child's peak RS
   CloudCompare 1.87 s (1.12 s distances), 275 MiB.
 * ``c2m_1M_surface_bvh``: the same with ``--engine bvh`` (Open3D), for comparison; no target.
 * ``c2m_810k_utm``: 810,000 points against the same building shifted to UTM coordinates (easting
-  500 km, northing 5,400 km; float64 PLY), issue #14.
+  500 km, northing 5,400 km; float64 PLY ``c2m_810k_utm_f64.ply``: the float32 file of earlier runs
+  held the points on a 0.5 m lattice), issue #14.
 * ``c2m_10M_memory``: 10,000,000 points against the building; target peak RSS under 1 GiB.
 * ``c2m_outside_dense_grid`` (in process, issue #14): 3,000 points up to two extents around a
   3,072-triangle box, most outside the dense grid's margin (they go to a binned grid), against
@@ -114,13 +115,16 @@ def _ensure(workdir: Path, only: list[str] | None = None) -> dict[str, tuple[Pat
         if only and not any(o == name or o.startswith(name + "_") for o in only):
             continue
         off = np.asarray(UTM_OFFSET) if mesh == umesh else np.zeros(3)
-        cloud = workdir / f"{name}.ply"
+        utm = mesh == umesh
+        # the UTM cloud in float64 (float32 keeps 0.5 m at northing 5,400 km: the points would sit on a
+        # 0.5 m lattice); the others in float32 as a scanner's local-frame PLY
+        cloud = workdir / f"{name}{'_f64' if utm else ''}.ply"
         if not cloud.exists():
             tmp = cloud.with_suffix(".tmp.ply")
-            with PlyChunkWriter(tmp, n, [], np.float32) as w:
+            with PlyChunkWriter(tmp, n, [], np.float64 if utm else np.float32) as w:
                 for s in range(0, n, 5_000_000):
                     P = sample_surface(V, F, min(5_000_000, n - s), 0.05, 0.02, seed + s)
-                    w.write(P.astype(np.float64) + off)  # float64 file: UTM keeps mm
+                    w.write(P.astype(np.float64) + off)
             tmp.rename(cloud)
         cases[name] = (cloud, mesh)
     return cases

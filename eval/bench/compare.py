@@ -5,7 +5,9 @@ Debian package ``cloudcompare``) for ``mst c2m``.
 Both tools are timed as whole processes (start-up, reading, distances, writing the output cloud),
 best of ``repeats`` runs each, interleaved (mst, reference, mst, ...) so that a change of the
 machine's load hits both alike. Rows give both times, their ratio, points per second of each whole
-process, and the 1-minute load average before the first run.
+process, and the 1-minute load average before the first run. Where the ahead-of-time kernels are
+built (:mod:`mst.core.aot`), the same mst command also runs on numba's JIT kernels (``MST_AOT=0``,
+the engine before them) in the same interleaving: ``mst_jit_*`` and ``ratio_jit_vs_cloudcompare``.
 """
 
 from __future__ import annotations
@@ -57,11 +59,27 @@ def c2m_side_by_side(mst_cmd: list[str], cloud: Path, mesh: Path, out_dir: Path,
         return None
     cc_out = Path(out_dir) / f"{Path(cloud).stem}_cc_out.ply"
     env = dict(os.environ, QT_QPA_PLATFORM="offscreen")  # no display needed
-    runs = best_of({"mst": mst_cmd, "cc": cloudcompare_c2m_cmd(exe, cloud, mesh, cc_out)}, repeats, env={"cc": env})
+    cmds = {"mst": mst_cmd, "cc": cloudcompare_c2m_cmd(exe, cloud, mesh, cc_out)}
+    envs = {"cc": env}
+    from mst.core.aot import is_current
+
+    if is_current("mst.eval.c2m.kernels"):  # the same command on numba's JIT kernels (before issue #14's AOT)
+        jit_out = Path(out_dir) / f"{Path(cloud).stem}_jit_out.ply"
+        cmds["mst_jit"] = [str(jit_out) if str(a).endswith("_out.ply") else a for a in mst_cmd]
+        envs["mst_jit"] = dict(os.environ, MST_AOT="0")
+    runs = best_of(cmds, repeats, env=envs)
     cc_out.unlink(missing_ok=True)
     m, c = runs["mst"], runs["cc"]
     ratio = m["wall_s"] / c["wall_s"]
+    jit = {}
+    if "mst_jit" in runs:
+        j = runs["mst_jit"]
+        jit_out.unlink(missing_ok=True)
+        jit = {"mst_jit_best_s": round(j["wall_s"], 3), "mst_jit_runs_s": j["walls_s"], "mst_jit_cpu_s": round(j["cpu_s"], 3),
+               "ratio_jit_vs_cloudcompare": round(j["wall_s"] / c["wall_s"], 3)}
     return {"mst_best_s": round(m["wall_s"], 3), "mst_runs_s": m["walls_s"], "mst_cpu_s": round(m["cpu_s"], 3),
+            "kernels": "ahead-of-time" if jit else "numba JIT", **jit,
+            "ratio_cpu_vs_cloudcompare": round(m["cpu_s"] / c["cpu_s"], 3),
             "mst_peak_rss_mib": round(m["peak_rss_mib"], 1),
             "cloudcompare_best_s": round(c["wall_s"], 3), "cloudcompare_runs_s": c["walls_s"],
             "cloudcompare_cpu_s": round(c["cpu_s"], 3), "cloudcompare_peak_rss_mib": round(c["peak_rss_mib"], 1),

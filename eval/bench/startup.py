@@ -6,6 +6,9 @@ its cached kernels, OpenCV, ...), not the work. Each row is one fresh ``mst`` pr
 average. For ``mst track`` of the 39 teabox frames the row also gives the per-frame median from the
 command's ``--json`` and the rest of the wall time (``overhead_s`` = wall - frames x median: start-up,
 decoding, initialisation, writing). Rows whose input is absent (the shared teabox data) are skipped.
+The ``mst c2m`` and ``convert-model`` rows say which kernels ran (ahead of time, :mod:`mst.core.aot`,
+or numba's JIT) and, with the extensions built, give the same command on the JIT (``MST_AOT=0``):
+``jit_*`` and ``saved_cpu_s``.
 
 Run alone: ``python -m mst.eval.bench.startup [WORKDIR]``.
 """
@@ -13,6 +16,7 @@ Run alone: ``python -m mst.eval.bench.startup [WORKDIR]``.
 from __future__ import annotations
 
 import json
+import os
 import sys
 from pathlib import Path
 
@@ -22,10 +26,11 @@ ROOT = Path(__file__).resolve().parents[2]
 SHARED = ROOT.parent / "shared" / "data"
 
 
-def _best(cmd: list, repeats: int = 3) -> dict:
+def _best(cmd: list, repeats: int = 3, env: dict | None = None) -> dict:
     from mst.eval.bench.harness import timed_command
 
-    runs = [timed_command([str(c) for c in cmd]) for _ in range(repeats)]
+    kw = {} if env is None else {"env": env}
+    runs = [timed_command([str(c) for c in cmd], **kw) for _ in range(repeats)]
     best = min(runs, key=lambda r: r["wall_s"])
     best["walls_s"] = [round(r["wall_s"], 3) for r in runs]
     return best
@@ -47,10 +52,19 @@ def run(workdir: Path) -> list[dict]:
     V, F = (np.asarray(a) for a in generate.courtyard()[:2])
     save_triangles(w / "courtyard.obj", V.astype(float), F)
     np.savetxt(w / "cloud500.xyz", np.random.default_rng(0).uniform(V.min(0), V.max(0), (500, 3)))
-    rows.append(_row(f"mst c2m, 500 points vs {len(F)} triangles",
-                     _best(mst_cmd("c2m", w / "cloud500.xyz", w / "courtyard.obj", "-o", w / "c2m_out.ply", "-q"))))
-    rows.append(_row("mst convert-model samples/building_tin.obj",
-                     _best(mst_cmd("convert-model", ROOT / "samples" / "building_tin.obj", "-o", w / "b.wrl", "-q"))))
+    from mst.core.aot import is_current
+
+    c2m = mst_cmd("c2m", w / "cloud500.xyz", w / "courtyard.obj", "-o", w / "c2m_out.ply", "-q")
+    conv = mst_cmd("convert-model", ROOT / "samples" / "building_tin.obj", "-o", w / "b.wrl", "-q")
+    for label, cmd, mod in ((f"mst c2m, 500 points vs {len(F)} triangles", c2m, "mst.eval.c2m.kernels"),
+                            ("mst convert-model samples/building_tin.obj", conv, "mst.meshtools.kernels")):
+        aot = is_current(mod)
+        r = _row(label, _best(cmd), kernels="ahead-of-time" if aot else "numba JIT")
+        if aot:  # the same on numba's JIT kernels (its import and cache load: the start-up AOT removes)
+            j = _best(cmd, env=dict(os.environ, MST_AOT="0"))
+            r.update(jit_wall_s=round(j["wall_s"], 3), jit_cpu_s=round(j["cpu_s"], 3),
+                     saved_cpu_s=round(j["cpu_s"] - r["cpu_s"], 3))
+        rows.append(r)
     tb = SHARED / "visp-teabox"
     if not tb.is_dir():
         print(f"[bench startup] shared data absent ({tb}): init/track rows skipped", file=sys.stderr)

@@ -12,7 +12,8 @@ machine: 1.2 / 2.1 ms). A whole ``mst track`` command is also timed (start-up, d
 Issue #14: each timed mode is followed by its per-frame budget (:func:`_budget_row`: visibility and
 sampling, moving-edge search, VVS, KLT, health evidence, Python overhead), and the ViSP rows (when
 the runner is built; ``VISP_ANCHOR=/path/visp_mbt_anchor``) state mst's median of the same mode in
-this run and the ratio (target <= 1.0). Run alone: ``python -m mst.eval.bench.track``.
+this run and the ratio (target <= 1.0), on teabox and on the rendered L-building orbit (ViSP with
+and without its scanline hidden-line removal). Run alone: ``python -m mst.eval.bench.track``.
 """
 
 from __future__ import annotations
@@ -159,6 +160,58 @@ def _visp_anchor_rows(tb: Path, workdir: Path, mst_median: dict | None = None) -
     return out
 
 
+def _visp_orbit_rows(m, cam, poses, grays, workdir: Path, mst_rows: list[dict]) -> list[dict]:
+    """ViSP's tracker on the rendered L-building orbit (issue #14: "on a synthetic building orbit"),
+    when its runner is built: the same frames (PNG), the model as ``.cao``, the true first pose, the
+    intrinsics and mst's face angles (80/85 deg; range, step, mask, threshold are the defaults both
+    share). The model is non-convex, so ViSP runs with its scanline visibility (hidden lines, the
+    work mst's depth buffer does) and without (the cheaper, less faithful mode); its median
+    ``track()`` time beside mst's medians of the same frames in this run, and the distance of the two
+    trajectories from the truth (camera position, mm)."""
+    import os
+    import subprocess
+
+    import cv2
+
+    from mst.core.poses import inv_T, pose_error
+    from mst.meshtools.formats import save_model
+
+    exe = Path(os.environ.get("VISP_ANCHOR", "/tmp/visp_build/visp_mbt_anchor"))
+    if not exe.is_file():
+        return []
+    d = workdir / "visp_orbit"
+    d.mkdir(parents=True, exist_ok=True)
+    for k, g in enumerate(grays):
+        cv2.imwrite(str(d / f"{k:06d}.png"), g)
+    save_model(d / "l_building.cao", m)
+    np.savetxt(d / "cMo0.txt", np.asarray(poses[0]))  # the runner reads a 4x4 cMo
+    mst_med = {("hybrid" if "klt" in r["bench"] else "edge"): r for r in mst_rows if "frames" in r}
+    out = []
+    for mode, scan in (("edge", 1), ("edge", 0), ("hybrid", 1)):
+        vf = d / f"visp_{mode}_scan{scan}.txt"
+        subprocess.run([str(exe), "--mode", mode, "--model", str(d / "l_building.cao"), "--input", str(d / "%06d.png"),
+                        "--cam", str(cam.fx), str(cam.fy), str(cam.cx), str(cam.cy), "--init-pose", str(d / "cMo0.txt"),
+                        "--angle-appear", "80", "--angle-disappear", "85", "--scanline", str(scan), "--proj-err", "0",
+                        "--out", str(vf)], check=True, capture_output=True)
+        a = np.loadtxt(vf, comments="#")
+        T = np.tile(np.eye(4), (len(a), 1, 1))
+        T[:, :3, :] = a[:, 1:13].reshape(-1, 3, 4)
+        dt, _ = pose_error(inv_T(T), inv_T(np.asarray(poses[: len(T)])))
+        row = {"bench": f"ViSP 3.5 {mode} on the L-building orbit (scanline {scan}; same machine, now)",
+               "median_ms": float(np.median(a[1:, 14])), "visp_vs_truth_median_mm": float(np.median(dt) * 1e3),
+               "visp_vs_truth_max_mm": float(dt.max() * 1e3)}
+        r = mst_med.get(mode)
+        if r is not None:
+            row["mst_median_ms"] = round(r["median_ms"], 3)
+            row["mst_cpu_median_ms"] = round(r["cpu_median_ms"], 3)
+            row["ratio_vs_visp"] = round(r["median_ms"] / row["median_ms"], 3)
+            row["ratio_vs_visp_mst_cpu"] = round(r["cpu_median_ms"] / row["median_ms"], 3)
+            row["target"] = "mst median <= 1.0 x ViSP's (same run)"
+            row["ok"] = bool(row["ratio_vs_visp"] <= 1.0)
+        out.append(row)
+    return out
+
+
 def _default_mode_rows(tb: Path, workdir: Path, grays: list, model, cam, cfg, T0) -> list[dict]:
     """The default mode (``--slam auto`` without depth: edges + KLT, the mono aid on standby, the
     calibrated health score, the relocaliser learning keyframes and rendered views) through
@@ -261,7 +314,9 @@ def run(workdir: Path) -> list[dict]:
     cam = Camera(600, 600, 319.5, 239.5, 640, 480)
     poses = orbit_poses(m.vertices.mean(0), 22.0, 8.0, 40, 1.0)
     grays = [cv2.cvtColor(im, cv2.COLOR_BGR2GRAY) for im in render_views(m, cam, poses)]
-    rows += _rows("L-building orbit", m, cam, TrackConfig(), grays, poses[0])
+    orbit_rows = _rows("L-building orbit", m, cam, TrackConfig(), grays, poses[0])
+    rows += orbit_rows
+    rows += _visp_orbit_rows(m, cam, poses, grays, workdir, orbit_rows)
     return rows
 
 

@@ -140,6 +140,7 @@ class MeshIndex:
     _scene: object = field(default=None, repr=False)
     _grid: object = field(default=None, repr=False)
     _exact: object = field(default=None, repr=False)
+    _table: object = field(default=None, repr=False)  # the kernels' packed triangles (grids.triangle_table)
 
     @property
     def n_triangles(self) -> int:
@@ -159,7 +160,7 @@ class MeshIndex:
             if self.n_triangles <= small_mesh_triangles:
                 self._grid = DenseGrid(self, compiled=compiled)
             else:
-                from mst.eval.c2m import kernels
+                from mst.eval.c2m.compiled import kernels
 
                 self._grid = BinGrid(self, kernels)
             return

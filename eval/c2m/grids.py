@@ -40,7 +40,7 @@ class TriangleGrid:
         prev_k = ptr = tri = lb = None
         for lev in range(levels, -1, -1):
             hl = h * (1 << lev)
-            u = np.unique(_shift_key(key_fine, lev))
+            u = _unique(_shift_key(key_fine, lev))
             if prev_k is None:  # coarsest level: every triangle is a candidate
                 cand_cnt = np.full(len(u), m, np.int64)
                 parent_start = np.zeros(len(u), np.int64)
@@ -57,7 +57,7 @@ class TriangleGrid:
             offs = np.arange(tot) - np.repeat(np.cumsum(cand_cnt) - cand_cnt, cand_cnt)
             ti = tri[np.repeat(parent_start, cand_cnt) + offs]
             if nb is not None:
-                d = np.sqrt(nb.pairs_d2(centres, cell_of, ti, idx.A, idx.AB, idx.AC, idx.BC, idx.N, idx.G))
+                d = np.sqrt(nb.pairs_d2(centres, cell_of, ti, triangle_table(idx)))
             else:
                 d = np.sqrt(triangle_distances(idx, centres[cell_of], ti)[0])
             dmin = np.minimum.reduceat(d, np.cumsum(cand_cnt) - cand_cnt)
@@ -152,25 +152,27 @@ class BinGrid:
         self.h = float(h)
         self.lo = vmin - 2 * h
         self.dims = dims
-        corners = np.stack([idx.A, idx.A + idx.AB, idx.A + idx.AC])
-        self.BB = np.concatenate([corners.min(0), corners.max(0)], axis=1)  # (m, 6) triangle boxes
+        self.T = triangle_table(idx)
+        self.BB = np.ascontiguousarray(self.T[:, 18:])  # (m, 6) triangle boxes
         self.start, self.items = nb.bin_triangles(self.BB, self.lo, 1.0 / self.h, self.dims)
         self.far_d2 = (far_cells * self.h) ** 2
         self.occ = np.nonzero(np.diff(self.start))[0]  # occupied cells, for the far points
 
     def nearest(self, P: np.ndarray, max_dist: float | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(tri, d2, feature)`` per point; tri = -1 where farther than ``max_dist``."""
-        nb, idx = self.nb, self.idx
+        nb = self.nb
         P = np.ascontiguousarray(P, np.float64)
         md2 = np.inf if max_dist is None else (float(max_dist) * (1 + 1e-9)) ** 2
-        order = nb.bucket_order(P, self.lo, 1.0 / self.h, self.dims, 2)
-        tri, d2, feat, st = nb.bins_query(P, self.lo, self.h, self.dims, self.start, self.items, md2, self.far_d2,
-                                          idx.A, idx.AB, idx.AC, idx.BC, idx.N, idx.G, self.BB, order)
+
+        def query(Q):
+            return nb.bins_query(Q, self.lo, self.h, self.dims, self.start, self.items, md2, self.far_d2, self.T,
+                                 nb.bucket_order(Q, self.lo, 1.0 / self.h, self.dims, 2))
+
+        tri, d2, feat, st = row_blocks(nb, "bins_query", P, query)
         out = np.nonzero(st == 1)[0]
         if len(out):
             tri[out], d2[out], feat[out] = nb.bins_far_query(P[out], self.lo, self.h, self.dims, self.start,
-                                                             self.items, self.occ, md2, idx.A, idx.AB, idx.AC,
-                                                             idx.BC, idx.N, idx.G, self.BB)
+                                                             self.items, self.occ, md2, self.T)
         return tri, d2, feat
 
 
@@ -210,33 +212,30 @@ class DenseGrid:
         self.ext = ext
         nb = None
         if compiled:  # the compiled kernels (about 10x faster); the numpy path is the tests' reference
-            from mst.eval.c2m import kernels as nb
+            from mst.eval.c2m.compiled import kernels as nb
         self.nb = nb
-        corners = np.stack([idx.A, idx.A + idx.AB, idx.A + idx.AC])
-        self.BB = np.concatenate([corners.min(0), corners.max(0)], axis=1)  # (m, 6) triangle boxes
+        self.T = triangle_table(idx) if compiled else None  # the kernels' packed triangles
 
     def _nearest_numba(self, P: np.ndarray, max_dist: float | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         nb, idx = self.nb, self.idx
         md = -1.0 if max_dist is None else float(max_dist)
         lo, inv_h = self.lo.astype(np.float64), 1.0 / self.h
-        args = (idx.A, idx.AB, idx.AC, idx.BC, idx.N, idx.G)
         if not self._filled:  # first chunk: no cell computed yet, so the query below would only
             # report "not computed" for every point and run again; fill the chunk's cells first
-            flat = nb.cells_of(P, lo, inv_h, self.dims)
-            flat = flat[flat >= 0]
+            flat = nb.missing_cells(P, lo, inv_h, self.dims, self.cell)
             if len(flat):
-                self._fill(np.unique(flat))
-        order = nb.bucket_order(P, lo, inv_h, self.dims, 3)
-        tri, d2, feat, st = nb.grid_query(P, lo, inv_h, self.dims, self.cell, self.lb, self.cand, md, *args, order,
-                                          self.BB)
+                self._fill(flat)
+
+        def query(Q):  # the cells' lists are fixed during a query (filled only in this thread)
+            return nb.grid_query(Q, lo, inv_h, self.dims, self.cell, self.lb, self.cand, md, self.T,
+                                 nb.bucket_order(Q, lo, inv_h, self.dims, 3))
+
+        tri, d2, feat, st = row_blocks(nb, "grid_query", P, query)
         new = np.nonzero(st == 2)[0]
         if len(new):
-            flat = nb.cells_of(P[new], lo, inv_h, self.dims)
-            self._fill(np.unique(flat))
             Pn = P[new]
-            t2, e2, f2, s2 = nb.grid_query(Pn, lo, inv_h, self.dims, self.cell, self.lb, self.cand, md, *args,
-                                           nb.bucket_order(Pn, lo, inv_h, self.dims, 3), self.BB)
-            tri[new], d2[new], feat[new], st[new] = t2, e2, f2, s2
+            self._fill(nb.missing_cells(Pn, lo, inv_h, self.dims, self.cell))
+            tri[new], d2[new], feat[new], st[new] = row_blocks(nb, "grid_query", Pn, query)
         out = np.nonzero(st == 1)[0]
         if len(out):
             # outside the dense grid: the compiled shell search of a binned grid (exact, built once on
@@ -263,9 +262,16 @@ class DenseGrid:
                 upk, pinv = np.unique(pkey, return_inverse=True)
                 pptr, ptri, _ = self._tg.candidates(upk, self.lo, self.h * 8, self.levels - 3, self.nb)
                 centres = self.lo + (ijk + 0.5) * self.h
-                ptr, tri, lb = self.nb.refine_cells(centres, 0.5 * self.h * np.sqrt(3.0), pinv.reshape(-1), pptr, ptri,
-                                                    1e-9 * self.ext, self.idx.A, self.idx.AB, self.idx.AC,
-                                                    self.idx.BC, self.idx.N, self.idx.G, self.BB)
+                r, tol, par = 0.5 * self.h * np.sqrt(3.0), 1e-9 * self.ext, pinv.reshape(-1)
+
+                def refine(rows):  # cells [a, b): (counts, triangles, lower bounds); each cell on its own
+                    a, b = int(rows[0]), int(rows[-1]) + 1
+                    p, t, lbs = self.nb.refine_cells(centres[a:b], r, par[a:b], pptr, ptri, tol, self.T)
+                    return np.diff(p), t, lbs
+
+                cnt, tri, lb = row_blocks(self.nb, "refine_cells", np.arange(len(flat)), refine, min_rows=2000)
+                ptr = np.zeros(len(cnt) + 1, np.int64)
+                np.cumsum(cnt, out=ptr[1:])
                 cells = flat
             else:
                 key = _key(ijk)
@@ -329,6 +335,48 @@ class DenseGrid:
 
 
 _B = 21  # bits per axis in a cell key
+#: rows per thread below which a query is not split
+MIN_BLOCK_ROWS = 50_000
+_POOL = None
+
+
+def row_blocks(nb, kernel: str, P: np.ndarray, query, min_rows: int = MIN_BLOCK_ROWS) -> tuple[np.ndarray, ...]:
+    """``query(P)`` (a tuple of per-row arrays), split into row blocks over :func:`mst.core.aot.threads`
+    threads when ``kernel`` runs ahead of time (its calls release the GIL, one core each); the JIT
+    kernels are ``parallel=True`` themselves and get ``P`` whole. Every row's result depends on its
+    row only, so the split changes no value."""
+    global _POOL
+    from mst.core.aot import threads
+
+    t = min(threads(), len(P) // min_rows)
+    if t < 2 or not getattr(nb, "is_aot", lambda k: False)(kernel):
+        return query(P)
+    from concurrent.futures import ThreadPoolExecutor
+
+    if _POOL is None or _POOL._max_workers < t:
+        _POOL = ThreadPoolExecutor(max_workers=t, thread_name_prefix="mst-c2m")
+    edges = np.linspace(0, len(P), t + 1).astype(np.int64)
+    parts = list(_POOL.map(lambda k: query(P[edges[k]:edges[k + 1]]), range(t)))
+    return tuple(np.concatenate(a) for a in zip(*parts))
+
+
+def triangle_table(idx: MeshIndex) -> np.ndarray:
+    """The kernels' packed triangles of ``idx`` (m, 24) float64, built once per index: corner a,
+    b - a, c - a, c - b, unit normal, inverse Gram entries, bounding box min and max (three columns
+    each, the box six; :mod:`mst.eval.c2m.kernels`)."""
+    T = getattr(idx, "_table", None)
+    if T is None:
+        corners = np.stack([idx.A, idx.A + idx.AB, idx.A + idx.AC])
+        T = np.ascontiguousarray(np.concatenate([idx.A, idx.AB, idx.AC, idx.BC, idx.N, idx.G, corners.min(0),
+                                                 corners.max(0)], axis=1), np.float64)
+        idx._table = T
+    return T
+
+
+def _unique(a: np.ndarray) -> np.ndarray:
+    """``np.unique`` of a 1-D integer array (sorted, no numpy.ma import)."""
+    s = np.sort(a)
+    return s[np.r_[True, s[1:] != s[:-1]]] if len(s) else s
 
 
 def _key(ijk: np.ndarray) -> np.ndarray:

@@ -3,6 +3,15 @@
 Same mathematics as :func:`mst.eval.c2m.triangle_distances` (float64, no fastmath): the projection
 on the triangle's plane decides "interior" (distance = height over the plane), otherwise the nearest
 of the three edge segments. Feature codes: 0 interior, 1/2/3 vertex a/b/c, 4/5/6 edge ab/ac/bc.
+
+The triangles come as one packed table ``T`` (m, 24) float64 (:func:`mst.eval.c2m.grids.triangle_table`):
+columns 0-2 corner a, 3-5 b - a, 6-8 c - a, 9-11 c - b, 12-14 unit normal, 15-17 inverse Gram entries
+(g00, g01, g11), 18-23 bounding box (min xyz, max xyz). One array instead of seven: a triangle is one
+192-byte row, and an inlined helper binds one array, whose reference count numba updates (atomically)
+where it cannot prove the update redundant: with seven arrays that was 2-8 atomic updates per
+triangle or cell tested, 3x the search time of the serial (ahead-of-time) build. For the same reason
+the cell scan of the binned grid is written out in its two callers instead of an inlined helper.
+Kernels never write into their array arguments (the ahead-of-time build marks them noalias).
 Loops run in parallel over points (``prange``), using every core.
 """
 
@@ -48,24 +57,24 @@ def _seg(qx, qy, qz, dx, dy, dz):
 
 
 @njit(cache=True, inline="always")
-def pt_tri(px, py, pz, k, A, AB, AC, BC, N, G):
-    """Squared distance and feature code of point p to triangle k."""
-    apx, apy, apz = px - A[k, 0], py - A[k, 1], pz - A[k, 2]
-    abx, aby, abz = AB[k, 0], AB[k, 1], AB[k, 2]
-    acx, acy, acz = AC[k, 0], AC[k, 1], AC[k, 2]
+def pt_tri(px, py, pz, k, T):
+    """Squared distance and feature code of point p to triangle k of the table ``T``."""
+    apx, apy, apz = px - T[k, 0], py - T[k, 1], pz - T[k, 2]
+    abx, aby, abz = T[k, 3], T[k, 4], T[k, 5]
+    acx, acy, acz = T[k, 6], T[k, 7], T[k, 8]
     d1 = abx * apx + aby * apy + abz * apz
     d2 = acx * apx + acy * apy + acz * apz
-    v = G[k, 0] * d1 + G[k, 1] * d2
-    w = G[k, 1] * d1 + G[k, 2] * d2
+    v = T[k, 15] * d1 + T[k, 16] * d2
+    w = T[k, 16] * d1 + T[k, 17] * d2
     if v >= 0.0 and w >= 0.0 and v + w <= 1.0:
-        h = apx * N[k, 0] + apy * N[k, 1] + apz * N[k, 2]
+        h = apx * T[k, 12] + apy * T[k, 13] + apz * T[k, 14]
         return h * h, 0
     best, t = _seg(apx, apy, apz, abx, aby, abz)
     e, bt = 0, t
     r, t = _seg(apx, apy, apz, acx, acy, acz)
     if r < best:
         best, e, bt = r, 1, t
-    r, t = _seg(apx - abx, apy - aby, apz - abz, BC[k, 0], BC[k, 1], BC[k, 2])
+    r, t = _seg(apx - abx, apy - aby, apz - abz, T[k, 9], T[k, 10], T[k, 11])
     if r < best:
         best, e, bt = r, 2, t
     if bt <= 0.0:
@@ -78,22 +87,22 @@ def pt_tri(px, py, pz, k, A, AB, AC, BC, N, G):
 
 
 @njit(cache=True, inline="always")
-def _box_d2(px, py, pz, k, BB):
+def _box_d2(px, py, pz, k, T):
     """Squared distance from p to the bounding box of triangle k (a lower bound of its distance)."""
-    ex = max(BB[k, 0] - px, 0.0, px - BB[k, 3])
-    ey = max(BB[k, 1] - py, 0.0, py - BB[k, 4])
-    ez = max(BB[k, 2] - pz, 0.0, pz - BB[k, 5])
+    ex = max(T[k, 18] - px, 0.0, px - T[k, 21])
+    ey = max(T[k, 19] - py, 0.0, py - T[k, 22])
+    ez = max(T[k, 20] - pz, 0.0, pz - T[k, 23])
     return ex * ex + ey * ey + ez * ez
 
 
 @njit(cache=True, parallel=True)
-def pairs_d2(C, cell_of, ti, A, AB, AC, BC, N, G):
+def pairs_d2(C, cell_of, ti, T):
     """Squared distances of points ``C[cell_of[i]]`` to triangles ``ti[i]``."""
     n = len(ti)
     out = np.empty(n)
     for i in prange(n):
         c = cell_of[i]
-        out[i] = pt_tri(C[c, 0], C[c, 1], C[c, 2], ti[i], A, AB, AC, BC, N, G)[0]
+        out[i] = pt_tri(C[c, 0], C[c, 1], C[c, 2], ti[i], T)[0]
     return out
 
 
@@ -130,11 +139,11 @@ def bucket_order(P, lo, inv_h, dims, shift):
 
 
 @njit(cache=True, parallel=True)
-def grid_query(P, lo, inv_h, dims, cell, lb, cand, max_dist, A, AB, AC, BC, N, G, order, BB):
+def grid_query(P, lo, inv_h, dims, cell, lb, cand, max_dist, T, order):
     """Nearest triangle of every point from its grid cell's candidate list.
 
     ``cell[c]`` packs ``(start << 16) | count`` of cell c's candidates in ``cand`` (-1: not computed).
-    ``BB`` (m, 6): triangle bounding boxes (min xyz, max xyz) used to skip candidates cheaply.
+    The triangles' bounding boxes (``T[:, 18:24]``) skip candidates cheaply.
     Returns ``(tri, d2, feature, status)``; status 0 done, 1 outside the grid (not evaluated),
     2 cell not computed yet (not evaluated), 3 farther than ``max_dist`` (tri -1). ``max_dist`` < 0: none.
     """
@@ -171,9 +180,9 @@ def grid_query(P, lo, inv_h, dims, cell, lb, cand, max_dist, A, AB, AC, BC, N, G
         s = word >> 16
         for j in range(word & 0xFFFF):
             k = np.int64(cand[s + j])
-            if j > 0 and _box_d2(px, py, pz, k, BB) >= best:  # box already farther than the best
+            if j > 0 and _box_d2(px, py, pz, k, T) >= best:  # box already farther than the best
                 continue
-            r, f = pt_tri(px, py, pz, k, A, AB, AC, BC, N, G)
+            r, f = pt_tri(px, py, pz, k, T)
             if r < best:
                 best, bt, bf = r, k, f
         tri[i] = bt
@@ -183,27 +192,35 @@ def grid_query(P, lo, inv_h, dims, cell, lb, cand, max_dist, A, AB, AC, BC, N, G
 
 
 @njit(cache=True)
-def cells_of(P, lo, inv_h, dims):
-    """Flat cell id per point (-1 outside the grid)."""
-    n = len(P)
-    out = np.empty(n, np.int64)
-    for i in range(n):
+def missing_cells(P, lo, inv_h, dims, cell):
+    """Sorted flat ids of the grid cells that hold a point of ``P`` and have no candidate list yet
+    (``cell[c] < 0``): ``np.unique`` of the points' cells without the sort (a mark per cell)."""
+    mark = np.zeros(len(cell), np.bool_)
+    cnt = 0
+    for i in range(len(P)):
         fx = (P[i, 0] - lo[0]) * inv_h
         fy = (P[i, 1] - lo[1]) * inv_h
         fz = (P[i, 2] - lo[2]) * inv_h
         if not (0.0 <= fx < dims[0] and 0.0 <= fy < dims[1] and 0.0 <= fz < dims[2]):
-            out[i] = -1
             continue
         ix, iy, iz = int(fx), int(fy), int(fz)
         if ix >= dims[0] or iy >= dims[1] or iz >= dims[2]:
-            out[i] = -1
-        else:
-            out[i] = (ix * dims[1] + iy) * dims[2] + iz
+            continue
+        c = (ix * dims[1] + iy) * dims[2] + iz
+        if cell[c] < 0 and not mark[c]:
+            mark[c] = True
+            cnt += 1
+    out = np.empty(cnt, np.int64)
+    k = 0
+    for c in range(len(cell)):
+        if mark[c]:
+            out[k] = c
+            k += 1
     return out
 
 
 @njit(cache=True, parallel=True)
-def refine_cells(centres, r, par, pptr, ptri, tol, A, AB, AC, BC, N, G, BB):
+def refine_cells(centres, r, par, pptr, ptri, tol, T):
     """Candidate lists of cells (centres (n, 3), half-diagonal ``r``) from their parents' lists.
 
     Keeps the parent candidates whose distance to the cell centre is at most ``dmin + 2 r + tol``.
@@ -216,9 +233,9 @@ def refine_cells(centres, r, par, pptr, ptri, tol, A, AB, AC, BC, N, G, BB):
         p = par[i]
         best = np.inf
         for j in range(pptr[p], pptr[p + 1]):
-            if _box_d2(centres[i, 0], centres[i, 1], centres[i, 2], ptri[j], BB) >= best:
+            if _box_d2(centres[i, 0], centres[i, 1], centres[i, 2], ptri[j], T) >= best:
                 continue
-            d2 = pt_tri(centres[i, 0], centres[i, 1], centres[i, 2], ptri[j], A, AB, AC, BC, N, G)[0]
+            d2 = pt_tri(centres[i, 0], centres[i, 1], centres[i, 2], ptri[j], T)[0]
             if d2 < best:
                 best = d2
         dmin[i] = np.sqrt(best)
@@ -226,9 +243,9 @@ def refine_cells(centres, r, par, pptr, ptri, tol, A, AB, AC, BC, N, G, BB):
         lim2 = lim * lim
         c = 0
         for j in range(pptr[p], pptr[p + 1]):
-            if _box_d2(centres[i, 0], centres[i, 1], centres[i, 2], ptri[j], BB) > lim2:
+            if _box_d2(centres[i, 0], centres[i, 1], centres[i, 2], ptri[j], T) > lim2:
                 continue
-            d2 = pt_tri(centres[i, 0], centres[i, 1], centres[i, 2], ptri[j], A, AB, AC, BC, N, G)[0]
+            d2 = pt_tri(centres[i, 0], centres[i, 1], centres[i, 2], ptri[j], T)[0]
             if d2 <= lim2:
                 c += 1
         cnt[i] = c
@@ -243,9 +260,9 @@ def refine_cells(centres, r, par, pptr, ptri, tol, A, AB, AC, BC, N, G, BB):
         lim2 = lim * lim
         k = ptr[i]
         for j in range(pptr[p], pptr[p + 1]):
-            if _box_d2(centres[i, 0], centres[i, 1], centres[i, 2], ptri[j], BB) > lim2:
+            if _box_d2(centres[i, 0], centres[i, 1], centres[i, 2], ptri[j], T) > lim2:
                 continue
-            d2 = pt_tri(centres[i, 0], centres[i, 1], centres[i, 2], ptri[j], A, AB, AC, BC, N, G)[0]
+            d2 = pt_tri(centres[i, 0], centres[i, 1], centres[i, 2], ptri[j], T)[0]
             if d2 <= lim2:
                 # insertion by distance to the centre (lists are short)
                 q = k
@@ -339,20 +356,6 @@ def bin_triangles(BB, lo, inv_h, dims):
 
 
 @njit(cache=True, inline="always")
-def _scan_cell(px, py, pz, c, start, items, A, AB, AC, BC, N, G, BB, best, bt, bf):
-    """Nearest of the triangles binned in cell ``c`` (CSR ``start``/``items``) if closer than ``best``
-    (squared distance); returns the updated ``(best, triangle, feature)``."""
-    for j in range(start[c], start[c + 1]):
-        k = np.int64(items[j])
-        if _box_d2(px, py, pz, k, BB) >= best:
-            continue
-        r2, f = pt_tri(px, py, pz, k, A, AB, AC, BC, N, G)
-        if r2 < best:
-            best, bt, bf = r2, k, f
-    return best, bt, bf
-
-
-@njit(cache=True, inline="always")
 def _axis_gap(p, lo, h, i, r, n):
     """Lower bound of the distance along one axis from coordinate p to the cells farther than r
     from cell i (inf when there are none on either side)."""
@@ -365,7 +368,7 @@ def _axis_gap(p, lo, h, i, r, n):
 
 
 @njit(cache=True, parallel=True)
-def bins_query(P, lo, h, dims, start, items, max_d2, far_d2, A, AB, AC, BC, N, G, BB, order):
+def bins_query(P, lo, h, dims, start, items, max_d2, far_d2, T, order):
     """Exact nearest triangle of every point by an expanding search over the binned grid.
 
     Shells of cells (Chebyshev radius r = 0, 1, ...) around the point's cell (clamped into the
@@ -419,7 +422,13 @@ def bins_query(P, lo, h, dims, start, items, max_d2, far_d2, A, AB, AC, BC, N, G
                         if exy + ez * ez >= best:
                             continue
                         c = (cx * ny + cy) * nz + cz
-                        best, bt, bf = _scan_cell(px, py, pz, c, start, items, A, AB, AC, BC, N, G, BB, best, bt, bf)
+                        for j in range(start[c], start[c + 1]):  # the cell's triangles
+                            k = np.int64(items[j])
+                            if _box_d2(px, py, pz, k, T) >= best:
+                                continue
+                            r2, f = pt_tri(px, py, pz, k, T)
+                            if r2 < best:
+                                best, bt, bf = r2, k, f
             g = min(_axis_gap(px, lo[0], h, ix, r, nx), _axis_gap(py, lo[1], h, iy, r, ny),
                     _axis_gap(pz, lo[2], h, iz, r, nz))
             if g == np.inf:
@@ -449,7 +458,7 @@ def _cell_d2(px, py, pz, c, lo, h, ny, nz):
 
 
 @njit(cache=True, parallel=True)
-def bins_far_query(P, lo, h, dims, start, items, occ, max_d2, A, AB, AC, BC, N, G, BB):
+def bins_far_query(P, lo, h, dims, start, items, occ, max_d2, T):
     """Exact nearest triangle of points far outside the grid: the occupied cells ``occ`` are scanned,
     nearest cell first, then every cell whose box is nearer than the best distance so far.
     Returns ``(tri, d2, feature)`` (tri -1: farther than ``max_d2``)."""
@@ -478,7 +487,13 @@ def bins_far_query(P, lo, h, dims, start, items, occ, max_d2, A, AB, AC, BC, N, 
                 c = occ[q]
                 if _cell_d2(px, py, pz, c, lo, h, ny, nz) >= best:
                     continue
-                best, bt, bf = _scan_cell(px, py, pz, c, start, items, A, AB, AC, BC, N, G, BB, best, bt, bf)
+                for j in range(start[c], start[c + 1]):  # the cell's triangles
+                    k = np.int64(items[j])
+                    if _box_d2(px, py, pz, k, T) >= best:
+                        continue
+                    r2, f = pt_tri(px, py, pz, k, T)
+                    if r2 < best:
+                        best, bt, bf = r2, k, f
         tri[i] = bt
         if bt >= 0:
             d2[i] = best

@@ -12,6 +12,12 @@ does not compile either; and ``convert-model``'s kernels (:mod:`mst.meshtools.ke
 
 ``python -m mst.eval.c2m.warmup --json`` prints, per kernel, the signatures loaded from the cache
 (``cache_hits``) and compiled in this process (``cache_misses``): a second run must show no misses.
+
+Then the C2M and convert-model kernels are compiled ahead of time (:mod:`mst.core.aot`, with the
+signatures the warm-up gave them) into extension modules that ``mst c2m`` and ``mst convert-model``
+load without importing numba (about 0.45 s less per process); skipped when the extensions of the
+current sources exist (``--force-aot`` rebuilds, ``--no-aot`` skips), and left to the JIT path when
+no C compiler is available. The warm-up itself always runs the JIT kernels (``MST_AOT=0``).
 """
 
 from __future__ import annotations
@@ -77,6 +83,21 @@ def warm_tracking() -> None:
     for klt in (False, True):
         kw = {"klt_X_model": X[::4], "klt_uv": uvX[::4]} if klt else {}
         solve_pose(T0, K, X, e, A, B, cand, **kw)
+    # edge sampling (visibility.visible_samples -> kernels.edge_samples), with and without the LOD rule
+    from mst.meshtools.generate import l_shape_model
+    from mst.pipeline.tracking.visibility import ModelGeometry, visible_samples
+
+    geom = ModelGeometry.from_model(l_shape_model())
+    Tl = np.eye(4)
+    Tl[:3, 3] = -geom.vertices.mean(0) + [0.0, 0.0, 4.0 * geom.scale_m]
+    for lod in (0.0, 12.0):  # also the face angles and the depth buffer's set-up (a non-convex model)
+        S = visible_samples(geom, Tl, K, 80, 60, 4.0, 0.01, None, 80.0, 85.0, lod_min_line_px=lod)
+    # the health tests and the evidence gradients (EdgeTracker._absolute_health, evidence)
+    from mst.pipeline.tracking.kernels import pose_gradients, pose_health
+
+    args = (img, S.X_model, S.A_model, S.B_model, S.edge, Tl, 500.0, 500.0, 40.0, 30.0)
+    pose_health(*args, 0.005, 40.0)
+    pose_gradients(*args, 40.0, 0.87)
 
 
 def warm_convert() -> None:
@@ -116,22 +137,55 @@ def kernel_stats() -> dict[str, dict]:
     return out
 
 
+#: the numba modules compiled ahead of time (their callers go through mst.core.aot.Kernels)
+AOT_MODULES = ("mst.eval.c2m.kernels", "mst.meshtools.kernels")
+
+
+def build_aot(force: bool = False) -> dict[str, str]:
+    """Compile :data:`AOT_MODULES` ahead of time (after the warm-up, in this process); per module
+    "built", "current" (already built from this source) or the error that left it to the JIT."""
+    import importlib
+
+    from mst.core import aot
+
+    out = {}
+    for m in AOT_MODULES:
+        if not force and aot.is_current(m):
+            out[m] = "current"
+            continue
+        importlib.import_module(m)
+        try:
+            aot.build(m)
+            out[m] = "built"
+        except Exception as e:  # no C compiler, read-only folder, ...: the JIT path stays
+            out[m] = f"not built ({type(e).__name__}: {e})"
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
+    import os
+
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--json", action="store_true", help="print the per-kernel cache statistics as JSON")
+    ap.add_argument("--no-aot", action="store_true", help="do not build the ahead-of-time extensions")
+    ap.add_argument("--force-aot", action="store_true", help="rebuild the ahead-of-time extensions")
     a = ap.parse_args(argv)
+    os.environ["MST_AOT"] = "0"  # the warm-up runs (and gives signatures to) the JIT kernels
     t0 = time.perf_counter()
     warm_c2m()
     warm_tracking()
     warm_convert()
     stats = kernel_stats()
     dt = time.perf_counter() - t0
+    built = {} if a.no_aot else build_aot(a.force_aot)
     if a.json:
-        print(json.dumps({"seconds": dt, "kernels": stats}))
+        print(json.dumps({"seconds": dt, "kernels": stats, "aot": built}))
     else:
         compiled = sum(s["cache_misses"] for s in stats.values())
         print(f"mst warm-up: {len(stats)} C2M, tracking and convert kernels ready in {dt:.1f} s ({compiled} compiled now, "
               f"the rest loaded from the cache)", file=sys.stderr)
+        for m, st in built.items():
+            print(f"mst warm-up: {m} ahead of time: {st}", file=sys.stderr)
     return 0
 
 

@@ -63,7 +63,7 @@ from mst.core.klt import to_gray
 from mst.pipeline.depth_io import DepthConfig, list_depth_frames
 from mst.pipeline.slam.ba import LocalBA
 from mst.pipeline.slam.config import SlamConfig, slam_depth_config
-from mst.pipeline.slam.drift import DriftBudget
+from mst.pipeline.slam.drift import DriftBudget, camera_centre
 from mst.pipeline.slam.frontend import FrontEnd
 from mst.pipeline.slam.keyframes import KeyframeMap
 from mst.pipeline.slam.landmarks import Landmarks
@@ -122,8 +122,9 @@ class ModelAidedSlam(FrontEnd, Landmarks, AidPolicy, KeyframeMap, LocalBA, Drift
         # landmarks: id -> model point, and whether it was anchored under a model (edge) pose
         self.lm: dict[int, np.ndarray] = {}
         self.lm_model: dict[int, bool] = {}
-        self.lm_sig: dict[int, tuple[float, float, float]] = {}  #: (corr m, ind m, rot rad) 1-sigma (:mod:`.drift`)
-        self._pose_sig = (0.0, 0.0, np.zeros((6, 6)))  # sigmas of the pose the map is being extended under
+        self.lm_sig: dict[int, tuple] = {}  #: (corr m, ind m, rot rad, scale, triangulation view centre xyz m) (:mod:`.drift`)
+        self._pose_sig = (0.0, 0.0, np.zeros((6, 6)), 0.0, 0.0)  # sigmas of the pose the map is being extended under
+        self._pose_c = np.zeros(3)  # ... and its camera centre (model frame, m)
         self._out_sig: tuple | None = None  # sigmas of the last output map pose
         self._reloc_sig: tuple | None = None
         self.drift_log: dict[int, tuple[float, float]] = {}  #: frame -> (bound / distance, bound deg)
@@ -147,7 +148,8 @@ class ModelAidedSlam(FrontEnd, Landmarks, AidPolicy, KeyframeMap, LocalBA, Drift
         self.stats = {"keyframes": 0, "ba_runs": 0, "ba_prior_accepted": 0, "ba_prior_downweighted": 0,
                       "ba_prior_dropped": 0, "ba_errors": 0, "gate_rejects": 0, "consensus_resets": 0,
                       "relocalisations": 0, "reloc_attempts": 0, "reanchors": 0, "contradictions": 0,
-                      "weak_contradictions": 0, "static_world_breaks": 0, "image_refutations": 0}
+                      "weak_contradictions": 0, "static_world_breaks": 0, "image_refutations": 0,
+                      "budget_overrides": 0}
         self.timing_ms = {"predict": 0.0, "update": 0.0, "ba": 0.0}
         self.moving_hold = False          # static-world check fired: the map does not bridge
         self._disagree_streak = 0
@@ -189,8 +191,12 @@ class ModelAidedSlam(FrontEnd, Landmarks, AidPolicy, KeyframeMap, LocalBA, Drift
 
     def update(self, k: int, gray: np.ndarray, T_cam_model_edges: np.ndarray | None,
                W: np.ndarray | None, healthy: bool, weak_edge_pose: np.ndarray | None = None,
-               cov_edges: np.ndarray | None = None) -> tuple[np.ndarray | None, str]:
+               cov_edges: np.ndarray | None = None, distance_fn=None) -> tuple[np.ndarray | None, str]:
         """Fuse the edge tracker's pose for frame ``k``; return ``(T_cam_model_out or None, status)``.
+
+        ``distance_fn``: ``T_cam_model -> metres`` to the model (the drift budget's distance): a map
+        pose beyond its budget there does not judge a healthy edge pose that is within it by its
+        own covariance (:meth:`AidPolicy._judge`).
 
         ``cov_edges``: the edge pose's 6x6 twist covariance (its residual RMS^2 x W^-1, the tracker's
         ``FrameResult.cov``): the uncertainty that model-anchored landmarks inherit (drift budget,
@@ -213,7 +219,11 @@ class ModelAidedSlam(FrontEnd, Landmarks, AidPolicy, KeyframeMap, LocalBA, Drift
         W = np.asarray(W, float) if W_ok else None
         if self.P is not None:
             self.P = self.P + self._process_noise()
-        v = self._judge(k, T_cam_model_edges, W, st, edge_ok, slam_ok)
+        over = False
+        if edge_ok and slam_ok and distance_fn is not None and st.sig is not None and cov_edges is not None:
+            d = distance_fn(T_cam_model_edges)
+            over = not self.sig_within_budget(st.sig, d) and self.sig_within_budget(self._anchor_sig(cov_edges), d)
+        v = self._judge(k, T_cam_model_edges, W, st, edge_ok, slam_ok, over_budget=over)
         if (not healthy and slam_ok and not v.contradicted and weak_edge_pose is not None
                 and np.isfinite(weak_edge_pose).all() and self._beyond_bound(weak_edge_pose, st.T)):
             v.contradicted = True
@@ -223,9 +233,11 @@ class ModelAidedSlam(FrontEnd, Landmarks, AidPolicy, KeyframeMap, LocalBA, Drift
         if T_out is not None:
             if status == STATUS_MODEL:
                 ok_cov = cov_edges is not None and np.isfinite(cov_edges).all()
-                self._pose_sig = (0.0, 0.0, np.asarray(cov_edges, float).copy()) if ok_cov else self._model_pose_sig(W)
+                self._pose_sig = (0.0, 0.0, np.asarray(cov_edges, float).copy(), 0.0, 0.0) if ok_cov else self._model_pose_sig(W)
             else:
-                self._pose_sig = self._out_sig = st.sig if st.sig is not None else (math.inf, math.inf, np.full((6, 6), np.inf))
+                self._pose_sig = self._out_sig = st.sig if st.sig is not None else (
+                    math.inf, math.inf, np.full((6, 6), np.inf), math.inf, math.inf)
+            self._pose_c = camera_centre(T_out)
             W_prior = W if status == STATUS_MODEL else None
             T_out = self._maintain_map(k, gray, T_out, status, T_cam_model_edges if W_prior is not None else None,
                                        W_prior)

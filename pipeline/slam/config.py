@@ -110,6 +110,10 @@ class SlamConfig(Config):
     drift_budget_rel: float = param(0.01, min=0, help="drift budget: a map pose's uncertainty bound must be within this x its distance to the model")
     drift_budget_deg: float = param(2.0, min=0, help="drift budget in rotation, deg")
     drift_sigmas: float = param(2.0, min=0, min_open=True, help="the uncertainty bound of a map pose, x its propagated 1-sigma")
+    #: the edge tracker's covariance is optimistic: RMS error / RMS claimed sigma of the model poses
+    #: measured against ground truth up to 3.0 (camera centre, the demo's UAV pass; 0.4-0.5 on the
+    #: corridor and the occluder) and 1.4-2.4 (rotation)
+    anchor_sigma_scale: float = param(3.0, min=1, help="drift budget: an edge pose overrides a map pose beyond the budget only while its own covariance x this^2 is within it")
     # relocalisation and the exported map
     reloc_keyframes: int = param(40, min=1, max=100_000, help="keyframes kept for relocalisation")
     reloc_min_inliers: int = param(20, min=4, max=100_000, help="ORB matches / PnP inliers needed to relocalise")

@@ -121,7 +121,7 @@ class FrontEnd:
         if len(Xc) >= 7:
             # the fit's noise: its reprojection RMS (2 residuals per point, 6 parameters)
             rms = float(np.sqrt(np.sum(err[good] ** 2) / max(2 * len(Xc) - 6, 1)))
-            self._last_pnp_sig = self._pnp_sig(tids_in, W, rms)
+            self._last_pnp_sig = self._pnp_sig(tids_in, W, rms, T)
         return T, W, int(good.sum())
 
     def _replenish(self, gray: np.ndarray, T: np.ndarray) -> None:

@@ -14,6 +14,7 @@ import math
 import numpy as np
 
 from mst.core.poses import inv_T, pnp_ransac, refine_pnp, se3_log, transform_points
+from mst.pipeline.slam.drift import LM_SIG_COLS
 from mst.pipeline.slam.geometry import pose_information
 from mst.pipeline.slam.state import STATUS_MODEL, Keyframe
 
@@ -80,7 +81,7 @@ class KeyframeMap:
                 Sk = self._depth_landmark_sig(Xc)
             else:
                 Xk = np.full((len(uv), 3), np.nan)
-                Sk = np.full((len(uv), 3), np.inf)
+                Sk = np.full((len(uv), LM_SIG_COLS), np.inf)
                 has = np.flatnonzero(np.isfinite(X[:, 0]))
                 if len(has):
                     q = self.pts[has].astype(np.float64)
@@ -88,8 +89,9 @@ class KeyframeMap:
                     j = np.argmin(d2, axis=1)
                     near = d2[np.arange(len(uv)), j] < 9.0
                     Xk[near] = X[has[j[near]]]
-                    inf3 = (np.inf,) * 3
-                    Sk[near] = np.array([self.lm_sig.get(int(t), inf3) for t in self.tid[has[j[near]]]]).reshape(-1, 3)
+                    inf_lm = (np.inf,) * LM_SIG_COLS
+                    Sk[near] = np.array([self.lm_sig.get(int(t), inf_lm)
+                                         for t in self.tid[has[j[near]]]]).reshape(-1, LM_SIG_COLS)
             ok = np.isfinite(Xk[:, 0])
             if ok.sum() >= self.cfg.reloc_min_inliers:
                 kf.desc, kf.X_desc, kf.sig_desc = desc[ok], Xk[ok].astype(np.float32), Sk[ok]
@@ -150,14 +152,14 @@ class KeyframeMap:
             T = refine_pnp(X[inl], uv[inl], self.K, self.dist, rvec, tvec)
             # restart the tracks from the inlier matches (new landmark ids, positions from the keyframe,
             # their sigmas as stored with it; the pose's sigma from them: :mod:`.drift`)
-            S = kf.sig_desc[qi][inl] if kf.sig_desc is not None else np.full((len(inl), 3), np.inf)
+            S = kf.sig_desc[qi][inl] if kf.sig_desc is not None else np.full((len(inl), LM_SIG_COLS), np.inf)
             tids = self._add_tracks(uv[inl], 90.0, T)
             for t, x, s in zip(tids, X[inl], S):
                 self.lm[int(t)] = x
                 self.lm_model[int(t)] = False
-                self.lm_sig[int(t)] = (float(s[0]), float(s[1]), float(s[2]))
+                self.lm_sig[int(t)] = tuple(float(v) for v in s)
             Xc = transform_points(T, X[inl])
-            self._reloc_sig = self._pnp_sig(tids, pose_information(self.K, Xc))
+            self._reloc_sig = self._pnp_sig(tids, pose_information(self.K, Xc), None, T)
             self.first_sig[-len(tids):] = self._reloc_sig[:2]
             self.first_C[-len(tids):] = self._reloc_sig[2]
             self.stats["relocalisations"] += 1

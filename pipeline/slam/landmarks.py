@@ -65,7 +65,7 @@ class Landmarks:
         for t, x, s in zip(self.tid[idx[ok]], X_model, sig):
             self.lm[int(t)] = x
             self.lm_model[int(t)] = model_pose
-            self.lm_sig[int(t)] = (float(s[0]), float(s[1]), float(s[2]))
+            self.lm_sig[int(t)] = tuple(float(v) for v in s)
 
 
     def _depth_frame(self, k: int) -> np.ndarray | None:
@@ -160,4 +160,4 @@ class Landmarks:
         for t, x, s in zip(self.tid[cand[good]], X[good], sig):
             self.lm[int(t)] = x
             self.lm_model[int(t)] = model_pose
-            self.lm_sig[int(t)] = (float(s[0]), float(s[1]), float(s[2]))
+            self.lm_sig[int(t)] = tuple(float(v) for v in s)

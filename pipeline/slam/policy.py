@@ -32,15 +32,30 @@ class Verdict:
     reset: bool = False           #: the whole map is re-anchored onto it (consensus or moving world)
     moving: bool = False          #: the object moves in the map's world: no fusion with the map
     contradicted: bool = False    #: the image supports another pose than the map beyond the output bound
+    over_budget: bool = False     #: the map pose is beyond its drift budget: it does not judge the edge pose
 
 
 class AidPolicy:
     """Gate, consensus, static-world check, fusion and re-anchoring of :class:`~mst.pipeline.slam.aid.ModelAidedSlam`."""
 
     def _judge(self, k: int, T_edges: np.ndarray | None, W: np.ndarray | None, st: FrameState,
-               edge_ok: bool, slam_ok: bool) -> Verdict:
-        """The gate, consensus and static-world decisions on frame ``k``'s healthy edge pose."""
+               edge_ok: bool, slam_ok: bool, over_budget: bool = False) -> Verdict:
+        """The gate, consensus and static-world decisions on frame ``k``'s healthy edge pose.
+
+        ``over_budget``: the map pose of this frame is beyond its drift budget (:mod:`.drift`): a map
+        that could not be output cannot refuse a healthy edge pose either (as weak, by the gate, as
+        contradicting it); the edge pose is output and the map re-anchored onto it."""
         v = Verdict(edge_ok)
+        if edge_ok and slam_ok and over_budget and not self.moving_hold:
+            # after an occluder the map (its landmarks tracked on the occluder) had drifted 100-270 %
+            # beyond its budget and refused 27 healthy edge poses as weak (trace(W) 0.4 x its
+            # running mean, its KLT points seeded at the map's pose); on the demo's UAV pass a map
+            # re-observing its stale landmarks of the turn gated a right edge pose, lost to the end
+            v.over_budget = True
+            self._disagree_streak = 0
+            self.n_rejects = 0
+            self.stats["budget_overrides"] += 1
+            return v
         if edge_ok and slam_ok and self.moving_hold:
             # the object moves in the map's world: no gate, the map follows the model pose; leave this
             # state after static_world_frames frames in a row in which the map agrees again
@@ -91,10 +106,10 @@ class AidPolicy:
         if v.edge_ok:
             T_out, status = np.asarray(T_edges, float).copy(), STATUS_MODEL
             if W is not None:
-                T_fused = self._fuse(T_out, W, st if slam_ok and not v.moving else FrameState(k))
+                T_fused = self._fuse(T_out, W, st if slam_ok and not (v.moving or v.over_budget) else FrameState(k))
                 if self.cfg.fuse_output if self.cfg.fuse_output is not None else self.mode == "rgbd":
                     T_out = T_fused
-            if slam_ok and (self.frames_since_fix > 0 or v.reset):
+            if slam_ok and (self.frames_since_fix > 0 or v.reset or v.over_budget):
                 self._reanchor(T_out, st.T, everything=v.reset)  # reset the map to the model
             if v.moving:
                 self.P = None

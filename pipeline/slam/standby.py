@@ -118,7 +118,7 @@ class StandbyAid:
 
     def update(self, k: int, gray: np.ndarray, T_cam_model_edges: np.ndarray | None,
                W: np.ndarray | None, healthy: bool, weak_edge_pose: np.ndarray | None = None,
-               cov_edges: np.ndarray | None = None) -> tuple[np.ndarray | None, str]:
+               cov_edges: np.ndarray | None = None, distance_fn=None) -> tuple[np.ndarray | None, str]:
         """As :meth:`ModelAidedSlam.update`; asleep, a healthy strong edge pose is output as is."""
         if self.aid is None and not self.needs_wake(healthy, W):
             self.buf.append((k, to_gray(gray), np.asarray(T_cam_model_edges, float).copy(), np.asarray(W, float),
@@ -128,7 +128,7 @@ class StandbyAid:
             return np.asarray(T_cam_model_edges, float).copy(), STATUS_MODEL
         if self.aid is None:  # the loop did not call wake() (hook contract): wake now
             self.wake(k, gray, T_cam_model_edges)
-        T_out, status = self.aid.update(k, gray, T_cam_model_edges, W, healthy, weak_edge_pose, cov_edges)
+        T_out, status = self.aid.update(k, gray, T_cam_model_edges, W, healthy, weak_edge_pose, cov_edges, distance_fn)
         self.stats["frames_active"] += 1
         self.n_strong = self.n_strong + 1 if (status == STATUS_MODEL and healthy and self._strong(W)) else 0
         if self.n_strong >= self.sleep_after:

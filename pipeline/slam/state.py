@@ -22,7 +22,7 @@ class Keyframe:
     prior_W: np.ndarray | None = None             # its 6x6 J^T J, twist order (v, w)
     desc: np.ndarray | None = None                # (R, 32) uint8 ORB descriptors (relocalisation)
     X_desc: np.ndarray | None = None              # (R, 3) float32 model points of those descriptors
-    sig_desc: np.ndarray | None = None            # (R, 3) their (corr m, ind m, rot rad) sigmas (:mod:`.drift`)
+    sig_desc: np.ndarray | None = None            # (R, 7) their uncertainty records (:mod:`.drift`)
 
 
 @dataclass

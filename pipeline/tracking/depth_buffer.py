@@ -50,7 +50,7 @@ def _clip_poly_near(P: np.ndarray, near: float) -> np.ndarray:
 
 def inverse_depth_buffer(geom: ModelGeometry, T_cam_model: np.ndarray, K: np.ndarray, width: int, height: int,
                          faces: np.ndarray, near: float, scale: float = 0.5,
-                         Xc_all: np.ndarray | None = None) -> tuple[np.ndarray, float]:
+                         Xc_all: np.ndarray | None = None, _numpy_reference: bool = False) -> tuple[np.ndarray, float]:
     """Render ``1/z`` (1/metres, 0 = empty) of the given faces (``(F,)`` bool) at ``scale`` x the
     image size (``K`` the image's intrinsics, ``T_cam_model`` model -> camera).
 
@@ -59,7 +59,10 @@ def inverse_depth_buffer(geom: ModelGeometry, T_cam_model: np.ndarray, K: np.nda
     the projected bounding box); faces wholly in front are filled by one numba scanline call
     (:func:`mst.pipeline.zbuffer_kernels.fill_faces`, holes honoured); the few that cross the near
     plane are clipped (Sutherland-Hodgman) and filled with ``cv2.fillPoly``. ``Xc_all``: the
-    model vertices already in the camera frame (V,3), when the caller has them.
+    model vertices already in the camera frame (V,3), when the caller has them (only the numpy
+    formulation ``_numpy_reference`` reads them; the set-up kernel
+    :func:`mst.pipeline.tracking.kernels.zbuffer_faces` moves the few vertices it needs itself, to
+    the same values).
     """
     import cv2
 
@@ -82,26 +85,41 @@ def inverse_depth_buffer(geom: ModelGeometry, T_cam_model: np.ndarray, K: np.nda
     d = np.einsum("ij,ij->i", n_c, p_c)
     with np.errstate(divide="ignore", invalid="ignore"):
         coef_sel = _mat3(n_c, Kinv.T) / d[:, None]
-    coef = np.zeros((len(geom.faces), 3))
+    # per-model scratch (the rasteriser reads the rows of the faces it draws and the entries of their
+    # vertices only, all written below): no (F, 3) and 2 x (V,) allocations per call
+    scratch = geom.__dict__.get("_zbuffer_scratch")
+    if scratch is None:
+        scratch = (np.zeros((len(geom.faces), 3)), np.zeros(len(geom.vertices)), np.zeros(len(geom.vertices)))
+        geom.__dict__["_zbuffer_scratch"] = scratch
+    coef, uu, vv = scratch
     coef[sel] = coef_sel
-    # depth range of each face's outer loop
-    Xc = geom.to_camera(T_cam_model, sel) if Xc_all is None else Xc_all
-    vid, start = _loops_of(geom, sel)
-    z_loop = Xc[vid, 2]
-    zmin = np.minimum.reduceat(z_loop, start)
-    zmax = np.maximum.reduceat(z_loop, start)
-    keep = (np.abs(d) >= 1e-12) & (zmax >= near)
-    inside = sel[keep & (zmin >= near)]
-    crossing = sel[keep & (zmin < near)]
+    if _numpy_reference:  # the numpy formulation (the reference of the kernel's test)
+        # depth range of each face's outer loop
+        Xc = geom.to_camera(T_cam_model, sel) if Xc_all is None else Xc_all
+        vid, start = _loops_of(geom, sel)
+        z_loop = Xc[vid, 2]
+        zmin = np.minimum.reduceat(z_loop, start)
+        zmax = np.maximum.reduceat(z_loop, start)
+        keep = (np.abs(d) >= 1e-12) & (zmax >= near)
+        inside = sel[keep & (zmin >= near)]
+        crossing = sel[keep & (zmin < near)]
+        if len(inside):
+            # project only the vertices of the faces drawn (the kernel reads no others)
+            rv = geom.face_vertices(inside)
+            Xr = Xc[rv]
+            z = np.where(Xr[:, 2] > 1e-12, Xr[:, 2], 1e-12)
+            uu[rv] = (Ks[0, 0] * Xr[:, 0] + Ks[0, 1] * Xr[:, 1]) / z + Ks[0, 2]
+            vv[rv] = Ks[1, 1] * Xr[:, 1] / z + Ks[1, 2]
+    else:  # the same in one kernel, from the model vertices (the values of Xc_all, which it need not read)
+        from mst.pipeline.tracking.kernels import zbuffer_faces
+
+        loop_end = geom.__dict__.get("_loop_end")
+        if loop_end is None:
+            loop_end = geom.__dict__["_loop_end"] = np.append(geom.loop_start[1:], len(geom.loop_vid)).astype(np.int64)
+        inside, crossing = zbuffer_faces(geom.vertices, np.ascontiguousarray(R), np.ascontiguousarray(t), Ks, float(near),
+                                         sel.astype(np.int64), np.ascontiguousarray(d, np.float64), geom.loop_vid,
+                                         geom.loop_start, loop_end, geom.ring_vid, geom.face_vstart, uu, vv)
     if len(inside):
-        # project only the vertices of the faces drawn (the kernel reads no others)
-        rv = geom.face_vertices(inside)
-        Xr = Xc[rv]
-        z = np.where(Xr[:, 2] > 1e-12, Xr[:, 2], 1e-12)
-        uu = np.zeros(len(Xc))
-        vv = np.zeros(len(Xc))
-        uu[rv] = (Ks[0, 0] * Xr[:, 0] + Ks[0, 1] * Xr[:, 1]) / z + Ks[0, 2]
-        vv[rv] = Ks[1, 1] * Xr[:, 1] / z + Ks[1, 2]
         fill_faces(buf, uu, vv, geom.ring_vid, geom.ring_start, geom.ring_len, geom.face_ring0, geom.face_nring,
                    inside.astype(np.int64), coef)
     for f in crossing:

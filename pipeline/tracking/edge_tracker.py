@@ -20,9 +20,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from mst.core.poses import inv_T, transform_points
 from mst.errors import SolveStatus
 from mst.pipeline.tracking.config import TrackConfig, lod_thresholds, scene_near_m
-from mst.pipeline.tracking.health import ORIENT_TOL_DEG, PoseEvidence, image_noise_sigma, sobel_at
+from mst.pipeline.tracking.health import ORIENT_TOL_DEG, PoseEvidence, image_noise_sigma
+from mst.pipeline.tracking.moving_edges import _image
 
 
 @dataclass
@@ -148,7 +150,7 @@ class EdgeTracker:
         normal, midx = canonical_normals(S.normal, c.n_masks)
         ref = None
         if ref_img is not None:
-            Xc = S.X_model @ ref_T[:3, :3].T + ref_T[:3, 3]
+            Xc = transform_points(ref_T, S.X_model, elementwise=True)
             z = np.maximum(Xc[:, 2], 1e-9)
             uvp = np.stack([K[0, 0] * Xc[:, 0] / z + K[0, 2], K[1, 1] * Xc[:, 1] / z + K[1, 2]], 1)
             ref = reference_contrast(ref_img, uvp, normal, midx, c.mask_px, c.n_masks)
@@ -230,7 +232,7 @@ class EdgeTracker:
         pts, iz = pts[ok], iz[ok]
         xn = (pts - self.K[:2, 2]) / np.array([self.K[0, 0], self.K[1, 1]])
         Xc = np.column_stack([xn, np.ones(len(xn))]) / iz[:, None]
-        X_model = (Xc - T[:3, 3]) @ T[:3, :3]
+        X_model = transform_points(inv_T(T), Xc, elementwise=True)
         return pts, X_model
 
     def _klt_track(self, gray):
@@ -266,23 +268,15 @@ class EdgeTracker:
         if len(S) == 0 or S.model_edge is None:
             z = np.zeros(0)
             return PoseEvidence(z.astype(np.int64), z.astype(np.int8), z.astype(bool), z)
-        Xc = S.X_model @ T_cam_model[:3, :3].T + T_cam_model[:3, 3]
-        z = np.maximum(Xc[:, 2], 1e-9)
-        uv = np.stack([self.K[0, 0] * Xc[:, 0] / z + self.K[0, 2], self.K[1, 1] * Xc[:, 1] / z + self.K[1, 2]], 1)
-        Ae = S.A_model @ T_cam_model[:3, :3].T + T_cam_model[:3, 3]
-        Be = S.B_model @ T_cam_model[:3, :3].T + T_cam_model[:3, 3]
-        f = np.array([self.K[0, 0], self.K[1, 1]])
-        d = (Be[:, :2] / Be[:, 2:3] - Ae[:, :2] / Ae[:, 2:3]) * f
-        d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
-        n = np.stack([-d[:, 1], d[:, 0]], 1)[S.edge]  # fixed by the model edge's direction A -> B
-        g = np.stack([sobel_at(gray, uv + k * n) for k in (-1.0, 0.0, 1.0)])  # (3, N, 2)
-        proj = (g * n[None]).sum(2)
-        j = np.argmax(np.abs(proj), axis=0)
-        ii = np.arange(len(uv))
-        pb, gb = proj[j, ii], g[j, ii]
-        strong = np.abs(pb) >= 2.0 * c.edge_threshold
-        oriented = np.abs(pb) >= np.cos(np.radians(ORIENT_TOL_DEG)) * np.linalg.norm(gb, axis=1)
-        sign = np.where(strong, np.sign(pb), 0).astype(np.int8)
+        from mst.pipeline.tracking.kernels import pose_gradients
+
+        K = self.K
+        # projection, model normals and the strongest Sobel gradient within +-1 px along them in one kernel
+        uv, n, sign, good = pose_gradients(
+            _image(gray), np.ascontiguousarray(S.X_model, np.float64), np.ascontiguousarray(S.A_model, np.float64),
+            np.ascontiguousarray(S.B_model, np.float64), np.ascontiguousarray(S.edge, np.int64),
+            np.ascontiguousarray(T_cam_model, np.float64), float(K[0, 0]), float(K[1, 1]), float(K[0, 2]),
+            float(K[1, 2]), float(2.0 * c.edge_threshold), float(np.cos(np.radians(ORIENT_TOL_DEG))))
         # the moving-edge search (the costly part) on every 2nd sample beyond 200: a share and a
         # median over >= 100 samples, well within their binomial / quantisation floors
         sel = slice(None, None, 2) if len(uv) > 200 else slice(None)
@@ -295,7 +289,7 @@ class EdgeTracker:
         off = np.where(np.isfinite(off), off, np.inf).min(1) if off.ndim == 2 and off.shape[1] else np.full(n_me, np.inf)
         off = np.where(np.isfinite(off), off, np.nan)
         ti, tv = self._surface_values(gray, T_cam_model, S.face_visible)
-        return PoseEvidence(S.model_edge[S.edge], sign, oriented & strong, off, ti, tv)
+        return PoseEvidence(S.model_edge[S.edge], sign, good, off, ti, tv)
 
     def _surface_values(self, gray, T, face_visible):
         """Indices of the surface points seen at pose T (front faces, inside the image, not hidden)
@@ -304,7 +298,7 @@ class EdgeTracker:
             return np.zeros(0, np.int64), np.zeros(0)
         H, W = gray.shape
         idx = np.flatnonzero(face_visible[self.surf_face])
-        Xc = self.surf_X[idx] @ T[:3, :3].T + T[:3, 3]
+        Xc = transform_points(T, self.surf_X[idx], elementwise=True)
         ok = Xc[:, 2] > self.near(T)
         idx, Xc = idx[ok], Xc[ok]
         uv = Xc[:, :2] / Xc[:, 2:3] * [self.K[0, 0], self.K[1, 1]] + self.K[:2, 2]
@@ -374,7 +368,8 @@ class EdgeTracker:
         n_s, n_in = len(S), int(res.inlier.sum())
         if klt is not None and res.klt_inlier is not None:
             self._klt_next = (klt[0][res.klt_inlier], klt[1][res.klt_inlier])
-        out = FrameResult(T, healthy, n_s, n_in, res.rms_px, proj_err, res.W, res.cov, uv, res.inlier,
+        cov = res.cov if self.sample_provider is None else self.sample_provider.gauge_cov(T, res.W, res.cov, res.rms_px)
+        out = FrameResult(T, healthy, n_s, n_in, res.rms_px, proj_err, res.W, cov, uv, res.inlier,
                           S.edge_uv[np.unique(S.edge)], np.zeros((0, 2)) if klt is None else klt[1], reason, support)
         if self.health_score:
             out.evidence = self.evidence(img, T, S)  # the last pass's samples, re-projected at T
@@ -386,25 +381,20 @@ class EdgeTracker:
         """The absolute health tests of a solved pose: projection error (gradient vs model normal)
         at the final pose, gradient support, inlier ratio, sample count, model in front. Returns
         ``(healthy, reason, uv (N, 2) the samples at T, support, projection error deg)``."""
+        from mst.pipeline.tracking.kernels import pose_health
+
         c = self.cfg
-        Xc = S.X_model @ T[:3, :3].T + T[:3, 3]
-        ok_z = Xc[:, 2] > self.near(T) * 0.5
-        z = np.where(ok_z, Xc[:, 2], 1.0)
-        uv = np.stack([self.K[0, 0] * Xc[:, 0] / z + self.K[0, 2], self.K[1, 1] * Xc[:, 1] / z + self.K[1, 2]], 1)
-        Ae = S.A_model @ T[:3, :3].T + T[:3, 3]
-        Be = S.B_model @ T[:3, :3].T + T[:3, 3]
-        pa = Ae[:, :2] / Ae[:, 2:3] * [self.K[0, 0], self.K[1, 1]] + self.K[:2, 2]
-        pb = Be[:, :2] / Be[:, 2:3] * [self.K[0, 0], self.K[1, 1]] + self.K[:2, 2]
-        d = pb - pa
-        d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
-        n = np.stack([-d[:, 1], d[:, 0]], 1)[S.edge]
-        g = sobel_at(img, uv)
-        gn = np.linalg.norm(g, axis=1)
-        cosang = np.abs((g * n).sum(1)) / np.maximum(gn, 1e-9)
-        ang = np.degrees(np.arccos(np.clip(cosang, 0, 1)))
-        strong = gn >= 2.0 * c.edge_threshold  # Sobel of a step of `threshold` gray levels is 4x it
-        support = float(strong.mean()) if len(strong) else 0.0
-        proj_err = float(ang[strong].mean()) if strong.sum() >= 3 else 90.0
+        K = self.K
+        # projection, model normals, Sobel gradient, strong share and mean angle in one kernel; the
+        # strength test in float32 as numpy's on the float32 gradient norm
+        uv, in_front, n_strong, ang_sum = pose_health(
+            _image(img), np.ascontiguousarray(S.X_model, np.float64), np.ascontiguousarray(S.A_model, np.float64),
+            np.ascontiguousarray(S.B_model, np.float64), np.ascontiguousarray(S.edge, np.int64),
+            np.ascontiguousarray(T, np.float64), float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]),
+            float(self.near(T) * 0.5), float(np.float32(2.0 * c.edge_threshold)))  # Sobel of a step of `threshold` is 4x it
+        ok_z = bool(in_front)
+        support = n_strong / len(uv) if len(uv) else 0.0
+        proj_err = float(ang_sum / n_strong) if n_strong >= 3 else 90.0
         n_s = len(S)
         n_in = int(res.inlier.sum())
         ratio = n_in / max(n_s, 1)
@@ -412,8 +402,8 @@ class EdgeTracker:
         max_pe = c.max_proj_error_deg * (0.6 if recover else 1.0)
         min_ratio = max(c.min_inlier_ratio, 0.5) if recover else c.min_inlier_ratio
         healthy = bool(n_s >= c.min_samples and ratio >= min_ratio and proj_err <= max_pe
-                       and support >= c.min_support and np.isfinite(T).all() and ok_z.all())
-        reason = "" if healthy else ("the solved pose puts the model behind the camera" if not ok_z.all()
+                       and support >= c.min_support and np.isfinite(T).all() and ok_z)
+        reason = "" if healthy else ("the solved pose puts the model behind the camera" if not ok_z
                                      else self.explain(S) if n_s < c.min_samples else f"inliers {ratio:.0%}"
                                      if ratio < min_ratio else f"gradient support {support:.0%}"
                                      if support < c.min_support else f"projection error {proj_err:.1f} deg")

@@ -1,21 +1,32 @@
 """Numba kernels of the edge tracker's hot loops (issue #14; compiled once, cached on disk).
 
-* :func:`me_gather` and :func:`me_select`: the moving-edge search of a frame in two passes over all
-  its samples: the pixels read along each normal (gathered for the float32 matrix product with the
-  oriented masks, which stays numpy's: the convolutions, and every decision on them, are those of
-  :func:`mst.pipeline.tracking.moving_edges.search_edges_numpy` to the bit), then ViSP's contrast
-  and likelihood tests, the polarity vote of each model edge, local maxima, the best candidates and
-  their parabolic sub-pixel refinement (float32 where the numpy formulation is float32, thresholds
-  rounded to float32 as numpy's weak Python scalars are, float64 elsewhere).
-* :func:`vvs_residuals`, :func:`vvs_linearise`: one VVS iteration's residuals at a pose (each
-  sample's candidates against its projected model line) and its linearisation (candidate choice,
-  Tukey weights on the MAD scale, the edge-spread re-weighting, the point-to-line Jacobian and its
-  weighted copy). The rigid transforms, ``J^T W J``, ``J^T W r`` and the costs stay numpy's (BLAS
-  and pairwise sums), so that the solved poses are those of the numpy formulation to the bit.
-* :func:`sobel_at`: the Sobel gradient at sample positions (the health tests).
+* :func:`me_convolve` and :func:`me_select`: the moving-edge search of a frame in two passes over all
+  its samples: the oriented-mask convolutions at the pixels read along each normal (summed in float64,
+  rounded once to float32: no BLAS, the same on every CPU), then ViSP's contrast and likelihood tests,
+  the polarity vote of each model edge, local maxima, the best candidates and their parabolic
+  sub-pixel refinement (float32 where the numpy formulation
+  :func:`mst.pipeline.tracking.moving_edges.search_edges_numpy` is float32, thresholds rounded to
+  float32 as numpy's weak Python scalars are, float64 elsewhere).
+* :func:`vvs_solve`: the whole robust VVS of a frame (issue #14: the ~6 iterations of ~20 numpy
+  calls each were most of the solve's time) on :func:`vvs_residuals` (one iteration's residuals at a
+  pose: each sample's candidates against its projected model line) and :func:`vvs_linearise` (the
+  candidate choice, Tukey weights on the MAD scale, the edge-spread re-weighting, the point-to-line
+  Jacobian), with the normal equations, the KLT points, the damped step with undo and the stopping
+  test; every sum in a fixed order (no BLAS, no FMA), so the pose is the numpy formulation's within
+  rounding and the same on every CPU.
+* :func:`sobel_at`: the Sobel gradient at sample positions; :func:`pose_health` and
+  :func:`pose_gradients`: the health tests and the evidence gradients of a solved pose.
+* :func:`edge_samples`, :func:`face_angles`, :func:`zbuffer_faces`: the visibility
+  pass (clipping and sampling of the candidate edges, the face angle test, the depth buffer's
+  per-vertex set-up), the numpy formulations' values to the bit (face angles: to an ulp).
 
-No fastmath (reproducible bit for bit), single-threaded (the tracker's one-core budget).
+No fastmath (reproducible bit for bit on every CPU), single-threaded (the tracker's one-core budget).
 Units: pixels, metres; ``R``, ``t`` the rotation and translation of ``T_cam_model``.
+
+Longer than 500 lines: one module for every per-frame kernel of the tracker (moving edges, VVS,
+health, visibility), which share private jitted helpers (``_rigid``, ``_sobel1``, ``_median``) and
+one warm-up and cache-statistics list (:mod:`mst.eval.c2m.warmup`); it may be split along those
+lines (search / pose / visibility) when the warm-up lists modules instead.
 """
 
 from __future__ import annotations
@@ -27,27 +38,49 @@ F32 = np.float32
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def me_gather(img, uv, normal, ks, moff, patches, k_eff):
-    """The mask pixels around ``uv[i] + ks[m] * normal[i]`` (nearest pixel, clipped so that the mask
-    stays inside the image) into ``patches[i, m, :]`` (float32, the gray levels), and the signed
-    distance ``k_eff[i, m]`` (px) along the normal of the pixel actually read (see
-    :func:`~mst.pipeline.tracking.moving_edges.convolve_along`)."""
+def me_convolve(img, uv, normal, ks, moff, masks, mask_idx, conv, k_eff):
+    """The oriented-mask convolutions ``conv[i, m]`` (float32) at ``uv[i] + ks[m] * normal[i]`` (nearest
+    pixel, clipped so that the mask ``masks[mask_idx[i]]`` (offsets ``moff``) stays inside the image),
+    and ``k_eff[i, m]`` the signed distance (px) along the normal of the pixel actually read (see
+    :func:`~mst.pipeline.tracking.moving_edges.convolve_along`). Each convolution is summed in
+    float64 (every product of an 8-bit or float32 gray level and a float32 weight is exact there;
+    four interleaved partial sums in the mask's pixel order) and rounded once to float32: within
+    one float32 rounding of the exact value, and the same on every CPU (numpy's float32 matrix
+    product of the gathered pixels went through BLAS, whose summation order depends on the CPU)."""
     H, W = img.shape
     S = moff.shape[0]
     r = 0
     for s in range(S):
         r = max(r, abs(moff[s, 0]), abs(moff[s, 1]))
     hi_x, hi_y = W - 1 - r, H - 1 - r
+    fo = np.empty(S, np.int64)  # flat pixel offsets of the mask
+    for s in range(S):
+        fo[s] = moff[s, 1] * W + moff[s, 0]
+    flat = img.ravel()
+    wrow = np.empty(S)
     for i in range(uv.shape[0]):
         u, v = uv[i, 0], uv[i, 1]
         nx, ny = normal[i, 0], normal[i, 1]
+        mk = mask_idx[i]
+        for s in range(S):
+            wrow[s] = np.float64(masks[mk, s])
         for m in range(ks.shape[0]):
             k = ks[m]
             ix = min(max(np.rint(u + k * nx), r), hi_x)
             iy = min(max(np.rint(v + k * ny), r), hi_y)
-            jx, jy = int(ix), int(iy)
-            for s in range(S):
-                patches[i, m, s] = F32(img[jy + moff[s, 1], jx + moff[s, 0]])
+            b = int(iy) * W + int(ix)
+            a0, a1, a2, a3 = 0.0, 0.0, 0.0, 0.0
+            s = 0
+            while s + 4 <= S:  # independent partial sums: the adds are not one latency-bound chain
+                a0 += np.float64(flat[b + fo[s]]) * wrow[s]
+                a1 += np.float64(flat[b + fo[s + 1]]) * wrow[s + 1]
+                a2 += np.float64(flat[b + fo[s + 2]]) * wrow[s + 2]
+                a3 += np.float64(flat[b + fo[s + 3]]) * wrow[s + 3]
+                s += 4
+            while s < S:
+                a0 += np.float64(flat[b + fo[s]]) * wrow[s]
+                s += 1
+            conv[i, m] = F32((a0 + a1) + (a2 + a3))
             k_eff[i, m] = (ix - u) * nx + (iy - v) * ny
 
 
@@ -165,7 +198,7 @@ def me_select(conv, k_eff, ks, R, ref, has_ref, threshold, mu1, mu2, edge, vote,
     return off, lk, cbest
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")  # called from vvs_solve only
 def vvs_residuals(Xc, P, nE, e, cu, cv, fx, fy, cx, cy, r_all, nx, ny, x, y, iz):
     """Residuals ``r_all (N, C)`` px of every candidate against its sample's projected model line,
     from the samples ``Xc (N, 3)`` and the edge end points ``P (2 nE, 3)`` (A then B) in the camera
@@ -207,7 +240,7 @@ def _median(a):
     return s[h]
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")  # called from vvs_solve only
 def vvs_linearise(r_all, ch, r, w, w_tukey, min_scale, tukey_c, e, nE, spread, spread_k, nx, ny, x, y, iz, fx, fy,
                   J, wJ):
     """One VVS linearisation at the residuals ``r_all`` of :func:`vvs_residuals` (all outputs in
@@ -291,3 +324,624 @@ def sobel_at(img, uv):
         out[i, 0] = (p2 + two * p5 + p8) - (p0 + two * p3 + p6)
         out[i, 1] = (p6 + two * p7 + p8) - (p0 + two * p1 + p2)
     return out
+
+
+# ---------------------------------------------------------------------------- the whole VVS solve
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _rigid(P, T, out):
+    """``out = P @ R.T + t`` for (N, 3) points, in a fixed order (no BLAS, no FMA)."""
+    for i in range(P.shape[0]):
+        p0, p1, p2 = P[i, 0], P[i, 1], P[i, 2]
+        for j in range(3):
+            out[i, j] = (p0 * T[j, 0] + p1 * T[j, 1]) + p2 * T[j, 2] + T[j, 3]
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")  # called from vvs_solve only
+def _solve6(A, b, x):
+    """``x = A^-1 b`` for a 6x6 system by Gaussian elimination with partial pivoting (a fixed order
+    of operations, as ``dgesv``'s LU). Returns False when a pivot is exactly zero (singular)."""
+    M = np.empty((6, 7))
+    for i in range(6):
+        for j in range(6):
+            M[i, j] = A[i, j]
+        M[i, 6] = b[i]
+    for k in range(6):
+        p = k
+        for i in range(k + 1, 6):
+            if abs(M[i, k]) > abs(M[p, k]):
+                p = i
+        if M[p, k] == 0.0:
+            return False
+        if p != k:
+            for j in range(7):
+                tmp = M[k, j]
+                M[k, j] = M[p, j]
+                M[p, j] = tmp
+        for i in range(k + 1, 6):
+            f = M[i, k] / M[k, k]
+            for j in range(k, 7):
+                M[i, j] -= f * M[k, j]
+    for i in range(5, -1, -1):
+        s = M[i, 6]
+        for j in range(i + 1, 6):
+            s -= M[i, j] * x[j]
+        x[i] = s / M[i, i]
+    return True
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")  # called from vvs_solve only
+def _se3_exp_left(xi, T, out):
+    """``out = exp(xi) @ T`` (the exact SE(3) exponential of :func:`mst.pipeline.tracking.vvs.se3_exp`)."""
+    v0, v1, v2, w0, w1, w2 = xi[0], xi[1], xi[2], xi[3], xi[4], xi[5]
+    th2 = w0 * w0 + w1 * w1 + w2 * w2
+    if th2 < 1e-16:  # small angle: the series of mst.core.poses.se3_exp
+        a, b, cc = 1.0 - th2 / 6.0, 0.5 - th2 / 24.0, 1.0 / 6.0 - th2 / 120.0
+    else:
+        th = np.sqrt(th2)
+        s, c = np.sin(th), np.cos(th)
+        a = s / th
+        b = (1.0 - c) / th2
+        cc = (th - s) / (th2 * th)
+    x00, x11, x22 = w0 * w0 - th2, w1 * w1 - th2, w2 * w2 - th2
+    x01, x02, x12 = w0 * w1, w0 * w2, w1 * w2
+    E = np.empty((3, 4))
+    E[0, 0], E[0, 1], E[0, 2] = 1.0 + b * x00, b * x01 - a * w2, b * x02 + a * w1
+    E[1, 0], E[1, 1], E[1, 2] = b * x01 + a * w2, 1.0 + b * x11, b * x12 - a * w0
+    E[2, 0], E[2, 1], E[2, 2] = b * x02 - a * w1, b * x12 + a * w0, 1.0 + b * x22
+    V00, V11, V22 = 1.0 + cc * x00, 1.0 + cc * x11, 1.0 + cc * x22
+    E[0, 3] = V00 * v0 + (cc * x01 - b * w2) * v1 + (cc * x02 + b * w1) * v2
+    E[1, 3] = (cc * x01 + b * w2) * v0 + V11 * v1 + (cc * x12 - b * w0) * v2
+    E[2, 3] = (cc * x02 - b * w1) * v0 + (cc * x12 + b * w0) * v1 + V22 * v2
+    for i in range(3):
+        for j in range(4):
+            out[i, j] = (E[i, 0] * T[0, j] + E[i, 1] * T[1, j]) + E[i, 2] * T[2, j] + (E[i, 3] if j == 3 else 0.0)
+    out[3, 0], out[3, 1], out[3, 2], out[3, 3] = 0.0, 0.0, 0.0, 1.0
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")  # called from vvs_solve only
+def _tukey_into(r, min_scale, tukey_c, w):
+    """Tukey weights of ``r`` on its MAD scale floored at ``min_scale`` into ``w``; returns sigma."""
+    n = r.shape[0]
+    sigma = min_scale
+    if n:
+        med = _median(r)
+        sigma = max(1.4826 * _median(np.abs(r - med)), min_scale)
+    cs = tukey_c * sigma
+    for i in range(n):
+        u = r[i] / cs
+        w[i] = (1.0 - u * u) ** 2 if abs(u) < 1.0 else 0.0
+    return sigma
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def vvs_solve(X, e, AB, nE, cu, cv, Xk, uk, T0, fx, fy, cx, cy, iters, lm_mu, min_mad, tukey_c, klt_weight, stop_px,
+              spread, spread_k, T_out, H_out, w_out, r_out, wt_out, wk_out):
+    """The whole robust VVS of :func:`mst.pipeline.tracking.vvs.solve_pose` in one call (the loop of
+    :func:`~mst.pipeline.tracking.vvs.solve_pose_numpy`: residuals, candidate choice, Tukey and
+    edge-spread weights, the Levenberg-Marquardt step with undo, the stopping test), every sum and
+    product in a fixed order (no BLAS): the same pose as the numpy formulation within rounding
+    (~1e-15 relative), and the same on every CPU. ``X (n, 3)`` samples with a candidate, ``e`` their
+    edge, ``AB (2 nE, 3)`` the edge end points, ``cu, cv (n, C)`` candidates (1e9: none), ``Xk (nk,
+    3)`` / ``uk (nk, 2)`` KLT points (nk may be 0). Outputs in place: ``T_out`` the pose, ``H_out``
+    the last information matrix, ``w_out``, ``r_out``, ``wt_out`` the last edge weights, residuals,
+    Tukey weights, ``wk_out (2 nk)`` the KLT weights. Returns ``(iterations, sigma, status)`` with
+    status 0 = a pose, 1 = diverged (a damped retry could not be solved: no pose)."""
+    n = X.shape[0]
+    nk = Xk.shape[0]
+    C = cu.shape[1]
+    Xc = np.empty((n, 3))
+    P = np.empty((2 * nE, 3))
+    Xck = np.empty((nk, 3))
+    r_all = np.empty((n, C))
+    nx, ny, x, y, iz = np.empty(n), np.empty(n), np.empty(n), np.empty(n), np.empty(n)
+    ch = np.zeros(n, np.int64)
+    w = np.zeros(n)
+    r = np.zeros(n)
+    wt = np.zeros(n)
+    J = np.empty((n, 6))
+    wJ = np.empty((n, 6))
+    rk = np.zeros(2 * nk)
+    Jk = np.empty((2 * nk, 6))
+    wk = np.zeros(2 * nk)
+    # the accepted linearisation: its pose, cost, choice, weights, H and g
+    pT = np.empty((4, 4))
+    pch = np.zeros(n, np.int64)
+    pw = np.zeros(n)
+    pwk = np.zeros(2 * nk)
+    pH = np.zeros((6, 6))
+    pg = np.zeros(6)
+    pcost = 0.0
+    have_prev = False
+    H = np.zeros((6, 6))
+    g = np.zeros(6)
+    A = np.empty((6, 6))
+    xi = np.empty(6)
+    T = T0.copy()
+    Tn = np.empty((4, 4))
+    fmax = max(fx, fy)
+    _rigid(X, T, Xc)
+    iz_max, xy_max = 1.0, 1.0
+    if n:
+        zmin = Xc[0, 2]
+        xy_max = 0.0
+        for i in range(n):
+            zmin = min(zmin, Xc[i, 2])
+            zz = max(Xc[i, 2], 1e-9)
+            xy_max = max(xy_max, abs(Xc[i, 0] / zz), abs(Xc[i, 1] / zz))
+        iz_max = 1.0 / max(zmin, 1e-9)
+    mu = lm_mu
+    sigma = min_mad
+    it = 0
+    completed = True
+    for it in range(1, iters + 1):
+        # residuals of every candidate at T (vvs_residuals), and the KLT points' residuals and Jacobian
+        _rigid(X, T, Xc)
+        _rigid(AB, T, P)
+        vvs_residuals(Xc, P, nE, e, cu, cv, fx, fy, cx, cy, r_all, nx, ny, x, y, iz)
+        if nk:
+            _rigid(Xk, T, Xck)
+            for i in range(nk):
+                q = 1.0 / Xck[i, 2]
+                xk, yk = Xck[i, 0] * q, Xck[i, 1] * q
+                rk[i] = fx * xk + cx - uk[i, 0]
+                rk[nk + i] = fy * yk + cy - uk[i, 1]
+                Jk[i, 0], Jk[i, 1], Jk[i, 2] = fx * q, 0.0, -fx * xk * q
+                Jk[i, 3], Jk[i, 4], Jk[i, 5] = -fx * xk * yk, fx * (1.0 + xk * xk), -fx * yk
+                Jk[nk + i, 0], Jk[nk + i, 1], Jk[nk + i, 2] = 0.0, fy * q, -fy * yk * q
+                Jk[nk + i, 3], Jk[nk + i, 4], Jk[nk + i, 5] = -fy * (1.0 + yk * yk), fy * xk * yk, fy * xk
+        if have_prev:
+            cost_new = 0.0
+            for i in range(n):
+                ro = r_all[i, pch[i]]
+                cost_new += pw[i] * ro * ro
+            for i in range(2 * nk):
+                cost_new += pwk[i] * rk[i] * rk[i]
+            if cost_new > pcost * (1 + 1e-9) and mu < 1e8:
+                # undo: retry from the previous linearisation with more damping
+                mu *= 10.0
+                for i in range(6):
+                    for j in range(6):
+                        A[i, j] = pH[i, j]
+                    A[i, i] = pH[i, i] + mu * (pH[i, i] + 1e-9)
+                if not _solve6(A, pg, xi):
+                    return it, sigma, 1
+                for i in range(6):
+                    xi[i] = -xi[i]
+                _se3_exp_left(xi, pT, Tn)
+                T[:, :] = Tn
+                continue
+            mu = max(mu / 10.0, 1e-7)
+        # linearise (vvs_linearise), then the KLT points' Tukey weights
+        sigma = vvs_linearise(r_all, ch, r, w, wt, min_mad, tukey_c, e, nE, spread, spread_k, nx, ny, x, y, iz, fx,
+                              fy, J, wJ)
+        for p in range(6):  # H = J^T wJ, g = wJ^T r
+            for q in range(6):
+                s = 0.0
+                for i in range(n):
+                    s += J[i, p] * wJ[i, q]
+                H[p, q] = s
+            s = 0.0
+            for i in range(n):
+                s += wJ[i, p] * r[i]
+            g[p] = s
+        cost = 0.0
+        for i in range(n):
+            cost += w[i] * r[i] * r[i]
+        if nk:
+            _tukey_into(rk, min_mad, tukey_c, wk)
+            for i in range(2 * nk):
+                wk[i] *= klt_weight
+            for p in range(6):
+                for q in range(6):
+                    s = 0.0
+                    for i in range(2 * nk):
+                        s += Jk[i, p] * (wk[i] * Jk[i, q])
+                    H[p, q] += s
+                s = 0.0
+                for i in range(2 * nk):
+                    s += Jk[i, p] * (wk[i] * rk[i])
+                g[p] += s
+            for i in range(2 * nk):
+                cost += wk[i] * rk[i] * rk[i]
+        for i in range(6):
+            for j in range(6):
+                A[i, j] = H[i, j]
+            A[i, i] = H[i, i] + mu * (H[i, i] + 1e-9)
+        if not _solve6(A, g, xi):
+            completed = False
+            break
+        for i in range(6):
+            xi[i] = -xi[i]
+        pT[:, :] = T
+        pcost = cost
+        pch[:] = ch
+        pw[:] = w
+        pwk[:] = wk
+        pH[:, :] = H
+        pg[:] = g
+        have_prev = True
+        a0 = max(abs(xi[0]), abs(xi[1]), abs(xi[2]))
+        a1 = max(abs(xi[3]), abs(xi[4]), abs(xi[5]))
+        step_px = fmax * (a0 * iz_max + a1 * (1.0 + xy_max))
+        _se3_exp_left(xi, T, Tn)
+        T[:, :] = Tn
+        if step_px < stop_px:
+            completed = False
+            break
+    if completed and have_prev:
+        # iteration budget spent: keep the last accepted pose unless it is better
+        _rigid(X, T, Xc)
+        _rigid(AB, T, P)
+        vvs_residuals(Xc, P, nE, e, cu, cv, fx, fy, cx, cy, r_all, nx, ny, x, y, iz)
+        c2 = 0.0
+        for i in range(n):
+            ro = r_all[i, pch[i]]
+            c2 += pw[i] * ro * ro
+        if c2 > pcost * (1 + 1e-9):
+            T[:, :] = pT
+    T_out[:, :] = T
+    H_out[:, :] = H
+    w_out[:] = w
+    r_out[:] = r
+    wt_out[:] = wt
+    wk_out[:] = wk
+    return it, sigma, 0
+
+
+# ---------------------------------------------------------------------------- edge sampling
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _nan_max(a, b):
+    """``np.maximum(a, b)`` (NaN propagates)."""
+    if a != a or b != b:
+        return a + b
+    return a if a >= b else b
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _nan_min(a, b):
+    """``np.minimum(a, b)`` (NaN propagates)."""
+    if a != a or b != b:
+        return a + b
+    return a if a <= b else b
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def edge_samples(Xv, E, small_face, near, far, K, R, t, x0, y0, x1, y1, step, use_lod, lod_min_line_px):
+    """The clipping and sampling steps of :func:`mst.pipeline.tracking.visibility.visible_samples`
+    for the candidate edges ``E (nE, 2)`` (vertex ids into the camera-frame vertices ``Xv``), in one
+    pass with the numpy formulation's operations in its order (so its values to the bit): near/far
+    clipping in 3D, projection with ``K``, the level-of-detail rule (``use_lod``: edges on small faces
+    (``small_face``) or shorter than ``lod_min_line_px``), the Liang-Barsky clip to the rectangle
+    ``x0..x1, y0..y1`` px, samples every ``step`` px with their inverse depth.
+
+    Returns ``(counts (5,) int64: behind, beyond_far, lod, outside, short; z_min (m, NaN: no edge in
+    front); keep (nE,) the index of each kept edge's row in E; pa, pb (k, 2) px the clipped end points;
+    A_model, B_model (k, 3) m the clipped end points in the model frame (R, t: T_cam_model); uv
+    (N, 2) px, nrm (N, 2), iz (N,) 1/m, Xc (N, 3) camera frame m, edge_id (N,) index into the kept
+    edges)``."""
+    nE = E.shape[0]
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    counts = np.zeros(5, np.int64)
+    z_min = np.nan
+    keep = np.empty(nE, np.int64)
+    pa = np.empty((nE, 2))
+    pb = np.empty((nE, 2))
+    iza = np.empty(nE)
+    izb = np.empty(nE)
+    Lk = np.empty(nE)
+    nsk = np.empty(nE, np.int64)
+    k = 0
+    for e in range(nE):
+        A0, A1, A2 = Xv[E[e, 0], 0], Xv[E[e, 0], 1], Xv[E[e, 0], 2]
+        B0, B1, B2 = Xv[E[e, 1], 0], Xv[E[e, 1], 1], Xv[E[e, 1], 2]
+        zA, zB = A2, B2
+        behind = (zA < near) and (zB < near)
+        if behind:
+            counts[0] += 1
+            continue
+        zm = _nan_min(zA, zB)
+        z_min = zm if z_min != z_min else min(z_min, zm)
+        # near/far clipping (_clip_near_far)
+        kp = not ((zA > far) and (zB > far))
+        dz = zB - zA
+        t_near = (near - zA) / dz
+        t_far = (far - zA) / dz
+        t0, t1 = 0.0, 1.0
+        if zA < near:
+            t0 = t_near
+        if zB < near:
+            t1 = t_near
+        if zA > far:
+            t0 = _nan_max(t0, t_far)
+        if zB > far:
+            t1 = _nan_min(t1, t_far)
+        kp = kp and (t1 > t0)
+        if not kp:
+            counts[1] += 1
+            continue
+        D0, D1, D2 = B0 - A0, B1 - A1, B2 - A2
+        a0, a1, a2 = A0 + t0 * D0, A1 + t0 * D1, A2 + t0 * D2
+        b0, b1, b2 = A0 + t1 * D0, A1 + t1 * D1, A2 + t1 * D2
+        # projection (_mat3(A, K), then the division)
+        ux = a0 * K[0, 0] + a1 * K[0, 1] + a2 * K[0, 2]
+        uy = a0 * K[1, 0] + a1 * K[1, 1] + a2 * K[1, 2]
+        uz = a0 * K[2, 0] + a1 * K[2, 1] + a2 * K[2, 2]
+        vx = b0 * K[0, 0] + b1 * K[0, 1] + b2 * K[0, 2]
+        vy = b0 * K[1, 0] + b1 * K[1, 1] + b2 * K[1, 2]
+        vz = b0 * K[2, 0] + b1 * K[2, 1] + b2 * K[2, 2]
+        uax, uay = ux / uz, uy / uz
+        ubx, uby = vx / vz, vy / vz
+        if use_lod:
+            ddx, ddy = ubx - uax, uby - uay
+            big = (not small_face[e]) and (np.sqrt(ddx * ddx + ddy * ddy) >= lod_min_line_px)
+            if not big:
+                counts[2] += 1
+                continue
+        # Liang-Barsky (_clip_rect)
+        dx, dy = ubx - uax, uby - uay
+        s0, s1 = 0.0, 1.0
+        inside = True
+        for side in range(4):
+            if side == 0:
+                p, q = -dx, uax - x0
+            elif side == 1:
+                p, q = dx, x1 - uax
+            elif side == 2:
+                p, q = -dy, uay - y0
+            else:
+                p, q = dy, y1 - uay
+            par = abs(p) < 1e-12
+            if par and q < 0:
+                inside = False
+            rr = q / p
+            if (not par) and p < 0:
+                s0 = _nan_max(s0, rr)
+            if (not par) and p > 0:
+                s1 = _nan_min(s1, rr)
+        inside = inside and (s1 > s0)
+        if not inside:
+            counts[3] += 1
+            continue
+        izA, izB = 1.0 / a2, 1.0 / b2
+        pax, pay = uax + s0 * dx, uay + s0 * dy
+        pbx, pby = uax + s1 * dx, uay + s1 * dy
+        ia = izA + s0 * (izB - izA)
+        ib = izA + s1 * (izB - izA)
+        lx, ly = pbx - pax, pby - pay
+        L = np.sqrt(lx * lx + ly * ly)
+        ns = np.int64(np.floor(L / step))
+        if not ns >= 1:
+            counts[4] += 1
+            continue
+        keep[k] = e
+        pa[k, 0], pa[k, 1], pb[k, 0], pb[k, 1] = pax, pay, pbx, pby
+        iza[k], izb[k], Lk[k], nsk[k] = ia, ib, L, ns
+        k += 1
+    A_model = np.empty((k, 3))
+    B_model = np.empty((k, 3))
+    n = 0
+    for j in range(k):
+        n += nsk[j]
+        for end in range(2):
+            px, py, izv = (pa[j, 0], pa[j, 1], iza[j]) if end == 0 else (pb[j, 0], pb[j, 1], izb[j])
+            c0 = ((px - cx) / fx) / izv - t[0]
+            c1 = ((py - cy) / fy) / izv - t[1]
+            c2 = 1.0 / izv - t[2]
+            out = A_model if end == 0 else B_model
+            out[j, 0] = c0 * R[0, 0] + c1 * R[1, 0] + c2 * R[2, 0]
+            out[j, 1] = c0 * R[0, 1] + c1 * R[1, 1] + c2 * R[2, 1]
+            out[j, 2] = c0 * R[0, 2] + c1 * R[1, 2] + c2 * R[2, 2]
+    uv = np.empty((n, 2))
+    nrm = np.empty((n, 2))
+    iz = np.empty(n)
+    Xc = np.empty((n, 3))
+    edge_id = np.empty(n, np.int64)
+    i = 0
+    for j in range(k):
+        ns = nsk[j]
+        dx, dy = pb[j, 0] - pa[j, 0], pb[j, 1] - pa[j, 1]
+        Lm = max(Lk[j], 1e-9)
+        tx, ty = dx / Lm, dy / Lm
+        diz = izb[j] - iza[j]
+        for q in range(ns):
+            s = (q + 0.5) / ns
+            u = pa[j, 0] + s * dx
+            v = pa[j, 1] + s * dy
+            zi = iza[j] + s * diz
+            uv[i, 0], uv[i, 1] = u, v
+            nrm[i, 0], nrm[i, 1] = -ty, tx
+            iz[i] = zi
+            Xc[i, 0] = ((u - cx) / fx) / zi
+            Xc[i, 1] = ((v - cy) / fy) / zi
+            Xc[i, 2] = 1.0 / zi
+            edge_id[i] = j
+            i += 1
+    return counts, z_min, keep[:k].copy(), pa[:k].copy(), pb[:k].copy(), A_model, B_model, uv, nrm, iz, Xc, edge_id
+
+
+# ---------------------------------------------------------------------------- depth buffer set-up
+@njit(cache=True, nogil=True, error_model="numpy")
+def zbuffer_faces(V, R, t, Ks, near, sel, d, loop_vid, loop_start, loop_end, ring_vid, face_vstart, uu, vv):
+    """The per-vertex set-up of :func:`mst.pipeline.tracking.depth_buffer.inverse_depth_buffer` for
+    the faces ``sel`` (K,) (their planes' ``d`` (K,) given): each face's depth range over its outer
+    loop (vertices ``V`` moved to the camera frame by ``R``, ``t`` as ``_mat3`` does, in its order),
+    the faces kept (``|d| >= 1e-12`` and not wholly behind ``near``) split into those wholly in front
+    (``inside``) and those crossing the near plane, and the buffer-pixel projection ``uu, vv`` (with
+    ``Ks``) of every ring vertex of the inside faces, written in place (the other entries are not
+    touched: the rasteriser reads no others). Returns ``(inside, crossing)`` face ids."""
+    k = sel.shape[0]
+    inside = np.empty(k, np.int64)
+    crossing = np.empty(k, np.int64)
+    ni, nc = 0, 0
+    for j in range(k):
+        f = sel[j]
+        zmin, zmax = np.inf, -np.inf
+        for q in range(loop_start[f], loop_end[f]):
+            vi = loop_vid[q]
+            z = ((V[vi, 0] * R[2, 0] + V[vi, 1] * R[2, 1]) + V[vi, 2] * R[2, 2]) + t[2]
+            zmin = min(zmin, z)
+            zmax = max(zmax, z)
+        if not (abs(d[j]) >= 1e-12 and zmax >= near):
+            continue
+        if zmin >= near:
+            inside[ni] = f
+            ni += 1
+            for q in range(face_vstart[f], face_vstart[f + 1]):
+                vi = ring_vid[q]
+                x0 = ((V[vi, 0] * R[0, 0] + V[vi, 1] * R[0, 1]) + V[vi, 2] * R[0, 2]) + t[0]
+                x1 = ((V[vi, 0] * R[1, 0] + V[vi, 1] * R[1, 1]) + V[vi, 2] * R[1, 2]) + t[1]
+                x2 = ((V[vi, 0] * R[2, 0] + V[vi, 1] * R[2, 1]) + V[vi, 2] * R[2, 2]) + t[2]
+                z = x2 if x2 > 1e-12 else 1e-12
+                uu[vi] = (Ks[0, 0] * x0 + Ks[0, 1] * x1) / z + Ks[0, 2]
+                vv[vi] = Ks[1, 1] * x1 / z + Ks[1, 2]
+        else:
+            crossing[nc] = f
+            nc += 1
+    return inside[:ni].copy(), crossing[:nc].copy()
+
+
+# ---------------------------------------------------------------------------- health tests
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _sobel1(img, u, v):
+    """The Sobel gradient (gx, gy) float32 at the nearest pixel of (u, v) (as :func:`sobel_at`)."""
+    H, W = img.shape
+    ix = min(max(int(np.rint(u)), 1), W - 2) if np.isfinite(u) else 1
+    iy = min(max(int(np.rint(v)), 1), H - 2) if np.isfinite(v) else 1
+    two = F32(2.0)
+    p0 = F32(img[iy - 1, ix - 1])
+    p1 = F32(img[iy - 1, ix])
+    p2 = F32(img[iy - 1, ix + 1])
+    p3 = F32(img[iy, ix - 1])
+    p5 = F32(img[iy, ix + 1])
+    p6 = F32(img[iy + 1, ix - 1])
+    p7 = F32(img[iy + 1, ix])
+    p8 = F32(img[iy + 1, ix + 1])
+    return (p2 + two * p5 + p8) - (p0 + two * p3 + p6), (p6 + two * p7 + p8) - (p0 + two * p1 + p2)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def pose_health(img, X, A, B, edge, T, fx, fy, cx, cy, z_min, strong_min):
+    """The numeric part of ``EdgeTracker._absolute_health`` at the pose ``T``: the samples ``X (N, 3)``
+    (model frame) projected (``uv (N, 2)`` px; a sample at depth <= ``z_min`` is projected at z = 1
+    and reported in ``all_in_front``), the unit normal of each sample's projected model edge (``A``,
+    ``B`` (E, 3) its end points), the Sobel gradient there; a gradient of norm >= ``strong_min`` is
+    strong. Returns ``(uv, all_in_front, n_strong, sum of the strong samples' angles between gradient
+    and normal, deg)``. Transforms and sums in a fixed order (no BLAS)."""
+    N = X.shape[0]
+    nE = A.shape[0]
+    nx = np.empty(nE)
+    ny = np.empty(nE)
+    for k in range(nE):
+        a0 = ((A[k, 0] * T[0, 0] + A[k, 1] * T[0, 1]) + A[k, 2] * T[0, 2]) + T[0, 3]
+        a1 = ((A[k, 0] * T[1, 0] + A[k, 1] * T[1, 1]) + A[k, 2] * T[1, 2]) + T[1, 3]
+        a2 = ((A[k, 0] * T[2, 0] + A[k, 1] * T[2, 1]) + A[k, 2] * T[2, 2]) + T[2, 3]
+        b0 = ((B[k, 0] * T[0, 0] + B[k, 1] * T[0, 1]) + B[k, 2] * T[0, 2]) + T[0, 3]
+        b1 = ((B[k, 0] * T[1, 0] + B[k, 1] * T[1, 1]) + B[k, 2] * T[1, 2]) + T[1, 3]
+        b2 = ((B[k, 0] * T[2, 0] + B[k, 1] * T[2, 1]) + B[k, 2] * T[2, 2]) + T[2, 3]
+        dx = (b0 / b2 * fx + cx) - (a0 / a2 * fx + cx)
+        dy = (b1 / b2 * fy + cy) - (a1 / a2 * fy + cy)
+        ln = max(np.sqrt(dx * dx + dy * dy), 1e-12)
+        nx[k] = -(dy / ln)
+        ny[k] = dx / ln
+    uv = np.empty((N, 2))
+    in_front = True
+    n_strong = 0
+    ang_sum = 0.0
+    for i in range(N):
+        x0 = ((X[i, 0] * T[0, 0] + X[i, 1] * T[0, 1]) + X[i, 2] * T[0, 2]) + T[0, 3]
+        x1 = ((X[i, 0] * T[1, 0] + X[i, 1] * T[1, 1]) + X[i, 2] * T[1, 2]) + T[1, 3]
+        x2 = ((X[i, 0] * T[2, 0] + X[i, 1] * T[2, 1]) + X[i, 2] * T[2, 2]) + T[2, 3]
+        ok = x2 > z_min
+        in_front = in_front and ok
+        z = x2 if ok else 1.0
+        u = fx * x0 / z + cx
+        v = fy * x1 / z + cy
+        uv[i, 0], uv[i, 1] = u, v
+        gx, gy = _sobel1(img, u, v)
+        gn = np.sqrt(gx * gx + gy * gy)  # float32, as numpy's norm of the float32 gradient
+        if gn >= strong_min:
+            e = edge[i]
+            c = abs(np.float64(gx) * nx[e] + np.float64(gy) * ny[e]) / max(np.float64(gn), 1e-9)
+            c = min(max(c, 0.0), 1.0)
+            ang_sum += np.degrees(np.arccos(c))
+            n_strong += 1
+    return uv, in_front, n_strong, ang_sum
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def pose_gradients(img, X, A, B, edge, T, fx, fy, cx, cy, strong_min, cos_tol):
+    """The gradient part of ``EdgeTracker.evidence`` at the pose ``T``: the samples projected (``uv``
+    (N, 2) px, depth floored at 1e-9 m), each sample's projected model-edge normal ``n (N, 2)`` (fixed
+    by the edge direction A -> B), the Sobel gradient at -1, 0, +1 px along it (the one with the
+    largest |projection| on n kept, first on ties): ``sign`` (N,) int8 its polarity where it is at
+    least ``strong_min``, else 0, and ``good`` (N,) strong and within ``acos(cos_tol)`` of n.
+    Transforms in a fixed order (no BLAS)."""
+    N = X.shape[0]
+    nE = A.shape[0]
+    ex = np.empty(nE)
+    ey = np.empty(nE)
+    for k in range(nE):
+        a0 = ((A[k, 0] * T[0, 0] + A[k, 1] * T[0, 1]) + A[k, 2] * T[0, 2]) + T[0, 3]
+        a1 = ((A[k, 0] * T[1, 0] + A[k, 1] * T[1, 1]) + A[k, 2] * T[1, 2]) + T[1, 3]
+        a2 = ((A[k, 0] * T[2, 0] + A[k, 1] * T[2, 1]) + A[k, 2] * T[2, 2]) + T[2, 3]
+        b0 = ((B[k, 0] * T[0, 0] + B[k, 1] * T[0, 1]) + B[k, 2] * T[0, 2]) + T[0, 3]
+        b1 = ((B[k, 0] * T[1, 0] + B[k, 1] * T[1, 1]) + B[k, 2] * T[1, 2]) + T[1, 3]
+        b2 = ((B[k, 0] * T[2, 0] + B[k, 1] * T[2, 1]) + B[k, 2] * T[2, 2]) + T[2, 3]
+        dx = (b0 / b2 - a0 / a2) * fx
+        dy = (b1 / b2 - a1 / a2) * fy
+        ln = max(np.sqrt(dx * dx + dy * dy), 1e-12)
+        ex[k] = -(dy / ln)
+        ey[k] = dx / ln
+    uv = np.empty((N, 2))
+    n = np.empty((N, 2))
+    sign = np.zeros(N, np.int8)
+    good = np.zeros(N, np.bool_)
+    for i in range(N):
+        x0 = ((X[i, 0] * T[0, 0] + X[i, 1] * T[0, 1]) + X[i, 2] * T[0, 2]) + T[0, 3]
+        x1 = ((X[i, 0] * T[1, 0] + X[i, 1] * T[1, 1]) + X[i, 2] * T[1, 2]) + T[1, 3]
+        x2 = ((X[i, 0] * T[2, 0] + X[i, 1] * T[2, 1]) + X[i, 2] * T[2, 2]) + T[2, 3]
+        z = max(x2, 1e-9)
+        u = fx * x0 / z + cx
+        v = fy * x1 / z + cy
+        uv[i, 0], uv[i, 1] = u, v
+        e = edge[i]
+        a, b = ex[e], ey[e]
+        n[i, 0], n[i, 1] = a, b
+        best, bgx, bgy = -1.0, F32(0.0), F32(0.0)
+        pbest = 0.0
+        for kk in range(3):
+            s = np.float64(kk - 1)
+            gx, gy = _sobel1(img, u + s * a, v + s * b)
+            p = np.float64(gx) * a + np.float64(gy) * b
+            if abs(p) > best:
+                best, pbest, bgx, bgy = abs(p), p, gx, gy
+        if best >= strong_min:
+            sign[i] = 1 if pbest > 0 else (-1 if pbest < 0 else 0)
+            gn = np.sqrt(bgx * bgx + bgy * bgy)
+            good[i] = best >= cos_tol * np.float64(gn)
+    return uv, n, sign, good
+
+
+# ---------------------------------------------------------------------------- face visibility
+@njit(cache=True, nogil=True, error_model="numpy")
+def face_angles(V, N, loop_vid, loop_start, loop_end, sel, c_model):
+    """The smallest angle (deg) between each face's outward normal ``N[f]`` and the rays from its
+    outer-loop vertices to the camera centre ``c_model`` (model frame), for the faces ``sel`` (K,):
+    the test of :func:`mst.pipeline.tracking.visibility.face_visibility` (rays normalised, cosines
+    summed in a fixed order; numpy's einsum and arccos differ from it by an ulp, which moves a face
+    across an appear/disappear angle only when it lies within ~1e-13 deg of it)."""
+    k = sel.shape[0]
+    ang = np.empty(k)
+    for j in range(k):
+        f = sel[j]
+        n0, n1, n2 = N[f, 0], N[f, 1], N[f, 2]
+        best = -np.inf
+        for q in range(loop_start[f], loop_end[f]):
+            vi = loop_vid[q]
+            r0, r1, r2 = c_model[0] - V[vi, 0], c_model[1] - V[vi, 1], c_model[2] - V[vi, 2]
+            ln = max(np.sqrt(r0 * r0 + r1 * r1 + r2 * r2), 1e-12)
+            cs = (r0 / ln) * n0 + (r1 / ln) * n1 + (r2 / ln) * n2
+            if cs > best or cs != cs:
+                best = cs
+        ang[j] = np.degrees(np.arccos(min(max(best, -1.0), 1.0)))
+    return ang

@@ -109,17 +109,16 @@ def _image(img: np.ndarray) -> np.ndarray:
 
 def _convolve(img: np.ndarray, uv: np.ndarray, normal: np.ndarray, ks: np.ndarray, mask_idx: np.ndarray,
               masks: np.ndarray, moff: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`convolve_along` with the pixel gathering in a numba kernel
-    (:func:`mst.pipeline.tracking.kernels.me_gather`) and the same float32 matrix product, so that
-    the convolutions are those of :func:`convolve_along` to the bit."""
-    from mst.pipeline.tracking.kernels import me_gather
+    """:func:`convolve_along` in one numba kernel (:func:`mst.pipeline.tracking.kernels.me_convolve`:
+    the same pixels, each convolution summed in float64 and rounded once to float32, so within one
+    float32 rounding of numpy's BLAS product, and the same on every CPU)."""
+    from mst.pipeline.tracking.kernels import me_convolve
 
-    N, M, S = len(uv), len(ks), len(moff)
-    patches = np.empty((N, M, S), np.float32)
+    N, M = len(uv), len(ks)
+    conv = np.empty((N, M), np.float32)
     k_eff = np.empty((N, M))
-    me_gather(_image(img), np.ascontiguousarray(uv, np.float64), np.ascontiguousarray(normal, np.float64), ks, moff,
-              patches, k_eff)
-    conv = np.matmul(patches, masks[mask_idx][:, :, None])[..., 0]
+    me_convolve(_image(img), np.ascontiguousarray(uv, np.float64), np.ascontiguousarray(normal, np.float64), ks, moff,
+                masks, np.ascontiguousarray(mask_idx, np.int64), conv, k_eff)
     return conv, k_eff
 
 

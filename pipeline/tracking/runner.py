@@ -20,8 +20,8 @@ import numpy as np
 from mst import InputError, atomic_outputs
 from mst.errors import ConfigError
 from mst.meshtools.formats import load_tracking_model
+from mst.pipeline.tracking.budget import PoseBudget
 from mst.pipeline.tracking.config import TrackConfig
-from mst.pipeline.tracking.edge_tracker import EdgeTracker
 from mst.pipeline.tracking.health import HealthMonitor
 from mst.pipeline.tracking.session import FrameRecord, TrackingPolicy, TrackingSession
 
@@ -86,7 +86,7 @@ class TrackSummary:
     ``frames`` processed, ``tracked`` (an output pose: model + slam + relocalised), per-status
     counts, timing (ms per frame), residual/health statistics, the aid used and its wake-ups, the
     effective ``config`` (``--config`` of it repeats the run) and the output paths. Optional parts
-    (``render_edges``, ``landmarks``, ``relocalisation``, ``static_world_frames``, ``map_refuted_frames``, ``aid_wake*``)
+    (``render_edges``, ``merged_mesh`` (triangles, polygons, merge CPU ms), ``landmarks``, ``relocalisation``, ``static_world_frames``, ``map_refuted_frames``, ``aid_wake*``)
     are left out of the JSON when they do not apply. Indexable like its JSON (``s["tracked"]``).
     """
 
@@ -145,6 +145,8 @@ def _summary(records: list[FrameRecord], session: TrackingSession, aid_mode: str
     tracker, aid, reloc = session.tracker, session.aid, session.reloc
     if tracker.sample_provider is not None:
         opt["render_edges"] = tracker.sample_provider.stats()
+    if getattr(tracker, "merge_stats", None):
+        opt["merged_mesh"] = tracker.merge_stats
     if landmarks is not None:
         opt["landmarks"] = int(len(landmarks))
     if reloc is not None:
@@ -165,6 +167,12 @@ def _summary(records: list[FrameRecord], session: TrackingSession, aid_mode: str
         # bound of every map pose: frame -> [bound / model distance, bound deg]
         opt["drift_budget_frames"] = [int(f) for f in beyond]
         opt["slam_uncertainty"] = {str(k): [float(a), float(b)] for k, (a, b) in sorted(aid.drift_log.items())}
+    ref = session.policy.refusals
+    if ref.budget_frames or ref.ambiguous_frames:
+        # edge poses refused by the error budget (lost): their own uncertainty beyond it, or two fits
+        # of the image beyond it apart (TrackingPolicy.beyond_budget / TrackingSession._ambiguous)
+        opt["pose_budget_frames"] = list(ref.budget_frames)
+        opt["ambiguous_frames"] = list(ref.ambiguous_frames)
     if aid is not None and "wakes" in getattr(aid, "stats", {}):
         # the default aid: how often (and where) the mono SLAM was switched on, its replay cost
         opt["aid_wakes"] = int(aid.stats["wakes"])
@@ -326,18 +334,19 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
 def build_session(cfg: TrackConfig, model, model_path, cam, T0: np.ndarray, aid=None) -> tuple[TrackingSession, str]:
     """A :class:`TrackingSession` for ``model`` seen by ``cam`` from ``T0`` (the first frame's
     T_cam_model): the edge tracker (render-based edges per ``cfg.edge_source``), the relocaliser and
-    the health monitor when on, the policy. Returns it and the edge source used."""
-    from mst.pipeline.tracking.render_edges import attach_render_edges
+    the health monitor when on, the policy. Returns it and the edge source used (``merged``: the polygon edges
+    of a polyhedral triangle mesh merged into planar polygons, :func:`render_edges.merge_polyhedral_tin`)."""
+    from mst.pipeline.tracking.render_edges import edge_tracker_for
 
-    tracker = EdgeTracker(model, cam, cfg)
-    edges_used = attach_render_edges(tracker, model, model_path, cfg.edge_source, T0)
+    tracker, edges_used = edge_tracker_for(model, model_path, cam, cfg, T0)
     reloc = None
     if cfg.relocalise:
         from mst.pipeline.tracking.relocalise import Relocaliser
 
         reloc = Relocaliser(tracker, cfg.reloc)
     monitor = HealthMonitor(len(tracker.geom.edges), len(tracker.surf_X)) if cfg.health_score else None
-    policy = TrackingPolicy(T0, cfg.edges.search_range_px, cfg.edges.constant_velocity, monitor)
+    budget = PoseBudget(cfg.slam.drift_budget_rel, cfg.slam.drift_budget_deg, cfg.slam.drift_sigmas)
+    policy = TrackingPolicy(T0, cfg.edges.search_range_px, cfg.edges.constant_velocity, monitor, budget)
     return TrackingSession(tracker, policy, aid, reloc), edges_used
 
 

@@ -18,7 +18,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mst.core.poses import inv_T
+from mst.core.poses import inv_T, matmul_exact
+from mst.pipeline.tracking.budget import (
+    ModelDistance,
+    PoseBudget,
+    Refusals,
+    ambiguity,
+    beyond_budget,
+    is_refusal,
+)
 from mst.pipeline.tracking.edge_tracker import EdgeTracker, FrameResult
 from mst.pipeline.tracking.health import HealthMonitor
 
@@ -99,7 +107,7 @@ class TrackingPolicy:
     """
 
     def __init__(self, T0: np.ndarray, search_range_px: float, constant_velocity: bool = False,
-                 monitor: HealthMonitor | None = None):
+                 monitor: HealthMonitor | None = None, budget: PoseBudget | None = None):
         self.T_prev = T0
         self.T_prev2: np.ndarray | None = None
         self.T_hint: np.ndarray | None = None
@@ -114,13 +122,16 @@ class TrackingPolicy:
         self.monitor = monitor
         self.n_score_rejects = 0
         self.n_ref: float | None = None  #: running mean of the visible edge samples of model frames
+        self.budget = budget  #: the error budget of an output pose (None: not checked)
+        self.distance_m = None  #: ``distance_m(T_cam_model) -> m`` to the model (set by the session)
+        self.refusals = Refusals()  #: the error budget's state: refused frames, the model-pose pair
 
     # -------------------------------------------------------------- before the edge tracker
     def start_pose(self, T_pred: np.ndarray | None, aided: bool, shift_px) -> np.ndarray:
         """The pose a frame starts from: the aid's prediction ``T_pred``, else constant velocity (when
         on), else a hint, else the last pose. ``shift_px(T)``: the image motion (px) from ``T_prev`` to T."""
         if T_pred is None and self.constant_velocity and self.T_prev2 is not None and self.lost_streak == 0:
-            T_pred = (self.T_prev @ inv_T(self.T_prev2)) @ self.T_prev  # constant velocity (camera-frame motion)
+            T_pred = matmul_exact(matmul_exact(self.T_prev, inv_T(self.T_prev2)), self.T_prev)  # constant velocity (camera-frame motion)
         T_start = T_pred if T_pred is not None else (self.T_hint if self.T_hint is not None else self.T_prev)
         self.T_hint = None
         if (aided and T_pred is not None and self.prev_status == "model" and self.lost_streak == 0
@@ -155,17 +166,24 @@ class TrackingPolicy:
         return n > 0 and not fr.healthy and (n - 1) % every == 0
 
     # -------------------------------------------------------------- judging an edge pose
-    def judge(self, fr: FrameResult, first_frame: bool) -> FrameResult:
-        """The calibrated health score on top of the tracker's absolute tests (``fr`` updated)."""
-        if self.monitor is None or fr.evidence is None:
-            return fr
-        fr.features = self.monitor.features(fr.evidence, fr.klt_agree, fr.n_klt)
-        fr.score, worst = self.monitor.score(fr.features)
-        if fr.healthy and not first_frame and fr.score <= 0:
-            fr.healthy = False
-            fr.reason = f"health score {fr.score:.2f} ({worst})"
-            self.n_score_rejects += 1
+    def judge(self, fr: FrameResult, first_frame: bool, count: bool = True) -> FrameResult:
+        """The calibrated health score on top of the tracker's absolute tests (``fr`` updated).
+        ``count``: a health-score reject is counted."""
+        if self.monitor is not None and fr.evidence is not None:
+            fr.features = self.monitor.features(fr.evidence, fr.klt_agree, fr.n_klt)
+            fr.score, worst = self.monitor.score(fr.features)
+            if fr.healthy and not first_frame and fr.score <= 0:
+                fr.healthy = False
+                fr.reason = f"health score {fr.score:.2f} ({worst})"
+                self.n_score_rejects += int(count)
         return fr
+
+    def beyond_budget(self, fr: FrameResult) -> str:
+        """Why an edge pose's own uncertainty exceeds the error budget ('' when it does not, or
+        without a budget or a model distance): :func:`mst.pipeline.tracking.budget.beyond_budget`."""
+        if self.budget is None or self.distance_m is None:
+            return ""
+        return beyond_budget(self.budget, fr.cov, fr.T_cam_model, self.distance_m)
 
     def map_pose_refuted(self, ev) -> str:
         """Why the image refutes a map (``slam``) pose, from its evidence ``ev`` at that pose ('' when
@@ -270,6 +288,8 @@ class TrackingSession:
 
     def __init__(self, tracker: EdgeTracker, policy: TrackingPolicy, aid=None, reloc=None):
         self.tracker, self.policy, self.aid, self.reloc = tracker, policy, aid, reloc
+        if policy.budget is not None and policy.distance_m is None and hasattr(tracker, "geom"):
+            policy.distance_m = ModelDistance(tracker.geom.vertices)
 
     def _edge_pose(self, idx: int, gray: np.ndarray, T_start: np.ndarray, reacq: bool) -> tuple[FrameResult, bool]:
         """The frame's edge pose from ``T_start``, then the rescues: the standby aid's prediction,
@@ -305,6 +325,32 @@ class TrackingSession:
                     break
         return fr, relocalised
 
+    def _ambiguous(self, gray: np.ndarray, fr: FrameResult) -> None:
+        """Refuse ``fr`` (``healthy`` False, reason ``ambiguous``) when a second healthy fit of the image
+        lies beyond the budget from it (:func:`mst.pipeline.tracking.budget.ambiguity`): from the
+        motion prediction of the last two model frames, and after a refused frame from +-3 sigma;
+        poses compared modulo the model's axis of revolution (:meth:`_modulo_symmetry`)."""
+        p, tr = self.policy, self.tracker
+        if p.budget is None or p.distance_m is None or fr.T_cam_model is None:
+            return
+        klt = getattr(tr, "_klt_next", None)  # the KLT inliers of the kept fit (the refits' are not kept)
+
+        def refit(T_start):
+            return p.judge(tr.track(gray, T_start, recover=p.recover), False, count=False)
+
+        why = ambiguity(p.budget, fr, p.distance_m(fr.T_cam_model), p.refusals.predicted(), p.refusals.after, refit,
+                        align=self._modulo_symmetry)
+        if hasattr(tr, "_klt_next"):
+            tr._klt_next = klt
+        if why:
+            fr.healthy, fr.reason = False, why
+
+    def _modulo_symmetry(self, T_ref: np.ndarray, T: np.ndarray) -> np.ndarray:
+        """``T`` turned about the model's axis of revolution onto ``T_ref`` (render-based edges of a body of
+        revolution: the turn is no difference of the image, :meth:`RenderEdgeProvider.align_to`); else ``T``."""
+        align = getattr(getattr(self.tracker, "sample_provider", None), "align_to", None)
+        return T if align is None else align(T_ref, T)
+
     def _first_frame_mode(self, gray: np.ndarray, T_init: np.ndarray, fr: FrameResult) -> FrameResult:
         """The first frame's tolerant fit ``fr`` against a plain fit from the user's pose ``T_init``:
         the plain one when both are healthy and they disagree by more than
@@ -316,7 +362,7 @@ class TrackingSession:
         fr_p = self.policy.judge(self.tracker.track(gray, T_init), True)
         if not fr_p.healthy or fr_p.T_cam_model is None:
             return fr
-        dx = se3_log(fr_p.T_cam_model @ inv_T(fr.T_cam_model))
+        dx = se3_log(self._modulo_symmetry(fr.T_cam_model, fr_p.T_cam_model) @ inv_T(fr.T_cam_model))
         try:
             d = float(np.sqrt(max(dx @ np.linalg.solve(fr.cov, dx), 0.0)))
         except np.linalg.LinAlgError:
@@ -336,7 +382,21 @@ class TrackingSession:
         reacq = p.reacquiring(aid is not None)
         fr, relocalised = self._edge_pose(idx, gray, T_start, reacq)
         healthy = p.gate_recovery(fr, reacq)
+        if healthy and not p.first:
+            # the error budget judges the pose that the rescues and gates above settled on, and only
+            # a pose that passed them all (inside the rescues a refusal set off other fits: the demo's
+            # UAV pass lost its return after the turn; before the recovery gate, a pose that it
+            # refuses was withheld and followed: the 40 m pass, 2.5-3.3 % off after its return)
+            why = p.beyond_budget(fr)
+            if why:
+                fr.healthy, fr.reason = False, why
+            elif not relocalised:
+                self._ambiguous(gray, fr)
+            healthy = fr.healthy
         recovering = reacq or p.lost_streak > 0
+        # an edge pose refused by the error budget (uncertain, ambiguous) is not output, but it is the
+        # image's best estimate: the sequence goes on from it as from a model frame (see _withhold_edge)
+        withheld = not healthy and fr.T_cam_model is not None and is_refusal(fr.reason)
         if aid is not None and relocalised:
             # a relocalised pose passed the health test on its own image after a loss: the map of
             # the lost stretch (the object may have been moved meanwhile) does not gate it
@@ -349,10 +409,13 @@ class TrackingSession:
             # puts the object: the aid outputs no map pose that contradicts it
             weak = (fr.T_cam_model if not healthy and fr.T_cam_model is not None
                     and (fr.reason or "").startswith("health score") else None)
-            # the edge covariance anchors the drift budget of the aids that keep one (an aid of the
-            # plain hook contract takes the first six arguments only)
-            kw = {"cov_edges": fr.cov} if hasattr(aid, "within_budget") else {}
-            T_out, status = aid.update(idx, gray, fr.T_cam_model, fr.W, healthy, weak_edge_pose=weak, **kw)
+            # the edge covariance anchors the drift budget of the aids that keep one, and with the
+            # distance to the model lets a healthy edge pose override a map pose beyond the budget
+            # (an aid of the plain hook contract takes the first six arguments only)
+            kw = {"cov_edges": fr.cov, "distance_fn": lambda T: model_distance(tr, T)} if hasattr(aid, "within_budget") else {}
+            T_out, status = aid.update(idx, gray, fr.T_cam_model, fr.W, healthy or withheld, weak_edge_pose=weak, **kw)
+            if withheld and status != "slam":
+                return self._withhold_edge(idx, time_s, gray, fr, t0)
             if status == "slam" and T_out is not None and hasattr(aid, "within_budget"):
                 # a map pose is output only while its propagated uncertainty is within the drift
                 # budget at its distance to the model (mst.pipeline.slam.drift); beyond it the
@@ -372,6 +435,8 @@ class TrackingSession:
                         # pose as from a slam frame (only the output is withheld)
                         return self._withhold(idx, time_s, gray, T_out, fr, recovering, t0)
                     T_out, status = None, "lost"
+        elif withheld:
+            return self._withhold_edge(idx, time_s, gray, fr, t0)
         else:
             T_out, status = (fr.T_cam_model, "model") if healthy else (None, "lost")
         p.update_support(status, recovering, fr.support)
@@ -390,8 +455,26 @@ class TrackingSession:
             p.lost(fr)
             T_out, status = None, "lost"
         p.frame_done(fr)
+        p.refusals.output(status, T_out)
         ms = (time.perf_counter() - t0) * 1000.0
         return FrameRecord(idx, time_s, status, T_out, fr, self._aid_state(idx), ms)
+
+    def _withhold_edge(self, idx: int, time_s: float, gray: np.ndarray, fr: FrameResult, t0: float) -> FrameRecord:
+        """An edge pose refused by the error budget: ``lost`` (its reason in the CSV, the frame in
+        ``pose_budget_frames`` / ``ambiguous_frames``), while the next frame starts from it and takes
+        its contrast reference from it, as after a model frame (the aid was updated with it as one).
+        Nothing learns from it (health statistics, polarities, keyframes), and the next frame's edge
+        pose is checked for ambiguity (:meth:`_ambiguous`). Going on from the lost frame's map pose
+        or last output pose instead lost the demo's UAV pass from the turn on (79 frames)."""
+        tr, p = self.tracker, self.policy
+        tr.accept(gray, fr.T_cam_model)
+        p.accepted(fr.T_cam_model)
+        p.prev_status = "model"
+        p.slam_streak = 0
+        p.frame_done(fr)
+        p.refusals.refused(idx, fr.reason)
+        ms = (time.perf_counter() - t0) * 1000.0
+        return FrameRecord(idx, time_s, "lost", None, fr, self._aid_state(idx), ms)
 
     def _withhold(self, idx: int, time_s: float, gray: np.ndarray, T_map: np.ndarray, fr: FrameResult,
                   recovering: bool, t0: float) -> FrameRecord:
@@ -404,6 +487,7 @@ class TrackingSession:
         p.prev_status = "slam"
         p.slam_streak += 1
         p.frame_done(fr)
+        p.refusals.output("lost", None)
         ms = (time.perf_counter() - t0) * 1000.0
         return FrameRecord(idx, time_s, "lost", None, fr, self._aid_state(idx), ms)
 

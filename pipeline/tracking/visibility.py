@@ -201,7 +201,32 @@ class Samples:
 def face_visibility(geom: ModelGeometry, T_cam_model: np.ndarray, prev: np.ndarray | None,
                     appear_deg: float, disappear_deg: float, among: np.ndarray | None = None) -> np.ndarray:
     """(F,) bool: faces seen from the front at less than the appear/disappear angle (hysteresis).
-    ``among`` (F,) bool: test only these faces (e.g. those in the view frustum); the others are False."""
+    ``among`` (F,) bool: test only these faces (e.g. those in the view frustum); the others are False.
+    The angles come from one numba kernel (:func:`mst.pipeline.tracking.kernels.face_angles`)."""
+    from mst.pipeline.tracking.kernels import face_angles
+
+    R, t = T_cam_model[:3, :3], T_cam_model[:3, 3]
+    c_model = -R.T @ t  # camera centre in the model frame
+    F = len(geom.faces)
+    sel = np.arange(F) if among is None else np.flatnonzero(among)
+    vis = np.zeros(F, bool)
+    if not len(sel):
+        return vis
+    loop_end = geom.__dict__.get("_loop_end")
+    if loop_end is None:
+        loop_end = geom.__dict__["_loop_end"] = np.append(geom.loop_start[1:], len(geom.loop_vid)).astype(np.int64)
+    ang = face_angles(geom.vertices, geom.face_normals, geom.loop_vid, geom.loop_start, loop_end, sel,
+                      np.ascontiguousarray(c_model, np.float64))
+    v = ang < appear_deg
+    if prev is not None and len(prev) == F:
+        v |= prev[sel] & (ang < disappear_deg)
+    vis[sel] = v
+    return vis
+
+
+def face_visibility_numpy(geom: ModelGeometry, T_cam_model: np.ndarray, prev: np.ndarray | None,
+                          appear_deg: float, disappear_deg: float, among: np.ndarray | None = None) -> np.ndarray:
+    """The numpy formulation of :func:`face_visibility` (the reference of its kernel's test)."""
     R, t = T_cam_model[:3, :3], T_cam_model[:3, 3]
     c_model = -R.T @ t  # camera centre in the model frame
     F = len(geom.faces)
@@ -363,7 +388,7 @@ def visible_samples(geom: ModelGeometry, T_cam_model: np.ndarray, K: np.ndarray,
                     step: float, near: float, far: float | None, appear_deg: float, disappear_deg: float,
                     prev_faces: np.ndarray | None = None, border_px: float = 4.0, hidden_lines: bool = True,
                     zbuffer_scale: float = 0.5, max_samples: int = 0, lod_min_line_px: float = 0.0,
-                    lod_min_face_px2: float = 0.0) -> Samples:
+                    lod_min_face_px2: float = 0.0, _numpy_reference: bool = False) -> Samples:
     """Sample the visible projected model edges every ``step`` px (see module docstring).
 
     ``far`` None: no far plane. Level of detail (ViSP ``setLod``): edges whose projection (after
@@ -381,7 +406,10 @@ def visible_samples(geom: ModelGeometry, T_cam_model: np.ndarray, K: np.ndarray,
         else:
             in_view = frustum_faces(geom, T_cam_model, K, width, height, near, far, masks)
         fv = face_visibility(geom, T_cam_model, prev_faces, appear_deg, disappear_deg, among=in_view)
-        if fv.sum() < 6:  # a failure to explain: which front-facing faces were culled, and why
+        if not indexed and in_view.all():  # nothing culled (a small object in view): fv is the all-faces test
+            fv_all = fv
+            culled = {k: 0 for k in masks}
+        elif fv.sum() < 6:  # a failure to explain: which front-facing faces were culled, and why
             if indexed:
                 frustum_faces(geom, T_cam_model, K, width, height, near, far, masks)
             fv_all = face_visibility(geom, T_cam_model, prev_faces, appear_deg, disappear_deg)
@@ -408,55 +436,26 @@ def visible_samples(geom: ModelGeometry, T_cam_model: np.ndarray, K: np.ndarray,
     E = geom.edges[eid]
     small_face = ~ev_big[ev]
     stats = {"candidates": int(len(E)) + sum(culled.values())}
-    A = Xv[E[:, 0]]
-    B = Xv[E[:, 1]]
-    behind = (A[:, 2] < near) & (B[:, 2] < near)
-    stats["behind"] = int(behind.sum()) + culled.get("behind", 0)
-    front = ~behind
-    stats["z_min_m"] = float(np.minimum(A[front, 2], B[front, 2]).min()) if front.any() else None
-    A, B, keep, _, _ = _clip_near_far(A, B, near, far)
-    stats["beyond_far"] = int((~keep & ~behind).sum()) + culled.get("beyond_far", 0)
-    A, B, small_face, eid = A[keep], B[keep], small_face[keep], eid[keep]
-    ua = _mat3(A, K)
-    ua = ua[:, :2] / ua[:, 2:3]
-    ub = _mat3(B, K)
-    ub = ub[:, :2] / ub[:, 2:3]
-    if lod_min_line_px > 0 or lod_min_face_px2 > 0:
-        big = ~small_face & (np.linalg.norm(ub - ua, axis=1) >= lod_min_line_px)
-        stats["lod"] = int((~big).sum())
-        A, B, ua, ub, eid = A[big], B[big], ua[big], ub[big], eid[big]
-    s0, s1, k2 = _clip_rect(ua, ub, border_px, border_px, width - 1 - border_px, height - 1 - border_px)
-    stats["outside"] = int((~k2).sum()) + culled.get("outside", 0)
-    A, B, ua, ub, s0, s1, eid = A[k2], B[k2], ua[k2], ub[k2], s0[k2], s1[k2], eid[k2]
-    izA, izB = 1.0 / A[:, 2], 1.0 / B[:, 2]
-    # clipped 2D endpoints and their inverse depths (1/z is affine along the projected segment)
-    d2 = ub - ua
-    pa = ua + s0[:, None] * d2
-    pb = ua + s1[:, None] * d2
-    iza = izA + s0 * (izB - izA)
-    izb = izA + s1 * (izB - izA)
-    L = np.linalg.norm(pb - pa, axis=1)
-    n_s = np.floor(L / step).astype(np.int64)
-    good = n_s >= 1
-    stats["short"] = int((~good).sum())
-    pa, pb, iza, izb, L, n_s, eid = pa[good], pb[good], iza[good], izb[good], L[good], n_s[good], eid[good]
-    Ka = (pa - K[:2, 2]) / np.array([K[0, 0], K[1, 1]])
-    Kb = (pb - K[:2, 2]) / np.array([K[0, 0], K[1, 1]])
-    Ac = np.column_stack([Ka, np.ones(len(Ka))]) / iza[:, None]  # camera-frame clipped endpoints
-    Bc = np.column_stack([Kb, np.ones(len(Kb))]) / izb[:, None]
-    A_model = _mat3(Ac - t, R.T)
-    B_model = _mat3(Bc - t, R.T)
-    edge_id = np.repeat(np.arange(len(n_s)), n_s)
-    start = np.concatenate([[0], np.cumsum(n_s)[:-1]]) if len(n_s) else np.zeros(0, np.int64)
-    j = np.arange(len(edge_id)) - np.repeat(start, n_s)
-    s = (j + 0.5) / np.repeat(n_s, n_s)
-    d = (pb - pa)[edge_id]
-    uv = pa[edge_id] + s[:, None] * d
-    iz = iza[edge_id] + s * (izb - iza)[edge_id]
-    tang = (pb - pa) / np.maximum(L, 1e-9)[:, None]
-    nrm = np.column_stack([-tang[:, 1], tang[:, 0]])[edge_id]
-    xn = (uv - K[:2, 2]) / np.array([K[0, 0], K[1, 1]])
-    Xc = np.column_stack([xn, np.ones(len(xn))]) / iz[:, None]
+    use_lod = bool(lod_min_line_px > 0 or lod_min_face_px2 > 0)
+    bounds = (float(border_px), float(border_px), float(width - 1 - border_px), float(height - 1 - border_px))
+    args = (np.ascontiguousarray(Xv, np.float64), np.ascontiguousarray(E, np.int64), np.ascontiguousarray(small_face),
+            float(near), float(far), np.ascontiguousarray(K, np.float64), np.ascontiguousarray(R, np.float64),
+            np.ascontiguousarray(t, np.float64), *bounds, float(step), use_lod, float(lod_min_line_px))
+    if _numpy_reference:
+        out = _edge_samples_numpy(*args)
+    else:
+        from mst.pipeline.tracking.kernels import edge_samples
+
+        out = edge_samples(*args)
+    counts, z_min, kept, pa, pb, A_model, B_model, uv, nrm, iz, Xc, edge_id = out
+    eid = eid[kept]
+    stats["behind"] = int(counts[0]) + culled.get("behind", 0)
+    stats["z_min_m"] = None if np.isnan(z_min) else float(z_min)
+    stats["beyond_far"] = int(counts[1]) + culled.get("beyond_far", 0)
+    if use_lod:
+        stats["lod"] = int(counts[2])
+    stats["outside"] = int(counts[3]) + culled.get("outside", 0)
+    stats["short"] = int(counts[4])
     if hidden_lines and not geom.convex and len(uv):
         import cv2
 
@@ -480,3 +479,61 @@ def visible_samples(geom: ModelGeometry, T_cam_model: np.ndarray, K: np.ndarray,
         if len(zf):
             stats["z_min_m"] = float(zf.min()) if stats["z_min_m"] is None else min(stats["z_min_m"], float(zf.min()))
     return Samples(uv, nrm, X_model, edge_id, A_model, B_model, np.stack([pa, pb], 1), fv, stats=stats, model_edge=eid)
+
+
+def _edge_samples_numpy(Xv, E, small_face, near, far, K, R, t, x0, y0, x1, y1, step, use_lod, lod_min_line_px):
+    """The numpy formulation of :func:`mst.pipeline.tracking.kernels.edge_samples` (the reference of
+    its test; the steps of :func:`visible_samples` from the candidate edges to the samples): the
+    same outputs to the bit."""
+    counts = np.zeros(5, np.int64)
+    eid = np.arange(len(E))
+    A = Xv[E[:, 0]]
+    B = Xv[E[:, 1]]
+    behind = (A[:, 2] < near) & (B[:, 2] < near)
+    counts[0] = int(behind.sum())
+    front = ~behind
+    z_min = float(np.minimum(A[front, 2], B[front, 2]).min()) if front.any() else np.nan
+    A, B, keep, _, _ = _clip_near_far(A, B, near, far)
+    counts[1] = int((~keep & ~behind).sum())
+    A, B, small_face, eid = A[keep], B[keep], small_face[keep], eid[keep]
+    ua = _mat3(A, K)
+    ua = ua[:, :2] / ua[:, 2:3]
+    ub = _mat3(B, K)
+    ub = ub[:, :2] / ub[:, 2:3]
+    if use_lod:
+        big = ~small_face & (np.linalg.norm(ub - ua, axis=1) >= lod_min_line_px)
+        counts[2] = int((~big).sum())
+        A, B, ua, ub, eid = A[big], B[big], ua[big], ub[big], eid[big]
+    s0, s1, k2 = _clip_rect(ua, ub, x0, y0, x1, y1)
+    counts[3] = int((~k2).sum())
+    A, B, ua, ub, s0, s1, eid = A[k2], B[k2], ua[k2], ub[k2], s0[k2], s1[k2], eid[k2]
+    izA, izB = 1.0 / A[:, 2], 1.0 / B[:, 2]
+    # clipped 2D endpoints and their inverse depths (1/z is affine along the projected segment)
+    d2 = ub - ua
+    pa = ua + s0[:, None] * d2
+    pb = ua + s1[:, None] * d2
+    iza = izA + s0 * (izB - izA)
+    izb = izA + s1 * (izB - izA)
+    L = np.linalg.norm(pb - pa, axis=1)
+    n_s = np.floor(L / step).astype(np.int64)
+    good = n_s >= 1
+    counts[4] = int((~good).sum())
+    pa, pb, iza, izb, L, n_s, eid = pa[good], pb[good], iza[good], izb[good], L[good], n_s[good], eid[good]
+    Ka = (pa - K[:2, 2]) / np.array([K[0, 0], K[1, 1]])
+    Kb = (pb - K[:2, 2]) / np.array([K[0, 0], K[1, 1]])
+    Ac = np.column_stack([Ka, np.ones(len(Ka))]) / iza[:, None]  # camera-frame clipped endpoints
+    Bc = np.column_stack([Kb, np.ones(len(Kb))]) / izb[:, None]
+    A_model = _mat3(Ac - t, R.T)
+    B_model = _mat3(Bc - t, R.T)
+    edge_id = np.repeat(np.arange(len(n_s)), n_s)
+    start = np.concatenate([[0], np.cumsum(n_s)[:-1]]) if len(n_s) else np.zeros(0, np.int64)
+    j = np.arange(len(edge_id)) - np.repeat(start, n_s)
+    s = (j + 0.5) / np.repeat(n_s, n_s)
+    d = (pb - pa)[edge_id]
+    uv = pa[edge_id] + s[:, None] * d
+    iz = iza[edge_id] + s * (izb - iza)[edge_id]
+    tang = (pb - pa) / np.maximum(L, 1e-9)[:, None]
+    nrm = np.column_stack([-tang[:, 1], tang[:, 0]])[edge_id]
+    xn = (uv - K[:2, 2]) / np.array([K[0, 0], K[1, 1]])
+    Xc = np.column_stack([xn, np.ones(len(xn))]) / iz[:, None]
+    return counts, z_min, eid, pa, pb, A_model, B_model, uv, nrm, iz, Xc, edge_id

@@ -160,7 +160,9 @@ def _vvs_result(T, H, w, r, w_tukey, wk, nk: int, klt_weight: float, has, n_samp
     rms = float(np.sqrt(ssr / max(sw, 1e-9)))
     status = SolveStatus.OK
     try:
-        cov = rms**2 * np.linalg.inv(H)
+        from mst.pipeline.tracking.exact import inverse
+
+        cov = rms**2 * inverse(H)  # not LAPACK's inverse, which rounds per CPU (the cov is an output)
     except np.linalg.LinAlgError:
         cov = np.full((6, 6), np.inf)
         status = SolveStatus.DEGENERATE
@@ -188,113 +190,36 @@ def solve_pose(T0: np.ndarray, K: np.ndarray, X_model: np.ndarray, edge: np.ndar
     moves image points by less than ``stop_px`` pixels. Samples without any candidate are
     ignored (weight 0). Fewer than 6 residuals: status ``TOO_FEW`` (no pose), see :class:`VVSResult`.
 
-    The per-sample work of an iteration runs in two numba kernels (:mod:`mst.pipeline.tracking.kernels`:
-    residuals; candidate choice, Tukey and edge-spread weights, Jacobian) into buffers allocated once
-    per solve; the rigid transforms, the 6x6 normal equations and the costs stay numpy's (BLAS), so
-    the result is :func:`solve_pose_numpy`'s to the bit.
+    The whole loop runs in one numba kernel (:func:`mst.pipeline.tracking.kernels.vvs_solve`, issue
+    #14: per frame ~6 iterations of ~20 numpy calls each were most of the solve's time), every sum
+    and product in a fixed order without BLAS: the pose of :func:`solve_pose_numpy` within rounding
+    (~1e-15 relative; tests/test_tracking_kernels.py), and the same on every CPU and BLAS kernel.
     """
-    from mst.pipeline.tracking.kernels import vvs_linearise, vvs_residuals
+    from mst.pipeline.tracking.kernels import vvs_solve
 
     fx, fy, cx, cy = float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2])
     has = np.isfinite(cand_uv[..., 0]).any(axis=1)
     X = np.ascontiguousarray(X_model[has], np.float64)
     e = np.ascontiguousarray(edge[has], np.int64)
-    cand = np.where(np.isfinite(cand_uv[has]), cand_uv[has], 1e9)
+    cand = cand_uv[has]
+    cand = np.where(np.isfinite(cand), cand, 1e9)
     cu, cv = np.ascontiguousarray(cand[..., 0]), np.ascontiguousarray(cand[..., 1])
     nk = 0 if klt_X_model is None else len(klt_X_model)
     if len(X) + 2 * nk < 6:
         return _no_pose(T0, len(X_model), SolveStatus.TOO_FEW, min_mad_px)
     AB = np.ascontiguousarray(np.concatenate([A_model, B_model]), np.float64)
-    nE = len(A_model)
-    T = T0.copy()
-    mu = lm_mu
     n = len(X)
-    fmax = max(fx, fy)
-    Xc0 = X @ T[:3, :3].T + T[:3, 3]
-    iz_max = float(1.0 / max(Xc0[:, 2].min(), 1e-9)) if n else 1.0
-    xy_max = float(np.abs(Xc0[:, :2] / np.maximum(Xc0[:, 2:3], 1e-9)).max()) if n else 1.0
-    # per-solve buffers, filled in place by the kernels at every iteration
-    r_all = np.empty(cu.shape)
-    nx, ny, x, y, iz = (np.empty(n) for _ in range(5))
-    ch_buf = [np.empty(n, np.int64), np.empty(n, np.int64)]  # the current and the accepted choice
-    r_buf = [np.empty(n), np.empty(n)]
-    w_buf = [np.zeros(n), np.zeros(n)]
-    w_tukey = np.zeros(n)
-    J = np.empty((n, 6))
-    wJ = np.empty((n, 6))
-    rows = np.arange(n)
-    slot = 0
-
-    def evaluate(Tc):
-        R, t = Tc[:3, :3], Tc[:3, 3]
-        vvs_residuals(X @ R.T + t, AB @ R.T + t, nE, e, cu, cv, fx, fy, cx, cy, r_all, nx, ny, x, y, iz)
-
-    def evaluate_klt(Tc):
-        Xc = klt_X_model @ Tc[:3, :3].T + Tc[:3, 3]
-        izk = 1.0 / Xc[:, 2]
-        xk, yk = Xc[:, 0] * izk, Xc[:, 1] * izk
-        rk = np.concatenate([fx * xk + cx - klt_uv[:, 0], fy * yk + cy - klt_uv[:, 1]])
-        Jp = _point_jacobian(xk, yk, izk, fx, fy)
-        return rk, np.concatenate([Jp[:, 0], Jp[:, 1]])
-
-    prev = None  # (T, cost, ch, w, wk, H, g) of the last accepted linearisation
-    it = 0
-    w = w_buf[0]
-    wk = np.zeros(2 * nk)
-    sigma = min_mad_px
-    H = np.zeros((6, 6))
-    r = np.zeros(n)
-    rk = np.zeros(0)
-    for it in range(1, iters + 1):  # noqa: B007 (returned)
-        evaluate(T)
-        if nk:
-            rk, Jk = evaluate_klt(T)
-        if prev is not None:
-            r_old = r_all[rows, prev[2]]
-            cost_new = float(np.sum(prev[3] * r_old * r_old))
-            if nk:
-                cost_new += float(np.sum(prev[4] * rk * rk))
-            if cost_new > prev[1] * (1 + 1e-9) and mu < 1e8:
-                # undo: retry from the previous linearisation with more damping
-                mu *= 10.0
-                T_prev, _, _, _, _, Hp, gp = prev
-                try:
-                    xi = -np.linalg.solve(Hp + mu * np.diag(np.diag(Hp) + 1e-9), gp)
-                except np.linalg.LinAlgError:  # the damped system of an accepted step: not finite
-                    return _no_pose(T0, len(X_model), SolveStatus.DIVERGED, min_mad_px)
-                T = se3_exp(xi) @ T_prev
-                continue
-            mu = max(mu / 10.0, 1e-7)
-        ch, r, w = ch_buf[slot], r_buf[slot], w_buf[slot]
-        slot = 1 - slot  # the other slot holds the accepted linearisation (prev) until the next one
-        sigma = vvs_linearise(r_all, ch, r, w, w_tukey, float(min_mad_px), float(tukey_c), e, nE,
-                              bool(edge_spread_weight), SPREAD_K, nx, ny, x, y, iz, fx, fy, J, wJ)
-        H = J.T @ wJ
-        g = wJ.T @ r
-        cost = float(np.sum(w * r * r))
-        if nk:
-            wk, _ = tukey_weights(rk, min_mad_px, tukey_c)
-            wk = wk * klt_weight
-            H = H + Jk.T @ (wk[:, None] * Jk)
-            g = g + Jk.T @ (wk * rk)
-            cost += float(np.sum(wk * rk * rk))
-        try:
-            xi = -np.linalg.solve(H + mu * np.diag(np.diag(H) + 1e-9), g)
-        except np.linalg.LinAlgError:
-            break
-        prev = (T, cost, ch, w, wk, H, g)
-        step_px = fmax * (np.abs(xi[:3]).max() * iz_max + np.abs(xi[3:]).max() * (1.0 + xy_max))
-        T = se3_exp(xi) @ T
-        if step_px < stop_px:
-            break
-    else:
-        # iteration budget spent: keep the last accepted pose
-        if prev is not None:
-            evaluate(T)
-            r_old = r_all[rows, prev[2]]
-            if float(np.sum(prev[3] * r_old * r_old)) > prev[1] * (1 + 1e-9):
-                T = prev[0]
-    return _vvs_result(T, H, w, r, w_tukey, wk, nk, klt_weight, has, len(X_model), sigma, it)
+    Xk = np.ascontiguousarray(klt_X_model, np.float64) if nk else np.zeros((0, 3))
+    uk = np.ascontiguousarray(klt_uv, np.float64) if nk else np.zeros((0, 2))
+    T, H = np.empty((4, 4)), np.empty((6, 6))
+    w, r, w_tukey, wk = np.empty(n), np.empty(n), np.empty(n), np.empty(2 * nk)
+    it, sigma, status = vvs_solve(X, e, AB, len(A_model), cu, cv, Xk, uk, np.ascontiguousarray(T0, np.float64),
+                                  fx, fy, cx, cy, int(iters), float(lm_mu), float(min_mad_px), float(tukey_c),
+                                  float(klt_weight), float(stop_px), bool(edge_spread_weight), SPREAD_K,
+                                  T, H, w, r, w_tukey, wk)
+    if status == 1:  # the damped retry of an accepted step could not be solved
+        return _no_pose(T0, len(X_model), SolveStatus.DIVERGED, min_mad_px)
+    return _vvs_result(T, H, w, r, w_tukey, wk, nk, klt_weight, has, len(X_model), float(sigma), int(it))
 
 
 def solve_pose_numpy(T0: np.ndarray, K: np.ndarray, X_model: np.ndarray, edge: np.ndarray, A_model: np.ndarray,

@@ -1,0 +1,170 @@
+"""Ahead-of-time kernels (mst.core.aot, issue #14): the extension built by the warm-up gives the JIT
+kernels' results bit for bit, is refused when its source changed, sends other argument types to
+the JIT, and lets ``mst c2m`` / ``mst convert-model`` run without importing numba.
+
+The tests of a built extension use the one ``make setup`` (``python -m mst.eval.c2m.warmup``) left
+beside the sources and skip when there is none; the slow test builds one into a temporary folder.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from mst.core import aot
+
+C2M = "mst.eval.c2m.kernels"
+CONVERT = "mst.meshtools.kernels"
+built = pytest.mark.skipif(not (aot.is_current(C2M) and aot.is_current(CONVERT)),
+                           reason="ahead-of-time kernels not built for this source (python -m mst.eval.c2m.warmup)")
+
+
+def _c2m_cases():
+    """A small building (dense grid) and the same as binned grid; points near, inside and far (1e5 m)."""
+    from mst.meshtools.generate import courtyard
+
+    V, F = (np.asarray(a) for a in courtyard()[:2])
+    rng = np.random.default_rng(3)
+    P = rng.uniform(V.min(0) - 3, V.max(0) + 3, (20000, 3))
+    P[:50] += 1e5
+    return V.astype(float), F, P
+
+
+def _c2m_all(V, F, P):
+    from mst.eval.c2m import C2MConfig, c2m, prepare_mesh
+
+    out = []
+    for small in (5000, 0):  # dense grid, binned grid
+        for signed, md in ((False, None), (True, 0.5)):
+            idx = prepare_mesh(V, F, signed=signed, engine="grid", small_mesh_triangles=small)
+            r = c2m(P, idx, C2MConfig(signed=signed, max_dist_m=md, chunk_points=150_000))
+            out.append((r.distances.copy(), json.dumps(r.to_json(), sort_keys=True, default=str)))
+    return out
+
+
+def _assert_same(a, b):
+    for (da, ja), (db, jb) in zip(a, b):
+        np.testing.assert_array_equal(da, db)  # bit for bit, NaN where beyond max_dist
+        assert json.loads(ja)["unsigned"] == json.loads(jb)["unsigned"]
+
+
+@built
+def test_c2m_extension_matches_the_jit_kernels(monkeypatch):
+    import importlib
+
+    import mst.eval.c2m.compiled as compiled
+
+    assert compiled.kernels.aot and compiled.kernels.is_aot("grid_query") and compiled.kernels.is_aot("bins_query")
+    V, F, P = _c2m_cases()
+    ahead = _c2m_all(V, F, P)
+    monkeypatch.setattr(compiled, "kernels", importlib.import_module(C2M))  # the numba JIT kernels
+    _assert_same(ahead, _c2m_all(V, F, P))
+
+
+@built
+def test_convert_extension_matches_the_jit_kernels(monkeypatch):
+    import importlib
+
+    from mst.meshtools import compiled
+    from mst.meshtools.convert import tin_to_polygons
+    from mst.meshtools.generate import city_block
+
+    V, F = city_block(n_triangles=20000, buildings=6, seed=2)
+    F2 = np.asarray(F).copy()
+    F2[::5] = F2[::5, ::-1]  # inconsistent winding: the orientation pass too
+    assert compiled.kernels.is_aot("edge_groups")
+    ahead = [tin_to_polygons(V, f) for f in (F, F2)]
+    monkeypatch.setattr(compiled, "kernels", importlib.import_module(CONVERT))
+    jit = [tin_to_polygons(V, f) for f in (F, F2)]
+    for a, b in zip(ahead, jit):
+        assert repr(a) == repr(b)
+
+
+@built
+def test_other_argument_types_go_to_the_jit():
+    """A float32 (or non-contiguous) array would be read as float64 C-order memory by the extension
+    (wrong numbers or a crash): such calls go to the JIT kernel, which specialises on them."""
+    import mst.eval.c2m.compiled as compiled
+    from mst.eval.c2m import kernels as jit
+
+    d = np.random.default_rng(0).uniform(0, 2, 1001)
+    thr = np.array([0.1, 0.5, 1.0])
+    ref = jit.threshold_sums(d, thr)
+    for arg in (d.astype(np.float32), d):
+        got = compiled.kernels.threshold_sums(arg, thr)
+        exp = jit.threshold_sums(arg, thr)
+        for g, e in zip(got, exp):
+            np.testing.assert_array_equal(g, e)
+    assert ref[0][-1] == 1001
+
+
+def test_stale_or_absent_extension_is_not_loaded(tmp_path, monkeypatch):
+    """A spec whose source hash differs (the kernels were edited after the build) is refused: the
+    JIT dispatchers are used, never machine code of another source."""
+    monkeypatch.setenv("MST_AOT_DIR", str(tmp_path))
+    assert not aot.is_current(CONVERT)
+    assert not aot.Kernels(CONVERT).aot  # absent
+    name = aot.ext_name(CONVERT)
+    (tmp_path / f"{name}.json").write_text(json.dumps({"source_sha256": "0" * 64, "kernels": {"edge_groups": []}}))
+    import sysconfig
+
+    (tmp_path / (name + sysconfig.get_config_var("EXT_SUFFIX"))).write_bytes(b"not an extension")
+    k = aot.Kernels(CONVERT)
+    assert not k.aot and not aot.is_current(CONVERT)
+    import numba.core.registry
+
+    assert isinstance(k.edge_groups, numba.core.registry.CPUDispatcher)
+    monkeypatch.setenv("MST_AOT", "0")  # and the switch
+    monkeypatch.delenv("MST_AOT_DIR")
+    assert not aot.Kernels(CONVERT).aot
+
+
+@built
+def test_commands_run_without_importing_numba(tmp_path):
+    from mst.meshtools import generate
+    from mst.meshtools.formats import save_triangles
+
+    V, F = generate.courtyard()[:2]
+    save_triangles(tmp_path / "m.obj", np.asarray(V, float), np.asarray(F))
+    np.savetxt(tmp_path / "c.xyz", np.random.default_rng(1).uniform(np.min(V, 0), np.max(V, 0), (3000, 3)))
+    code = ("import sys; from mst.cli.main import cli\n"
+            "for args in (['c2m', sys.argv[1], sys.argv[2], '-q', '--signed', '-o', sys.argv[3]],\n"
+            "             ['convert-model', sys.argv[2], '-o', sys.argv[4], '-q']):\n"
+            "    try:\n        cli(args)\n    except SystemExit as e:\n        assert not e.code, e.code\n"
+            "print('numba' in sys.modules)")
+    env = {k: v for k, v in os.environ.items() if k not in ("MST_AOT", "MST_AOT_DIR")}
+    r = subprocess.run([sys.executable, "-c", code, str(tmp_path / "c.xyz"), str(tmp_path / "m.obj"),
+                        str(tmp_path / "o.ply"), str(tmp_path / "m.wrl")], capture_output=True, text=True, env=env,
+                       timeout=300)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert r.stdout.strip().splitlines()[-1] == "False", "numba was imported"
+    assert (tmp_path / "o.ply").stat().st_size > 3000 * 16 and (tmp_path / "m.wrl").stat().st_size > 0
+
+
+@pytest.mark.slow
+def test_build_from_scratch_matches_the_jit(tmp_path, monkeypatch):
+    """The whole build (warm-up signatures -> extension) into an empty folder, then the results."""
+    import importlib
+
+    from mst.eval.c2m import warmup
+
+    monkeypatch.setenv("MST_AOT", "0")
+    warmup.warm_c2m()
+    spec = aot.build(C2M, tmp_path)
+    assert {"grid_query", "bins_query", "refine_cells", "missing_cells", "shift_points"} <= set(spec["kernels"])
+    monkeypatch.setenv("MST_AOT_DIR", str(tmp_path))
+    monkeypatch.delenv("MST_AOT")
+    import mst.eval.c2m.compiled as compiled
+
+    k = aot.Kernels(C2M)
+    assert k.aot and aot.is_current(C2M)
+    V, F, P = _c2m_cases()
+    monkeypatch.setattr(compiled, "kernels", k)
+    ahead = _c2m_all(V, F, P)
+    monkeypatch.setattr(compiled, "kernels", importlib.import_module(C2M))
+    _assert_same(ahead, _c2m_all(V, F, P))
