@@ -30,7 +30,9 @@ Frames: ``T_cam_model`` (model -> camera, camera x right, y down, z forward), me
    nearly all of them wrong poses: what a wrong pose reaches on this frame's texture (a blank frame:
    1 everywhere) --, no candidate's refinement is healthy and inside the search box, or a *distinct*
    refined candidate (its projected samples more than ``dt_max_px`` away on average) scores within
-   ``min_margin`` (+0.02) of the best (ambiguous, e.g. a repetitive facade). The tracker's inlier
+   ``min_margin`` (+0.02) of the best (ambiguous, e.g. a repetitive facade), or fewer than
+   ``min_agree`` refined candidates land on the best pose (a lone basin: generic scene lines such as
+   a room's corner matched by a pose with most of the model out of view). The tracker's inlier
    share does not separate right from wrong (sample house at its true pose: 50-55 %, the moving
    edges find no contrast along the wall's foot; wrong L-building poses: up to 90 %).
 """
@@ -75,6 +77,7 @@ class AutoInitConfig(Config):
     min_margin: float = param(0.15, min=0, help="second best must score >= best * (1 + min_margin) + 0.02")
     refine_edge_threshold: float = param(10.0, min=0, min_open=True,
                                          help="moving-edge contrast threshold of the tracker's refinement (at most the tracker's own)")
+    min_agree: int = param(2, min=1, help="refined candidates (of n_keep) that must land on the best pose")
     min_inlier_ratio: float = param(0.4, min=0, max=1,
                                     help="of the tracker's refinement (robust VVS inliers / samples)")
     seed: int = param(0, help="seed of the candidate sampling")
@@ -392,18 +395,21 @@ def _polish(sc_: _EdgeScorer, tr, gray, best: float, T_best: np.ndarray, n_max: 
     return best, T_best
 
 
-def _second_best(sc_: _EdgeScorer, cands: list, T_best: np.ndarray, dt_max_px: float) -> float | None:
-    """The score of the best distinct competitor: its projection differs from the best's by more
-    than ``dt_max_px`` on average (None: no such candidate)."""
+def _second_best(sc_: _EdgeScorer, cands: list, T_best: np.ndarray, dt_max_px: float) -> tuple[float | None, int]:
+    """``(score of the best distinct competitor -- its projection differs from the best's by more than
+    ``dt_max_px`` on average -- or None, how many candidates agree with the best, itself included)``."""
     K = sc_.K
     s_best = sc_.samples(T_best)
+    second, agree = None, 1
     for f, Tc, _ in cands[1:]:
         Xc = transform_points(Tc, s_best.X_model)
         ok = Xc[:, 2] > 1e-6
         uv = (Xc[ok] @ K.T)[:, :2] / Xc[ok, 2:3]  # K-matrix form, as visible_samples' uv (not Camera.project's op order)
         if not ok.any() or np.linalg.norm(uv - s_best.uv[ok], axis=1).mean() > dt_max_px:
-            return f
-    return None
+            second = f if second is None else second
+        else:
+            agree += 1
+    return second, agree
 
 
 def auto_init(gray: np.ndarray, model, camera, T_cam_model_guess: np.ndarray, cfg: AutoInitConfig | None = None,
@@ -457,11 +463,19 @@ def auto_init(gray: np.ndarray, model, camera, T_cam_model_guess: np.ndarray, cf
     best, T_best = _polish(sc_, tr, gray, best, T_best, n_max)
     if best > ratio * null:
         return _no_match(best, info)
-    second = _second_best(sc_, cands, T_best, cfg.dt_max_px)
+    second, agree = _second_best(sc_, cands, T_best, cfg.dt_max_px)
+    info["candidates_agreeing"] = agree
     if second is not None and second < best * (1.0 + cfg.min_margin) + 0.02:
         return AutoInitResult(False, None, best, second, guess_score, sc_.n_eval,
                               f"ambiguous: a distinct pose scores {second:.3f} against the best {best:.3f} "
                               f"(need {cfg.min_margin:.0%} better)", info, null)
+    if agree < cfg.min_agree:
+        # a lone basin: an isolated match of generic scene lines (a room's corner under a pose with most
+        # of the model out of view) is found from one start; the true pose from several (house orbit:
+        # 2-5 of 6, flyover and L-building: 6 of 6)
+        return AutoInitResult(False, None, best, second, guess_score, sc_.n_eval,
+                              f"only {agree} of the {len(cands)} refined candidates land on the best pose "
+                              f"(need {cfg.min_agree}): an isolated match", info, null)
     return AutoInitResult(True, T_best, best, second, guess_score, sc_.n_eval, "", info, null)
 
 

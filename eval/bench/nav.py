@@ -3,8 +3,9 @@ automatic-initialisation search (target <= 2 s).
 
 Inputs are generated here: a 600 s UAV orbit (18,000 frames) with vision poses = truth + white noise
 (0.3 m / 0.5 deg) and a 10 s loss, a 5 Hz GPS/AHRS log from :func:`mst.pipeline.nav.log.simulate_nav`;
-for the search, one rendered 640x480 view of an L-shaped building from 40 m and a 3 m / 3 deg guess.
-The fusion is timed as a whole command (files in, files out), the search in-process.
+for the search, one rendered 640x480 view of an L-shaped building from 40 m and one ``mst synth orbit``
+frame of the bundled sample house (12 m, textured floor), each with a 3 m / 3 deg guess.
+The fusion is timed as a whole command (files in, files out), the search in-process (median of 3).
 """
 
 from __future__ import annotations
@@ -52,7 +53,6 @@ def run(workdir: Path) -> list[dict]:
     from mst.core.camera import Camera
     from mst.core.poses import inv_T, look_at
     from mst.meshtools.generate import l_shape_model
-    from mst.pipeline.autoinit import auto_init
     from mst.pipeline.render import Renderer
 
     m = l_shape_model()
@@ -74,9 +74,40 @@ def run(workdir: Path) -> list[dict]:
     G = T_mc.copy()
     G[:3, 3] += [3.0, -3.0, 3.0]
     G[:3, :3] = so3_exp(np.radians([3.0, -3.0, 2.0])) @ G[:3, :3]
-    t0, c0 = time.perf_counter(), time.process_time()
-    res = auto_init(gray, m, cam, inv_T(G))
-    dt, dc = time.perf_counter() - t0, time.process_time() - c0
-    out.append({"bench": "init --from-nav search (640x480, 3 m / 3 deg guess)", "wall_s": dt, "cpu_s": dc, "converged": bool(res.ok),
-                "poses_scored": res.evaluated, "target": "<= 2 s", "ok": dt <= 2.0 and res.ok})
+    out.append(_search_row("init --from-nav search (L-building 640x480, 3 m / 3 deg guess)", gray, m, cam, G))
+    # the bundled sample house (orbit, 12 m, textured floor), a guess drawn with the nav noise
+    from mst.core.camera import read_camera
+    from mst.core.trajectory import read_pose_file
+    from mst.eval.bench.slam import SAMPLE_MODEL
+    from mst.meshtools.formats import load_tracking_model
+    from mst.pipeline.synth import SynthConfig, synthesize
+
+    hd = workdir / "house"
+    synthesize("orbit", SAMPLE_MODEL, hd, SynthConfig(frames=1, aa_samples=4, texture_size=512, depth=False), overwrite=True)
+    T_h = inv_T(read_pose_file(hd / "cMo" / "000000.txt"))
+    cam_h, m_h = read_camera(hd / "camera.json"), load_tracking_model(hd / "model.obj")
+    gray_h = cv2.cvtColor(cv2.imread(str(sorted((hd / "rgb").iterdir())[0])), cv2.COLOR_BGR2GRAY)
+    G = T_h.copy()
+    G[:3, 3] += [3.0, -3.0, 5.0]
+    G[:3, :3] = so3_exp(np.radians([3.0, -3.0, 2.0])) @ G[:3, :3]
+    out.append(_search_row("init --from-nav search (sample house orbit 640x480, 3/3/5 m / 3 deg guess)", gray_h, m_h,
+                           cam_h, G))
     return out
+
+
+def _search_row(name: str, gray, m, cam, G, repeats: int = 3) -> dict:
+    """The search timed ``repeats`` times in-process (after one warm-up run: numba's cache load):
+    median CPU and wall seconds; ok = converged and median CPU <= 2 s (CPU: the machine is shared)."""
+    from mst.core.poses import inv_T
+    from mst.pipeline.autoinit import auto_init
+
+    auto_init(gray, m, cam, inv_T(G))
+    cpu, wall = [], []
+    for _ in range(repeats):
+        t0, c0 = time.perf_counter(), time.process_time()
+        res = auto_init(gray, m, cam, inv_T(G))
+        wall.append(time.perf_counter() - t0)
+        cpu.append(time.process_time() - c0)
+    c, w = float(np.median(cpu)), float(np.median(wall))
+    return {"bench": name, "wall_s": w, "cpu_s": c, "converged": bool(res.ok), "poses_scored": res.evaluated,
+            "target": "<= 2 s", "ok": c <= 2.0 and res.ok}
