@@ -167,3 +167,21 @@ def test_refit_with_similar_evidence_stays_ambiguous():
 
     s, recs = _run(Scored(truth, {5: wrong}), 8)
     assert recs[5].status == "lost" and recs[5].reason.startswith(REASON_AMBIGUOUS)
+
+
+def test_after_an_uncertain_frame_output_resumes_within_half_the_budget():
+    # 1-sigma schedule (m, camera 100 m away: the budget is 2 sigma <= 1 m): frame 3 beyond it, frame 4
+    # back just under it (the least trustworthy: refused by the hysteresis), frame 5 within half of it
+    from mst.pipeline.tracking.budget import RETURN_FRACTION
+
+    sig = {3: 0.6, 4: 0.45}
+    assert 2 * 0.45 > RETURN_FRACTION * 1.0 and 2 * 0.2 <= RETURN_FRACTION * 1.0
+
+    class Sigmas(_Tracker):
+        def track(self, gray, T_init, recover=False, first=False):
+            return _fr(self.truth(self.k), sigma_m=sig.get(self.k, 0.2))
+
+    s, recs = _run(Sigmas(lambda k: _T(0.1 * k)), 7)
+    assert [r.status for r in recs] == ["model"] * 3 + ["lost", "lost"] + ["model"] * 2
+    assert recs[3].reason.startswith(REASON_UNCERTAIN) and "after a refusal" in recs[4].reason
+    assert s.policy.refusals.budget_frames == [3, 4]

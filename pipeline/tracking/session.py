@@ -20,6 +20,7 @@ import numpy as np
 
 from mst.core.poses import inv_T, matmul_exact
 from mst.pipeline.tracking.budget import (
+    RETURN_FRACTION,
     ModelDistance,
     PoseBudget,
     Refusals,
@@ -183,7 +184,8 @@ class TrackingPolicy:
         without a budget or a model distance): :func:`mst.pipeline.tracking.budget.beyond_budget`."""
         if self.budget is None or self.distance_m is None:
             return ""
-        return beyond_budget(self.budget, fr.cov, fr.T_cam_model, self.distance_m)
+        fraction = RETURN_FRACTION if self.refusals.after_uncertain else 1.0
+        return beyond_budget(self.budget, fr.cov, fr.T_cam_model, self.distance_m, fraction)
 
     def map_pose_refuted(self, ev) -> str:
         """Why the image refutes a map (``slam``) pose, from its evidence ``ev`` at that pose ('' when
