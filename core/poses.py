@@ -21,6 +21,19 @@ import numpy as np
 from mst import InputError
 
 
+def matmul_exact(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """``A @ B`` for small matrices (..., n, k) @ (..., k, m) (poses, rotations) without BLAS:
+    ``sum_j A[..., :, j] B[..., j, :]`` with ``j`` ascending, one elementwise multiply and add each,
+    so the same bits on every CPU (BLAS kernels round differently per CPU: with or without fused
+    multiply-adds, other summation orders). Use it where a pose feeds the tracker's decisions."""
+    A = np.asarray(A, dtype=np.float64)
+    B = np.asarray(B, dtype=np.float64)
+    out = A[..., :, 0:1] * B[..., 0:1, :]
+    for j in range(1, A.shape[-1]):
+        out = out + A[..., :, j:j + 1] * B[..., j:j + 1, :]
+    return out
+
+
 # ---------------------------------------------------------------------------- rotations
 def skew(w: np.ndarray) -> np.ndarray:
     """(..., 3) -> (..., 3, 3) cross-product matrices."""
@@ -41,7 +54,7 @@ def so3_exp(w: np.ndarray) -> np.ndarray:
     ths = np.where(small, 1.0, th)
     a = np.where(small, 1.0 - th**2 / 6.0, np.sin(ths) / ths)
     b = np.where(small, 0.5 - th**2 / 24.0, (1.0 - np.cos(ths)) / ths**2)
-    return np.eye(3) + a * K + b * (K @ K)
+    return np.eye(3) + a * K + b * matmul_exact(K, K)
 
 
 def so3_log(R: np.ndarray) -> np.ndarray:
@@ -131,7 +144,7 @@ def inv_T(T: np.ndarray) -> np.ndarray:
     T = np.asarray(T, dtype=np.float64)
     R = T[..., :3, :3]
     Rt = np.swapaxes(R, -1, -2)
-    return make_T(Rt, -(Rt @ T[..., :3, 3:4])[..., 0])
+    return make_T(Rt, -matmul_exact(Rt, T[..., :3, 3:4])[..., 0])
 
 
 def transform_points(T: np.ndarray, X: np.ndarray, *, elementwise: bool = False) -> np.ndarray:
@@ -160,8 +173,8 @@ def se3_exp(xi: np.ndarray) -> np.ndarray:
     ths = np.where(small, 1.0, th)
     b = np.where(small, 0.5 - th**2 / 24.0, (1.0 - np.cos(ths)) / ths**2)
     c = np.where(small, 1.0 / 6.0 - th**2 / 120.0, (ths - np.sin(ths)) / ths**3)
-    V = np.eye(3) + b * K + c * (K @ K)
-    return make_T(R, (V @ v[..., None])[..., 0])
+    V = np.eye(3) + b * K + c * matmul_exact(K, K)
+    return make_T(R, matmul_exact(V, v[..., None])[..., 0])
 
 
 def se3_log(T: np.ndarray) -> np.ndarray:
@@ -174,8 +187,8 @@ def se3_log(T: np.ndarray) -> np.ndarray:
     ths = np.where(small, 1.0, th)
     half = ths / 2.0
     coef = np.where(small, 1.0 / 12.0, (1.0 - half * np.cos(half) / np.sin(np.where(small, 1.0, half))) / ths**2)
-    Vinv = np.eye(3) - 0.5 * K + coef * (K @ K)
-    v = (Vinv @ T[..., :3, 3:4])[..., 0]
+    Vinv = np.eye(3) - 0.5 * K + coef * matmul_exact(K, K)
+    v = matmul_exact(Vinv, T[..., :3, 3:4])[..., 0]
     return np.concatenate([v, w], axis=-1)
 
 

@@ -15,8 +15,6 @@ from mst.eval.bench.slam import trajectory_errors
 def budget_track(seq, mode, out, budget: bool = True):
     """Track; per-frame status/errors (relative to the nearest model vertex, the budget's distance),
     the aid column and the predicted bound of each map pose."""
-    from mst.core.trajectory import read_tum
-    from mst.meshtools.formats import load_model
     from mst.pipeline.tracking import TrackConfig, run_track
 
     d = {"aid": mode}
@@ -25,6 +23,14 @@ def budget_track(seq, mode, out, budget: bool = True):
     s = run_track(seq / "rgb", seq / "model.obj", seq / "camera.json", seq / "cMo" / "000000.txt", out,
                   TrackConfig.from_dict(d), depth_dir=seq / "depth" if mode == "rgbd" else None, fps=30.0,
                   write_json=True)
+    return s, budget_errors(seq, out)
+
+
+def budget_errors(seq, out) -> dict:
+    """:func:`budget_track`'s per-frame errors of the run written to ``out`` (its .csv and .json)."""
+    from mst.core.trajectory import read_tum
+    from mst.meshtools.formats import load_model
+
     e = trajectory_errors(seq, out)
     _, Tg = read_tum(seq / "gt.txt")
     V = np.asarray(load_model(seq / "model.obj").vertices, float)
@@ -33,7 +39,7 @@ def budget_track(seq, mode, out, budget: bool = True):
     unc = json.loads(out.with_suffix(".json").read_text()).get("slam_uncertainty", {})
     e["pred"] = np.array([unc.get(str(f), [np.nan, np.nan]) for f in e["frame"]], float)
     e["aid"] = np.array([r["aid"] for r in csv.DictReader(open(out.with_suffix(".csv")))])
-    return s, e
+    return e
 
 
 def _centre(seq):

@@ -102,15 +102,11 @@ def test_cli_from_nav_converges_or_refuses_a_frame_without_the_model(view, tmp_p
     assert not (tmp_path / "pose1.txt").exists()
 
 
-@pytest.mark.slow
-@pytest.mark.parametrize("scenario, distance", [("orbit", None), ("flyover", 15.0)])
-def test_sample_house_is_refused_rather_than_wrong(tmp_path, scenario, distance):
-    """The issue asks for >= 95 % convergence on the bundled sample house too. NOT met: measured
-    2026-12-02, 0 of 20 (flyover, 640x480, 22 m) and 0 of 10 (orbit, 12 m) trials converge -- all
-    are refused, none wrong. At the TRUE pose the edge tracker keeps only 50-53 % of its samples as
-    inliers (the grey house on the mottled floor/terrain: Canny and the moving edges find texture
-    edges beside the model's; two roof faces shaded alike), below the 70 % the refusal asks for.
-    What must hold meanwhile: no wrong pose is ever accepted (within 0.5 % / 0.5 deg or refused)."""
+@pytest.fixture(scope="module", params=[("orbit", None), ("flyover", 15.0)], ids=["orbit", "flyover"])
+def house(request, tmp_path_factory):
+    """One 640x480 frame of the bundled sample house (``mst synth``): the orbit at 12 m (the house
+    fills ~40 % of the frame, on a mottled concrete floor before brick walls) and the flyover 15 m
+    above the roof (22 m away, ~130 px wide, on grass/gravel terrain)."""
     import cv2
 
     from mst.core.camera import read_camera
@@ -119,16 +115,59 @@ def test_sample_house_is_refused_rather_than_wrong(tmp_path, scenario, distance)
     from mst.meshtools.formats import load_tracking_model
     from mst.pipeline.synth import SynthConfig, synthesize
 
-    out = tmp_path / scenario
+    scenario, distance = request.param
+    out = tmp_path_factory.mktemp("house") / scenario
     synthesize(scenario, SAMPLE_MODEL, out, SynthConfig(frames=1, distance=distance, aa_samples=4, texture_size=512,
                                                         depth=False))
     T_mc = inv_T(read_pose_file(out / "cMo" / "000000.txt"))
     cam, m = read_camera(out / "camera.json"), load_tracking_model(out / "model.obj")
-    gray = cv2.cvtColor(cv2.imread(str(sorted((out / "rgb").iterdir())[0])), cv2.COLOR_BGR2GRAY)
-    rng = np.random.default_rng(1)
-    dist = np.linalg.norm(T_mc[:3, 3] - m.vertices.mean(0))
-    for i in range(10):
-        r = auto_init(gray, m, cam, inv_T(_guess(T_mc, rng)), AutoInitConfig(seed=i))
-        if r.ok:
-            dt, dr = pose_error(inv_T(r.T_cam_model), T_mc)
-            assert dt <= 0.005 * dist and dr <= 0.5, (i, dt, dr)
+    img = cv2.imread(str(sorted((out / "rgb").iterdir())[0]))
+    return m, cam, T_mc, img, cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
+
+
+@pytest.mark.slow
+def test_sample_house_converges_in_95_of_100_trials(house):
+    """The issue's bound on the bundled sample house. Budget as above: converged = within 0.5 % of
+    the distance (6 cm at 12 m, 11 cm at 22 m) and 0.5 deg; the edge tracker from the TRUE pose
+    reaches 0.07 % (orbit) and 0.40 % / 0.24 deg (flyover: the house is 130 px wide, its walls' foot
+    has little contrast against the terrain) -- the flyover's margin is the tracker's own accuracy.
+    Measured 2026-12-02 (30 seeds each): orbit 30/30, flyover 30/30, none wrong; before (every Canny
+    edge, 6-D random search, 70 % inlier refusal) 0 of 30, all refused."""
+    m, cam, T_mc, _, gray = house
+    good, wrong = _trials((m, cam, T_mc, None, gray), 100, seed=1)
+    assert good >= 95 and wrong == 0, (good, wrong)
+
+
+def _without_the_model(m, cam, T_mc, img):
+    """The frame with the model's image replaced by the ground beside it (the frame's own texture,
+    shifted sideways by the model's width): a frame of the same scene that does not show the model."""
+    import cv2
+
+    T = inv_T(T_mc)
+    Xc = m.vertices @ T[:3, :3].T + T[:3, 3]
+    uv = (Xc @ cam.K.T)[:, :2] / Xc[:, 2:3]
+    mask = np.zeros(img.shape[:2], np.uint8)
+    for f in m.faces:
+        cv2.fillPoly(mask, [np.rint(uv[np.asarray(f)]).astype(np.int32)], 255)
+    mask = cv2.dilate(mask, np.ones((7, 7), np.uint8)) > 0
+    xs = np.flatnonzero(mask.any(0))
+    w = int(xs.max() - xs.min() + 10)
+    src = np.roll(img, w if xs.max() + w < img.shape[1] else -w, axis=1)
+    out = img.copy()
+    out[mask] = src[mask]
+    return out
+
+
+@pytest.mark.slow
+def test_sample_house_refuses_the_frame_without_the_house(house):
+    """A frame that does not show the model (the house replaced by its textured ground) is refused
+    from the true pose itself and from noisy guesses: no pose written (``T_cam_model`` None)."""
+    import cv2
+
+    m, cam, T_mc, img, _ = house
+    gray = cv2.cvtColor(_without_the_model(m, cam, T_mc, img), cv2.COLOR_BGR2GRAY)
+    rng = np.random.default_rng(5)
+    for i in range(4):
+        G = T_mc if i == 0 else _guess(T_mc, rng)
+        r = auto_init(gray, m, cam, inv_T(G), AutoInitConfig(seed=i))
+        assert not r.ok and r.T_cam_model is None, (i, r.score, r.null_score, r.reason)

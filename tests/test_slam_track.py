@@ -9,8 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from drift_helpers import budget_track as _track_budget
-from drift_helpers import calibrated_share
+from drift_helpers import budget_errors, budget_track, calibrated_share
 
 from mst.eval.bench.slam import SAMPLE_MODEL, out_of_view, recovery_frames, trajectory_errors
 
@@ -23,12 +22,43 @@ def _synth(tmp_path_factory, name, scenario, **kw):
     return out
 
 
-def _track(seq, mode, out):
+#: (sequence folder, mode) -> (summary, trajectory file) of the default-settings runs: several tests
+#: check different properties of one run (the corridor in rgbd and mono, the x10 orbit in rgbd), so
+#: each run is made once per module (suite time) and its files are read by each test
+_RUNS: dict = {}
+
+
+def _run(seq, mode, out_dir):
+    """``mst track`` of ``seq`` in ``mode`` with the default settings (``--json`` written too)."""
     from mst.pipeline.tracking import TrackConfig, run_track
 
-    s = run_track(seq / "rgb", seq / "model.obj", seq / "camera.json", seq / "cMo" / "000000.txt", out,
-                  TrackConfig(aid=mode), depth_dir=seq / "depth" if mode == "rgbd" else None, fps=30.0)
+    key = (str(seq), mode)
+    if key not in _RUNS:
+        out = out_dir / f"{seq.name}-{mode}.txt"
+        s = run_track(seq / "rgb", seq / "model.obj", seq / "camera.json", seq / "cMo" / "000000.txt", out,
+                      TrackConfig(aid=mode), depth_dir=seq / "depth" if mode == "rgbd" else None, fps=30.0,
+                      write_json=True)
+        _RUNS[key] = (s, out)
+    return _RUNS[key]
+
+
+@pytest.fixture(scope="module")
+def runs_dir(tmp_path_factory):
+    yield tmp_path_factory.mktemp("slam_track_runs")
+    _RUNS.clear()
+
+
+def _track(seq, mode, out_dir):
+    s, out = _run(seq, mode, out_dir)
     return s, trajectory_errors(seq, out)
+
+
+def _track_budget(seq, mode, out_dir, budget: bool = True):
+    """:func:`drift_helpers.budget_track`; the budget-on run is the shared default-settings run."""
+    if not budget:
+        return budget_track(seq, mode, out_dir / f"{seq.name}-{mode}-nobudget.txt", budget=False)
+    s, out = _run(seq, mode, out_dir)
+    return s, budget_errors(seq, out)
 
 
 @pytest.fixture(scope="module")
@@ -45,11 +75,11 @@ def fast(tmp_path_factory):
     return {d: _synth(tmp_path_factory, f"fast{d}", "fast", base="orbit", drop=d, frames=30) for d in (8, 10)}
 
 
-def test_corridor_rgbd_carries_the_pose_while_the_model_is_away(corridor, tmp_path):
+def test_corridor_rgbd_carries_the_pose_while_the_model_is_away(corridor, runs_dir):
     hidden = out_of_view(corridor)
     assert hidden.sum() >= 30
-    summ, e = _track(corridor, "rgbd", tmp_path / "rgbd.txt")
-    _, e_off = _track(corridor, "off", tmp_path / "off.txt")
+    summ, e = _track(corridor, "rgbd", runs_dir)
+    _, e_off = _track(corridor, "off", runs_dir)
     st = e["status"]
     assert summ["aid"] == "rgbd"
     # while the model is away the map runs, but its poses are output only within the drift budget
@@ -77,7 +107,7 @@ def test_corridor_rgbd_carries_the_pose_while_the_model_is_away(corridor, tmp_pa
 
 
 @pytest.mark.parametrize("mode", ["mono", "auto"])
-def test_corridor_mono_rejects_wrong_edge_poses_on_the_return(corridor, tmp_path, mode):
+def test_corridor_mono_rejects_wrong_edge_poses_on_the_return(corridor, runs_dir, mode):
     """Mono on the same corridor: the model comes back into a drifted SLAM prediction.
 
     Starting from it, the edge tracker converges onto floor/wall-texture edges for several frames
@@ -89,7 +119,7 @@ def test_corridor_mono_rejects_wrong_edge_poses_on_the_return(corridor, tmp_path
     import csv
 
     hidden = out_of_view(corridor)
-    summ, e = _track(corridor, mode, tmp_path / "mono.txt")
+    summ, e = _track(corridor, mode, runs_dir)
     st = e["status"]
     assert summ["aid"] == {"mono": "mono", "auto": "mono-standby"}[mode]
     if mode == "auto":  # the default: the mono aid woke before the model left the view
@@ -97,7 +127,7 @@ def test_corridor_mono_rejects_wrong_edge_poses_on_the_return(corridor, tmp_path
     # while the model is away the map runs, but its poses (the scale drifting to ~50 % of the
     # distance here) are far beyond the drift budget: withheld, `lost` with aid `drift-budget`
     # (test_slam_drift.py: the bound covers the measured error)
-    rows = list(csv.DictReader(open(tmp_path / "mono.csv")))
+    rows = list(csv.DictReader(open(_run(corridor, mode, runs_dir)[1].with_suffix(".csv"))))
     aid = np.array([r["aid"] for r in rows])
     assert not (st[hidden] == "model").any() and (aid[hidden] == "drift-budget").mean() > 0.9
     assert np.isin(np.flatnonzero(aid == "drift-budget"), summ["drift_budget_frames"]).all()
@@ -112,23 +142,23 @@ def test_corridor_mono_rejects_wrong_edge_poses_on_the_return(corridor, tmp_path
 
 # ---------------------------------------------------------------------------- drift budget (320x240)
 @pytest.mark.parametrize("mode", ["rgbd", "mono"])
-def test_corridor_predicted_bound_covers_the_measured_error(corridor, tmp_path, mode):
+def test_corridor_predicted_bound_covers_the_measured_error(corridor, runs_dir, mode):
     """With the budget lifted every map pose is output with its predicted bound: the bound (2 sigma)
     must cover the measured error on >= 95 % of them (a 2-sigma bound of an honest Gaussian error
     covers 95 %), the rgbd aid's map (0.1-0.6 % off) and the mono map whose scale drifts to ~50 %
     of the distance alike."""
-    _, e = _track_budget(corridor, mode, tmp_path / "t.txt", budget=False)
+    _, e = _track_budget(corridor, mode, runs_dir, budget=False)
     assert calibrated_share(e) >= 0.95
 
 
 @pytest.mark.parametrize("mode", ["rgbd", "mono"])
-def test_corridor_no_map_pose_beyond_the_budget(corridor, tmp_path, mode):
+def test_corridor_no_map_pose_beyond_the_budget(corridor, runs_dir, mode):
     """Budget on (the default): no output pose off by more than 1 % of the distance or 2 deg; the map
     poses withheld are marked ``drift-budget``, counted in --json, and the model frames before the
     stretch are unchanged. At 320x240 the edge poses themselves are uncertain to ~0.3-0.5 % (1 sigma,
     their covariance, which matches their measured error), so a 2-sigma bound of a map anchored on
     them is ~1 % already: the stretch is mostly withheld here (640x480: the slow test below)."""
-    s, e = _track_budget(corridor, mode, tmp_path / "t.txt")
+    s, e = _track_budget(corridor, mode, runs_dir)
     hidden = out_of_view(corridor)
     out = e["status"] != "lost"
     assert np.all(e["rel"][out] <= 0.01) and np.all(e["deg"][out] <= 2.0)
@@ -140,18 +170,18 @@ def test_corridor_no_map_pose_beyond_the_budget(corridor, tmp_path, mode):
 
 @pytest.mark.parametrize("drop", [8, 10])
 @pytest.mark.parametrize("mode", ["rgbd", "mono", "auto"])
-def test_fast_orbit_every_frame_tracked(fast, tmp_path, drop, mode):
+def test_fast_orbit_every_frame_tracked(fast, runs_dir, drop, mode):
     seq = fast[drop]
-    summ, e = _track(seq, mode, tmp_path / f"{mode}.txt")
+    summ, e = _track(seq, mode, runs_dir)
     assert summ["lost"] == 0 and summ["tracked"] == summ["frames"] == 30
     assert np.nanmean(e["rel"]) <= 0.01
     assert np.nanmax(e["rel"]) <= 0.02
 
 
-def test_fast_orbit_edge_only_is_worse(fast, tmp_path):
+def test_fast_orbit_edge_only_is_worse(fast, runs_dir):
     """Reference: the edge tracker alone on the x10 sequence (reported, and worse than with SLAM)."""
-    _, e_off = _track(fast[10], "off", tmp_path / "off.txt")
-    _, e_slam = _track(fast[10], "rgbd", tmp_path / "rgbd.txt")
+    _, e_off = _track(fast[10], "off", runs_dir)
+    _, e_slam = _track(fast[10], "rgbd", runs_dir)
     bad_off = (e_off["status"] == "lost").sum() + np.nansum(e_off["rel"] > 0.01)
     bad_slam = (e_slam["status"] == "lost").sum() + np.nansum(e_slam["rel"] > 0.01)
     assert bad_slam < bad_off

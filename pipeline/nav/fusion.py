@@ -51,7 +51,7 @@ from mst.core.config import Config, param
 from mst.core.poses import so3_exp, so3_log, transform_points
 from mst.pipeline.nav.kernels import mekf_attitude as _mekf
 from mst.pipeline.nav.log import NavLog, mount_ypr_deg_from_R
-from mst.pipeline.nav.models import _best_noise_scale, _ca_model, _cv_model, _run_kf
+from mst.pipeline.nav.models import _best_noise_scale, _best_noise_scale_blocks, _ca_model, _cv_model, _run_kf
 
 
 @dataclass
@@ -88,6 +88,10 @@ class FusionConfig(Config):
                                                    "around time_offset_s)")
     max_time_offset_s: float = param(1.0, min=0, min_open=True, max=30,
                                      help="the search spans time_offset_s +- this, s")
+    vision_reference: bool = param(True, help="smoother: estimate the position as the vision-only track (its own "
+                                              "motion noise chosen by the vision's innovation likelihood) plus a "
+                                              "smooth correction from the GPS, instead of smoothing the positions "
+                                              "themselves (keeps a walking camera's bob that white jerk flattens)")
     adapt_motion_noise: bool = param(False, help="scale the motion models' white noise (jerk_sigma_mps3 / "
                                                 "accel_sigma_mps2, ang_accel_sigma_dps2: x 1/16 .. x 65536 in steps "
                                                 "of 4) to the one of highest innovation likelihood of the data")
@@ -309,6 +313,11 @@ def _fuse_attitude(al: _Aligned, T_vis, cov_vis, R_wm, R_bc, cfg: FusionConfig):
             F6, Q6 = _cv_model(dts, sig_alpha**2)
             if smooth:
                 R_ref = smooth_rotations_gn(t_grid, R0, t_meas_r, R_meas, C_r, sig_alpha, cfg.huber_k)
+    if smooth and cfg.vision_reference:
+        # as for the position: the reference is the vision's own attitude track (the bob's pitch
+        # kept), the correction about it smooth
+        R_ref = _vision_reference_R(al, T_vis, cov_vis, R_ref if (cfg.adapt_motion_noise or smooth) else R0,
+                                    sig_alpha, cfg.huber_k)
     if smooth:
         # about the smooth batch solution the linear KF + RTS is exact to first order in its (small)
         # correction; it gives the covariances
@@ -326,6 +335,33 @@ def _fuse_attitude(al: _Aligned, T_vis, cov_vis, R_wm, R_bc, cfg: FusionConfig):
         wr = np.empty_like(w_o)
         wr[order] = w_o
     return R_ref, Pr, wr, scale
+
+
+def _vision_reference_R(al: _Aligned, T_vis, cov_vis, R_smooth, sig_alpha: float, huber_k: float) -> np.ndarray:
+    """Vision-only camera rotations on the frame grid (K, 3, 3): the batch smoother of the vision
+    rotations alone at the angular-acceleration scale of highest innovation likelihood of the vision
+    (linearised about ``R_smooth``, the smooth fused solution); frames without vision: ``R_smooth``
+    turned by the difference at the gap's edges, interpolated linearly."""
+    vidx, dts = al.vidx, al.dts
+    R_v, C_v = T_vis[:, :3, :3], cov_vis[:, 3:, 3:]
+    z = so3_log(R_v @ np.swapaxes(R_smooth[vidx], -1, -2))
+    H = np.zeros((len(vidx), 3, 6))
+    H[:, :, :3] = np.eye(3)
+    P0 = np.diag([np.radians(10.0) ** 2] * 6)
+    scale = _best_noise_scale_blocks(lambda d, sc: _cv_model(d, sc * sig_alpha**2), dts, lambda zb: np.zeros(6), P0,
+                                     vidx, z, H, C_v)
+    if scale == 1.0:
+        return R_smooth
+    R0 = R_smooth.copy()
+    R0[vidx] = R_v
+    R_a = smooth_rotations_gn(al.t_grid, R0, al.t_grid[vidx], R_v, C_v, sig_alpha * np.sqrt(scale), huber_k)
+    d = so3_log(R_a[vidx] @ np.swapaxes(R_smooth[vidx], -1, -2))
+    g = np.arange(al.K)
+    d_all = np.stack([np.interp(g, vidx, d[:, i]) for i in range(3)], 1)
+    out = R_a.copy()
+    gap = ~al.has_vis
+    out[gap] = so3_exp(d_all[gap]) @ R_smooth[gap]
+    return out
 
 
 def _fuse_position(al: _Aligned, T_vis, cov_vis, R_fused, R_wm, t_wm, R_bc, cfg: FusionConfig):
@@ -363,8 +399,60 @@ def _fuse_position(al: _Aligned, T_vis, cov_vis, R_fused, R_wm, t_wm, R_bc, cfg:
         scale = _best_noise_scale(lambda s: _ca_model(dts, s * q, q_b) if ca else _cv_model(dts, s * q, 1, q_b),
                                   x0, P0, steps_p, z_p, H_p, C_p)
         F, Q = _ca_model(dts, scale * q, q_b) if ca else _cv_model(dts, scale * q, 1, q_b)
+    p_ref = None
+    if smooth and cfg.vision_reference:
+        # the state becomes the correction p - p_ref (smooth: the motion model's white jerk suits it);
+        # p_ref carries the motion the vision sees, a walking camera's 1.8 Hz bob included
+        p_ref = _vision_reference(al, T_vis, cov_vis, cfg)
+        t_m = np.concatenate([al.t_grid[vidx], al.t_grid[k_a[gi]] + dtau_a[gi]])
+        z_p = z_p - np.stack([np.interp(t_m, al.t_grid, p_ref[:, i]) for i in range(3)], 1)
+        x0[:3] = 0.0
     xp_, Pp_, wp = _run_kf(F, Q, x0, P0, steps_p, z_p, H_p, C_p, cfg.huber_k, smooth, smooth)
+    if p_ref is not None:
+        xp_[:, :3] += p_ref
     return xp_, Pp_, wp, gi, scale
+
+
+def _vision_reference(al: _Aligned, T_vis, cov_vis, cfg: FusionConfig) -> np.ndarray:
+    """Vision-only camera positions on the frame grid (K, 3), m: the vision frames smoothed (RTS) with
+    the position motion model at the noise scale (:data:`~mst.pipeline.nav.models.MOTION_NOISE_SCALES`)
+    of highest innovation likelihood of the vision alone -- small for white vision noise on a smooth
+    flight (the noise is smoothed away), large for a bobbing camera tracked to a few cm (the bob is
+    kept) --; frames without vision bridged by the configured model's vision-only smoother."""
+    dts, vidx = al.dts, al.vidx
+    ca = cfg.motion_model == "ca"
+    q = cfg.jerk_sigma_mps3**2 if ca else cfg.accel_sigma_mps2**2
+
+    def model(d, sc):  # the position states only (no GPS bias)
+        F, Q = _ca_model(d, sc * q, 0.0) if ca else _cv_model(d, sc * q)
+        return np.ascontiguousarray(F[:, :n, :n]), np.ascontiguousarray(Q[:, :n, :n])
+
+    n = 9 if ca else 6
+    H = np.zeros((len(vidx), 3, n))
+    H[:, :, :3] = np.eye(3)
+    z = T_vis[:, :3, 3]
+    C = cov_vis[:, :3, :3]
+
+    def x0_of(zb):
+        x0 = np.zeros(n)
+        x0[:3] = zb[0]
+        return x0
+
+    P0 = np.diag([100.0**2] * 3 + [30.0**2] * 3 + ([10.0**2] * 3 if ca else []))
+    scale = _best_noise_scale_blocks(model, dts, x0_of, P0, vidx, z, H, C)
+    x0 = x0_of(z)
+    x, _, _ = _run_kf(*model(dts, scale), x0, P0, vidx, z, H, C, cfg.huber_k, True, True)
+    p = x[:, :3].copy()
+    if len(vidx) < al.K and scale != 1.0:
+        # across a gap the bridge of the configured (smooth) model, not of one that follows a bob --
+        # whose edge accelerations would be carried across seconds --, shifted to meet the vision
+        # track at both edges (the difference to it interpolated linearly)
+        x1, _, _ = _run_kf(*model(dts, 1.0), x0, P0, vidx, z, H, C, cfg.huber_k, True, True)
+        g = np.arange(al.K)
+        d = np.stack([np.interp(g, vidx, p[vidx, i] - x1[vidx, i]) for i in range(3)], 1)
+        gap = ~al.has_vis
+        p[gap] = x1[gap, :3] + d[gap]
+    return p
 
 
 def _shifted(nav: NavLog, delta: float, keep: np.ndarray | None = None) -> NavLog:

@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from mst.core.poses import inv_T, transform_points
 from mst.errors import SolveStatus
 from mst.pipeline.tracking.config import TrackConfig, lod_thresholds, scene_near_m
 from mst.pipeline.tracking.health import ORIENT_TOL_DEG, PoseEvidence, image_noise_sigma
@@ -149,7 +150,7 @@ class EdgeTracker:
         normal, midx = canonical_normals(S.normal, c.n_masks)
         ref = None
         if ref_img is not None:
-            Xc = S.X_model @ ref_T[:3, :3].T + ref_T[:3, 3]
+            Xc = transform_points(ref_T, S.X_model, elementwise=True)
             z = np.maximum(Xc[:, 2], 1e-9)
             uvp = np.stack([K[0, 0] * Xc[:, 0] / z + K[0, 2], K[1, 1] * Xc[:, 1] / z + K[1, 2]], 1)
             ref = reference_contrast(ref_img, uvp, normal, midx, c.mask_px, c.n_masks)
@@ -231,7 +232,7 @@ class EdgeTracker:
         pts, iz = pts[ok], iz[ok]
         xn = (pts - self.K[:2, 2]) / np.array([self.K[0, 0], self.K[1, 1]])
         Xc = np.column_stack([xn, np.ones(len(xn))]) / iz[:, None]
-        X_model = (Xc - T[:3, 3]) @ T[:3, :3]
+        X_model = transform_points(inv_T(T), Xc, elementwise=True)
         return pts, X_model
 
     def _klt_track(self, gray):
@@ -297,7 +298,7 @@ class EdgeTracker:
             return np.zeros(0, np.int64), np.zeros(0)
         H, W = gray.shape
         idx = np.flatnonzero(face_visible[self.surf_face])
-        Xc = self.surf_X[idx] @ T[:3, :3].T + T[:3, 3]
+        Xc = transform_points(T, self.surf_X[idx], elementwise=True)
         ok = Xc[:, 2] > self.near(T)
         idx, Xc = idx[ok], Xc[ok]
         uv = Xc[:, :2] / Xc[:, 2:3] * [self.K[0, 0], self.K[1, 1]] + self.K[:2, 2]

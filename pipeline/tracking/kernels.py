@@ -14,13 +14,19 @@
   Jacobian), with the normal equations, the KLT points, the damped step with undo and the stopping
   test; every sum in a fixed order (no BLAS, no FMA), so the pose is the numpy formulation's within
   rounding and the same on every CPU.
-* :func:`sobel_at`: the Sobel gradient at sample positions (the health tests).
+* :func:`sobel_at`: the Sobel gradient at sample positions; :func:`pose_health` and
+  :func:`pose_gradients`: the health tests and the evidence gradients of a solved pose.
+* :func:`edge_samples`, :func:`face_angles`, :func:`zbuffer_faces`: the visibility
+  pass (clipping and sampling of the candidate edges, the face angle test, the depth buffer's
+  per-vertex set-up), the numpy formulations' values to the bit (face angles: to an ulp).
 
 No fastmath (reproducible bit for bit on every CPU), single-threaded (the tracker's one-core budget).
 Units: pixels, metres; ``R``, ``t`` the rotation and translation of ``T_cam_model``.
 
-Longer than 500 lines: the search, VVS and Sobel kernels share private jitted helpers and one
-warm-up list; it grew with the whole-frame VVS kernel (#14) and may be split along those lines.
+Longer than 500 lines: one module for every per-frame kernel of the tracker (moving edges, VVS,
+health, visibility), which share private jitted helpers (``_rigid``, ``_sobel1``, ``_median``) and
+one warm-up and cache-statistics list (:mod:`mst.eval.c2m.warmup`); it may be split along those
+lines (search / pose / visibility) when the warm-up lists modules instead.
 """
 
 from __future__ import annotations
@@ -192,7 +198,7 @@ def me_select(conv, k_eff, ks, R, ref, has_ref, threshold, mu1, mu2, edge, vote,
     return off, lk, cbest
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")  # called from vvs_solve only
 def vvs_residuals(Xc, P, nE, e, cu, cv, fx, fy, cx, cy, r_all, nx, ny, x, y, iz):
     """Residuals ``r_all (N, C)`` px of every candidate against its sample's projected model line,
     from the samples ``Xc (N, 3)`` and the edge end points ``P (2 nE, 3)`` (A then B) in the camera
@@ -234,7 +240,7 @@ def _median(a):
     return s[h]
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")  # called from vvs_solve only
 def vvs_linearise(r_all, ch, r, w, w_tukey, min_scale, tukey_c, e, nE, spread, spread_k, nx, ny, x, y, iz, fx, fy,
                   J, wJ):
     """One VVS linearisation at the residuals ``r_all`` of :func:`vvs_residuals` (all outputs in
@@ -330,7 +336,7 @@ def _rigid(P, T, out):
             out[i, j] = (p0 * T[j, 0] + p1 * T[j, 1]) + p2 * T[j, 2] + T[j, 3]
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")  # called from vvs_solve only
 def _solve6(A, b, x):
     """``x = A^-1 b`` for a 6x6 system by Gaussian elimination with partial pivoting (a fixed order
     of operations, as ``dgesv``'s LU). Returns False when a pivot is exactly zero (singular)."""
@@ -363,7 +369,7 @@ def _solve6(A, b, x):
     return True
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")  # called from vvs_solve only
 def _se3_exp_left(xi, T, out):
     """``out = exp(xi) @ T`` (the exact SE(3) exponential of :func:`mst.pipeline.tracking.vvs.se3_exp`)."""
     v0, v1, v2, w0, w1, w2 = xi[0], xi[1], xi[2], xi[3], xi[4], xi[5]
@@ -392,7 +398,7 @@ def _se3_exp_left(xi, T, out):
     out[3, 0], out[3, 1], out[3, 2], out[3, 3] = 0.0, 0.0, 0.0, 1.0
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")  # called from vvs_solve only
 def _tukey_into(r, min_scale, tukey_c, w):
     """Tukey weights of ``r`` on its MAD scale floored at ``min_scale`` into ``w``; returns sigma."""
     n = r.shape[0]
@@ -753,19 +759,6 @@ def edge_samples(Xv, E, small_face, near, far, K, R, t, x0, y0, x1, y1, step, us
     return counts, z_min, keep[:k].copy(), pa[:k].copy(), pb[:k].copy(), A_model, B_model, uv, nrm, iz, Xc, edge_id
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
-def to_model(Xc, R, t):
-    """``_mat3(Xc - t, R.T)``: camera-frame points (N, 3) back to the model frame, in that order."""
-    n = Xc.shape[0]
-    out = np.empty((n, 3))
-    for i in range(n):
-        c0, c1, c2 = Xc[i, 0] - t[0], Xc[i, 1] - t[1], Xc[i, 2] - t[2]
-        out[i, 0] = c0 * R[0, 0] + c1 * R[1, 0] + c2 * R[2, 0]
-        out[i, 1] = c0 * R[0, 1] + c1 * R[1, 1] + c2 * R[2, 1]
-        out[i, 2] = c0 * R[0, 2] + c1 * R[1, 2] + c2 * R[2, 2]
-    return out
-
-
 # ---------------------------------------------------------------------------- depth buffer set-up
 @njit(cache=True, nogil=True, error_model="numpy")
 def zbuffer_faces(V, R, t, Ks, near, sel, d, loop_vid, loop_start, loop_end, ring_vid, face_vstart, uu, vv):
@@ -927,3 +920,28 @@ def pose_gradients(img, X, A, B, edge, T, fx, fy, cx, cy, strong_min, cos_tol):
             gn = np.sqrt(bgx * bgx + bgy * bgy)
             good[i] = best >= cos_tol * np.float64(gn)
     return uv, n, sign, good
+
+
+# ---------------------------------------------------------------------------- face visibility
+@njit(cache=True, nogil=True, error_model="numpy")
+def face_angles(V, N, loop_vid, loop_start, loop_end, sel, c_model):
+    """The smallest angle (deg) between each face's outward normal ``N[f]`` and the rays from its
+    outer-loop vertices to the camera centre ``c_model`` (model frame), for the faces ``sel`` (K,):
+    the test of :func:`mst.pipeline.tracking.visibility.face_visibility` (rays normalised, cosines
+    summed in a fixed order; numpy's einsum and arccos differ from it by an ulp, which moves a face
+    across an appear/disappear angle only when it lies within ~1e-13 deg of it)."""
+    k = sel.shape[0]
+    ang = np.empty(k)
+    for j in range(k):
+        f = sel[j]
+        n0, n1, n2 = N[f, 0], N[f, 1], N[f, 2]
+        best = -np.inf
+        for q in range(loop_start[f], loop_end[f]):
+            vi = loop_vid[q]
+            r0, r1, r2 = c_model[0] - V[vi, 0], c_model[1] - V[vi, 1], c_model[2] - V[vi, 2]
+            ln = max(np.sqrt(r0 * r0 + r1 * r1 + r2 * r2), 1e-12)
+            cs = (r0 / ln) * n0 + (r1 / ln) * n1 + (r2 / ln) * n2
+            if cs > best or cs != cs:
+                best = cs
+        ang[j] = np.degrees(np.arccos(min(max(best, -1.0), 1.0)))
+    return ang

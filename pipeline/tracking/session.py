@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mst.core.poses import inv_T
+from mst.core.poses import inv_T, matmul_exact
 from mst.pipeline.tracking.budget import (
     ModelDistance,
     PoseBudget,
@@ -131,7 +131,7 @@ class TrackingPolicy:
         """The pose a frame starts from: the aid's prediction ``T_pred``, else constant velocity (when
         on), else a hint, else the last pose. ``shift_px(T)``: the image motion (px) from ``T_prev`` to T."""
         if T_pred is None and self.constant_velocity and self.T_prev2 is not None and self.lost_streak == 0:
-            T_pred = (self.T_prev @ inv_T(self.T_prev2)) @ self.T_prev  # constant velocity (camera-frame motion)
+            T_pred = matmul_exact(matmul_exact(self.T_prev, inv_T(self.T_prev2)), self.T_prev)  # constant velocity (camera-frame motion)
         T_start = T_pred if T_pred is not None else (self.T_hint if self.T_hint is not None else self.T_prev)
         self.T_hint = None
         if (aided and T_pred is not None and self.prev_status == "model" and self.lost_streak == 0

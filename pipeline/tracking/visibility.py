@@ -201,7 +201,32 @@ class Samples:
 def face_visibility(geom: ModelGeometry, T_cam_model: np.ndarray, prev: np.ndarray | None,
                     appear_deg: float, disappear_deg: float, among: np.ndarray | None = None) -> np.ndarray:
     """(F,) bool: faces seen from the front at less than the appear/disappear angle (hysteresis).
-    ``among`` (F,) bool: test only these faces (e.g. those in the view frustum); the others are False."""
+    ``among`` (F,) bool: test only these faces (e.g. those in the view frustum); the others are False.
+    The angles come from one numba kernel (:func:`mst.pipeline.tracking.kernels.face_angles`)."""
+    from mst.pipeline.tracking.kernels import face_angles
+
+    R, t = T_cam_model[:3, :3], T_cam_model[:3, 3]
+    c_model = -R.T @ t  # camera centre in the model frame
+    F = len(geom.faces)
+    sel = np.arange(F) if among is None else np.flatnonzero(among)
+    vis = np.zeros(F, bool)
+    if not len(sel):
+        return vis
+    loop_end = geom.__dict__.get("_loop_end")
+    if loop_end is None:
+        loop_end = geom.__dict__["_loop_end"] = np.append(geom.loop_start[1:], len(geom.loop_vid)).astype(np.int64)
+    ang = face_angles(geom.vertices, geom.face_normals, geom.loop_vid, geom.loop_start, loop_end, sel,
+                      np.ascontiguousarray(c_model, np.float64))
+    v = ang < appear_deg
+    if prev is not None and len(prev) == F:
+        v |= prev[sel] & (ang < disappear_deg)
+    vis[sel] = v
+    return vis
+
+
+def face_visibility_numpy(geom: ModelGeometry, T_cam_model: np.ndarray, prev: np.ndarray | None,
+                          appear_deg: float, disappear_deg: float, among: np.ndarray | None = None) -> np.ndarray:
+    """The numpy formulation of :func:`face_visibility` (the reference of its kernel's test)."""
     R, t = T_cam_model[:3, :3], T_cam_model[:3, 3]
     c_model = -R.T @ t  # camera centre in the model frame
     F = len(geom.faces)

@@ -160,7 +160,9 @@ def _vvs_result(T, H, w, r, w_tukey, wk, nk: int, klt_weight: float, has, n_samp
     rms = float(np.sqrt(ssr / max(sw, 1e-9)))
     status = SolveStatus.OK
     try:
-        cov = rms**2 * np.linalg.inv(H)
+        from mst.pipeline.tracking.exact import inverse
+
+        cov = rms**2 * inverse(H)  # not LAPACK's inverse, which rounds per CPU (the cov is an output)
     except np.linalg.LinAlgError:
         cov = np.full((6, 6), np.inf)
         status = SolveStatus.DEGENERATE
