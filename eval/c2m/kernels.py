@@ -95,6 +95,21 @@ def _box_d2(px, py, pz, k, T):
     return ex * ex + ey * ey + ez * ez
 
 
+@njit(cache=True, inline="always")
+def _scan_cell(px, py, pz, c, start, items, T, best, bt, bf):
+    """The nearest of grid cell ``c``'s triangles (``items[start[c]:start[c + 1]]``) to the point,
+    if nearer than ``best`` (squared, m^2): the updated ``(best, triangle, feature)``; a triangle
+    whose bounding box is already no nearer is skipped."""
+    for j in range(start[c], start[c + 1]):
+        k = np.int64(items[j])
+        if _box_d2(px, py, pz, k, T) >= best:
+            continue
+        r2, f = pt_tri(px, py, pz, k, T)
+        if r2 < best:
+            best, bt, bf = r2, k, f
+    return best, bt, bf
+
+
 @njit(cache=True, parallel=True)
 def pairs_d2(C, cell_of, ti, T):
     """Squared distances of points ``C[cell_of[i]]`` to triangles ``ti[i]``."""
@@ -422,13 +437,7 @@ def bins_query(P, lo, h, dims, start, items, max_d2, far_d2, T, order):
                         if exy + ez * ez >= best:
                             continue
                         c = (cx * ny + cy) * nz + cz
-                        for j in range(start[c], start[c + 1]):  # the cell's triangles
-                            k = np.int64(items[j])
-                            if _box_d2(px, py, pz, k, T) >= best:
-                                continue
-                            r2, f = pt_tri(px, py, pz, k, T)
-                            if r2 < best:
-                                best, bt, bf = r2, k, f
+                        best, bt, bf = _scan_cell(px, py, pz, c, start, items, T, best, bt, bf)
             g = min(_axis_gap(px, lo[0], h, ix, r, nx), _axis_gap(py, lo[1], h, iy, r, ny),
                     _axis_gap(pz, lo[2], h, iz, r, nz))
             if g == np.inf:
@@ -487,13 +496,7 @@ def bins_far_query(P, lo, h, dims, start, items, occ, max_d2, T):
                 c = occ[q]
                 if _cell_d2(px, py, pz, c, lo, h, ny, nz) >= best:
                     continue
-                for j in range(start[c], start[c + 1]):  # the cell's triangles
-                    k = np.int64(items[j])
-                    if _box_d2(px, py, pz, k, T) >= best:
-                        continue
-                    r2, f = pt_tri(px, py, pz, k, T)
-                    if r2 < best:
-                        best, bt, bf = r2, k, f
+                best, bt, bf = _scan_cell(px, py, pz, c, start, items, T, best, bt, bf)
         tri[i] = bt
         if bt >= 0:
             d2[i] = best

@@ -328,12 +328,20 @@ def sobel_at(img, uv):
 
 # ---------------------------------------------------------------------------- the whole VVS solve
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _xform(P, i, T):
+    """Point ``P[i]`` (model frame) in the frame of ``T`` (4x4): ``R @ p + t`` as three floats, summed
+    in a fixed order (no BLAS, no FMA: the same on every CPU)."""
+    p0, p1, p2 = P[i, 0], P[i, 1], P[i, 2]
+    return (((p0 * T[0, 0] + p1 * T[0, 1]) + p2 * T[0, 2]) + T[0, 3],
+            ((p0 * T[1, 0] + p1 * T[1, 1]) + p2 * T[1, 2]) + T[1, 3],
+            ((p0 * T[2, 0] + p1 * T[2, 1]) + p2 * T[2, 2]) + T[2, 3])
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _rigid(P, T, out):
-    """``out = P @ R.T + t`` for (N, 3) points, in a fixed order (no BLAS, no FMA)."""
+    """``out = P @ R.T + t`` for (N, 3) points, in a fixed order (:func:`_xform`)."""
     for i in range(P.shape[0]):
-        p0, p1, p2 = P[i, 0], P[i, 1], P[i, 2]
-        for j in range(3):
-            out[i, j] = (p0 * T[j, 0] + p1 * T[j, 1]) + p2 * T[j, 2] + T[j, 3]
+        out[i, 0], out[i, 1], out[i, 2] = _xform(P, i, T)
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")  # called from vvs_solve only
@@ -832,12 +840,8 @@ def pose_health(img, X, A, B, edge, T, fx, fy, cx, cy, z_min, strong_min):
     nx = np.empty(nE)
     ny = np.empty(nE)
     for k in range(nE):
-        a0 = ((A[k, 0] * T[0, 0] + A[k, 1] * T[0, 1]) + A[k, 2] * T[0, 2]) + T[0, 3]
-        a1 = ((A[k, 0] * T[1, 0] + A[k, 1] * T[1, 1]) + A[k, 2] * T[1, 2]) + T[1, 3]
-        a2 = ((A[k, 0] * T[2, 0] + A[k, 1] * T[2, 1]) + A[k, 2] * T[2, 2]) + T[2, 3]
-        b0 = ((B[k, 0] * T[0, 0] + B[k, 1] * T[0, 1]) + B[k, 2] * T[0, 2]) + T[0, 3]
-        b1 = ((B[k, 0] * T[1, 0] + B[k, 1] * T[1, 1]) + B[k, 2] * T[1, 2]) + T[1, 3]
-        b2 = ((B[k, 0] * T[2, 0] + B[k, 1] * T[2, 1]) + B[k, 2] * T[2, 2]) + T[2, 3]
+        a0, a1, a2 = _xform(A, k, T)
+        b0, b1, b2 = _xform(B, k, T)
         dx = (b0 / b2 * fx + cx) - (a0 / a2 * fx + cx)
         dy = (b1 / b2 * fy + cy) - (a1 / a2 * fy + cy)
         ln = max(np.sqrt(dx * dx + dy * dy), 1e-12)
@@ -848,9 +852,7 @@ def pose_health(img, X, A, B, edge, T, fx, fy, cx, cy, z_min, strong_min):
     n_strong = 0
     ang_sum = 0.0
     for i in range(N):
-        x0 = ((X[i, 0] * T[0, 0] + X[i, 1] * T[0, 1]) + X[i, 2] * T[0, 2]) + T[0, 3]
-        x1 = ((X[i, 0] * T[1, 0] + X[i, 1] * T[1, 1]) + X[i, 2] * T[1, 2]) + T[1, 3]
-        x2 = ((X[i, 0] * T[2, 0] + X[i, 1] * T[2, 1]) + X[i, 2] * T[2, 2]) + T[2, 3]
+        x0, x1, x2 = _xform(X, i, T)
         ok = x2 > z_min
         in_front = in_front and ok
         z = x2 if ok else 1.0
@@ -881,12 +883,8 @@ def pose_gradients(img, X, A, B, edge, T, fx, fy, cx, cy, strong_min, cos_tol):
     ex = np.empty(nE)
     ey = np.empty(nE)
     for k in range(nE):
-        a0 = ((A[k, 0] * T[0, 0] + A[k, 1] * T[0, 1]) + A[k, 2] * T[0, 2]) + T[0, 3]
-        a1 = ((A[k, 0] * T[1, 0] + A[k, 1] * T[1, 1]) + A[k, 2] * T[1, 2]) + T[1, 3]
-        a2 = ((A[k, 0] * T[2, 0] + A[k, 1] * T[2, 1]) + A[k, 2] * T[2, 2]) + T[2, 3]
-        b0 = ((B[k, 0] * T[0, 0] + B[k, 1] * T[0, 1]) + B[k, 2] * T[0, 2]) + T[0, 3]
-        b1 = ((B[k, 0] * T[1, 0] + B[k, 1] * T[1, 1]) + B[k, 2] * T[1, 2]) + T[1, 3]
-        b2 = ((B[k, 0] * T[2, 0] + B[k, 1] * T[2, 1]) + B[k, 2] * T[2, 2]) + T[2, 3]
+        a0, a1, a2 = _xform(A, k, T)
+        b0, b1, b2 = _xform(B, k, T)
         dx = (b0 / b2 - a0 / a2) * fx
         dy = (b1 / b2 - a1 / a2) * fy
         ln = max(np.sqrt(dx * dx + dy * dy), 1e-12)
@@ -897,9 +895,7 @@ def pose_gradients(img, X, A, B, edge, T, fx, fy, cx, cy, strong_min, cos_tol):
     sign = np.zeros(N, np.int8)
     good = np.zeros(N, np.bool_)
     for i in range(N):
-        x0 = ((X[i, 0] * T[0, 0] + X[i, 1] * T[0, 1]) + X[i, 2] * T[0, 2]) + T[0, 3]
-        x1 = ((X[i, 0] * T[1, 0] + X[i, 1] * T[1, 1]) + X[i, 2] * T[1, 2]) + T[1, 3]
-        x2 = ((X[i, 0] * T[2, 0] + X[i, 1] * T[2, 1]) + X[i, 2] * T[2, 2]) + T[2, 3]
+        x0, x1, x2 = _xform(X, i, T)
         z = max(x2, 1e-9)
         u = fx * x0 / z + cx
         v = fy * x1 / z + cy

@@ -203,30 +203,19 @@ def face_visibility(geom: ModelGeometry, T_cam_model: np.ndarray, prev: np.ndarr
     """(F,) bool: faces seen from the front at less than the appear/disappear angle (hysteresis).
     ``among`` (F,) bool: test only these faces (e.g. those in the view frustum); the others are False.
     The angles come from one numba kernel (:func:`mst.pipeline.tracking.kernels.face_angles`)."""
-    from mst.pipeline.tracking.kernels import face_angles
-
-    R, t = T_cam_model[:3, :3], T_cam_model[:3, 3]
-    c_model = -R.T @ t  # camera centre in the model frame
-    F = len(geom.faces)
-    sel = np.arange(F) if among is None else np.flatnonzero(among)
-    vis = np.zeros(F, bool)
-    if not len(sel):
-        return vis
-    loop_end = geom.__dict__.get("_loop_end")
-    if loop_end is None:
-        loop_end = geom.__dict__["_loop_end"] = np.append(geom.loop_start[1:], len(geom.loop_vid)).astype(np.int64)
-    ang = face_angles(geom.vertices, geom.face_normals, geom.loop_vid, geom.loop_start, loop_end, sel,
-                      np.ascontiguousarray(c_model, np.float64))
-    v = ang < appear_deg
-    if prev is not None and len(prev) == F:
-        v |= prev[sel] & (ang < disappear_deg)
-    vis[sel] = v
-    return vis
+    return _face_visibility(geom, T_cam_model, prev, appear_deg, disappear_deg, among, _face_angles_kernel)
 
 
 def face_visibility_numpy(geom: ModelGeometry, T_cam_model: np.ndarray, prev: np.ndarray | None,
                           appear_deg: float, disappear_deg: float, among: np.ndarray | None = None) -> np.ndarray:
     """The numpy formulation of :func:`face_visibility` (the reference of its kernel's test)."""
+    return _face_visibility(geom, T_cam_model, prev, appear_deg, disappear_deg, among, _face_angles_numpy)
+
+
+def _face_visibility(geom, T_cam_model, prev, appear_deg, disappear_deg, among, angles) -> np.ndarray:
+    """:func:`face_visibility` with ``angles(geom, sel, c_model, all_faces) -> (K,) deg``, the smallest
+    angle between each selected face's normal and the rays from its outer-loop vertices to the camera
+    centre (``all_faces``: ``sel`` is every face, in order)."""
     R, t = T_cam_model[:3, :3], T_cam_model[:3, 3]
     c_model = -R.T @ t  # camera centre in the model frame
     F = len(geom.faces)
@@ -234,18 +223,32 @@ def face_visibility_numpy(geom: ModelGeometry, T_cam_model: np.ndarray, prev: np
     vis = np.zeros(F, bool)
     if not len(sel):
         return vis
-    vid, start = (geom.loop_vid, geom.loop_start) if among is None else _loops_of(geom, sel)
-    ray = c_model[None, :] - geom.vertices[vid]
-    ray /= np.maximum(np.sqrt(np.einsum("ij,ij->i", ray, ray)), 1e-12)[:, None]
-    fid = np.repeat(sel, np.diff(np.append(start, len(vid))))
-    cosv = np.einsum("ij,ij->i", ray, geom.face_normals[fid])
-    cos_best = np.maximum.reduceat(cosv, start)
-    ang = np.degrees(np.arccos(np.clip(cos_best, -1, 1)))
+    ang = angles(geom, sel, c_model, among is None)
     v = ang < appear_deg
     if prev is not None and len(prev) == F:
         v |= prev[sel] & (ang < disappear_deg)
     vis[sel] = v
     return vis
+
+
+def _face_angles_kernel(geom: ModelGeometry, sel: np.ndarray, c_model: np.ndarray, all_faces: bool) -> np.ndarray:
+    from mst.pipeline.tracking.kernels import face_angles
+
+    loop_end = geom.__dict__.get("_loop_end")
+    if loop_end is None:
+        loop_end = geom.__dict__["_loop_end"] = np.append(geom.loop_start[1:], len(geom.loop_vid)).astype(np.int64)
+    return face_angles(geom.vertices, geom.face_normals, geom.loop_vid, geom.loop_start, loop_end, sel,
+                       np.ascontiguousarray(c_model, np.float64))
+
+
+def _face_angles_numpy(geom: ModelGeometry, sel: np.ndarray, c_model: np.ndarray, all_faces: bool) -> np.ndarray:
+    vid, start = (geom.loop_vid, geom.loop_start) if all_faces else _loops_of(geom, sel)
+    ray = c_model[None, :] - geom.vertices[vid]
+    ray /= np.maximum(np.sqrt(np.einsum("ij,ij->i", ray, ray)), 1e-12)[:, None]
+    fid = np.repeat(sel, np.diff(np.append(start, len(vid))))
+    cosv = np.einsum("ij,ij->i", ray, geom.face_normals[fid])
+    cos_best = np.maximum.reduceat(cosv, start)
+    return np.degrees(np.arccos(np.clip(cos_best, -1, 1)))
 
 
 def _clip_near_far(A: np.ndarray, B: np.ndarray, near: float, far: float):
