@@ -86,6 +86,20 @@ class _Tracker:
         pass
 
 
+class _Scored(_Tracker):
+    """:class:`_Tracker` whose fits carry a health score: ``score_wrong`` on a trap pose, else ``score_right``."""
+
+    def __init__(self, truth, trap, score_wrong, score_right):
+        super().__init__(truth, trap)
+        self.score_wrong, self.score_right = score_wrong, score_right
+
+    def track(self, gray, T_init, recover=False, first=False):
+        fr = super().track(gray, T_init, recover, first)
+        on_trap = any(np.allclose(fr.T_cam_model, T) for T in self.trap.values())
+        fr.score = self.score_wrong if on_trap else self.score_right
+        return fr
+
+
 def _run(tracker, n):
     s = TrackingSession(tracker, TrackingPolicy(_T(0.0), search_range_px=8, budget=PoseBudget()))
     recs = []
@@ -139,16 +153,8 @@ def test_refit_with_clearly_better_evidence_replaces_the_pose():
 
     truth = lambda k: _T(0.1 * k)  # noqa: E731
     wrong = _T(0.1 * 5 + 2.0)
-
-    class Scored(_Tracker):
-        def track(self, gray, T_init, recover=False, first=False):
-            fr = super().track(gray, T_init, recover, first)
-            fr.score = 0.5 if np.allclose(fr.T_cam_model, wrong) else 0.95
-            return fr
-
     assert 0.95 > 0.5 + SCORE_MARGIN
-    tr = Scored(truth, {5: wrong})
-    s, recs = _run(tr, 8)
+    s, recs = _run(_Scored(truth, {5: wrong}, score_wrong=0.5, score_right=0.95), 8)
     assert [r.status for r in recs] == ["model"] * 8
     assert np.allclose(recs[5].T_cam_model, truth(5))
     assert s.policy.refusals.ambiguous_frames == []
@@ -158,14 +164,7 @@ def test_refit_with_similar_evidence_stays_ambiguous():
     # the same two minima with scores 0.8 and 0.9 (within SCORE_MARGIN): the image cannot choose
     truth = lambda k: _T(0.1 * k)  # noqa: E731
     wrong = _T(0.1 * 5 + 2.0)
-
-    class Scored(_Tracker):
-        def track(self, gray, T_init, recover=False, first=False):
-            fr = super().track(gray, T_init, recover, first)
-            fr.score = 0.8 if np.allclose(fr.T_cam_model, wrong) else 0.9
-            return fr
-
-    s, recs = _run(Scored(truth, {5: wrong}), 8)
+    s, recs = _run(_Scored(truth, {5: wrong}, score_wrong=0.8, score_right=0.9), 8)
     assert recs[5].status == "lost" and recs[5].reason.startswith(REASON_AMBIGUOUS)
 
 
