@@ -91,9 +91,11 @@ def beyond_budget(b: PoseBudget, cov: np.ndarray | None, T: np.ndarray | None, d
     its rotation bound beyond ``deg``. The same budget as a map pose's (the drift budget,
     ``slam.drift_budget_rel`` / ``_deg`` / ``drift_sigmas``): a pose is output only where its
     image pins it to the budget (Delft at 250 m, 640x480: 1-sigma 0.6-1.4 % of the distance,
-    errors 0.3-3 %)."""
-    if cov is None or T is None or not np.isfinite(cov).all():
+    errors 0.3-3 %); a fit without a finite covariance is beyond it."""
+    if cov is None or T is None:
         return ""
+    if not np.isfinite(cov).all():  # a fit whose information cannot be inverted pins nothing
+        return f"{REASON_UNCERTAIN}: no finite covariance (a degenerate fit)"
     pos = b.sigmas * float(np.sqrt(max(np.trace(cov[:3, :3]), 0.0)))
     rot = b.sigmas * float(np.degrees(np.sqrt(max(np.linalg.eigvalsh(0.5 * (cov[3:, 3:] + cov[3:, 3:].T)).max(), 0.0))))
     d = distance_m(T)

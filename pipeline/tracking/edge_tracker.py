@@ -368,7 +368,8 @@ class EdgeTracker:
         n_s, n_in = len(S), int(res.inlier.sum())
         if klt is not None and res.klt_inlier is not None:
             self._klt_next = (klt[0][res.klt_inlier], klt[1][res.klt_inlier])
-        cov = res.cov if self.sample_provider is None else self.sample_provider.gauge_cov(T, res.W, res.cov, res.rms_px)
+        prov = self.sample_provider
+        cov = res.cov if prov is None else prov.gauge_cov(T, res.W, res.cov, res.rms_px, res.jk_inputs)
         out = FrameResult(T, healthy, n_s, n_in, res.rms_px, proj_err, res.W, cov, uv, res.inlier,
                           S.edge_uv[np.unique(S.edge)], np.zeros((0, 2)) if klt is None else klt[1], reason, support)
         if self.health_score:

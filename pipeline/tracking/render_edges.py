@@ -262,12 +262,15 @@ class RenderEdgeProvider:
         self.render_ms = 0.0  # wall
         self.render_cpu_ms = 0.0  # process CPU time (every thread of the ray caster)
 
-    def gauge_cov(self, T_cam_model: np.ndarray, W: np.ndarray, cov: np.ndarray, rms_px: float) -> np.ndarray:
+    def gauge_cov(self, T_cam_model: np.ndarray, W: np.ndarray, cov: np.ndarray, rms_px: float,
+                  jk: tuple | None = None) -> np.ndarray:
         """The pose covariance ``cov`` (6x6, twist ``(v, w)`` of ``T_cam_model``) with the mesh's symmetry fixed:
         for a body of revolution (:func:`revolution_axis`) a turn of the model about its axis changes no image, so
         its twist is a gauge freedom (any value is as right as any other) and not an uncertainty of the pose: the
         covariance is ``rms^2 (W + lambda n n^T)^-1`` for the unit twist ``n`` of that turn (lambda: 1e6 x the
-        largest diagonal of the information ``W``). Other meshes: ``cov`` unchanged."""
+        largest diagonal of the information ``W``); with the solve's jackknife inputs ``jk``
+        (:attr:`VVSResult.jk_inputs`) the delete-one-edge covariance with the same ``lambda n n^T``
+        (:func:`mst.pipeline.tracking.covariance.edge_jackknife_cov`). Other meshes: ``cov`` unchanged."""
         if self.axis is None or W is None or cov is None or not np.isfinite(W).all():
             return cov
         a, p = self.axis
@@ -275,10 +278,20 @@ class RenderEdgeProvider:
         w = R @ a
         n = np.concatenate([np.cross(R @ p + t, w), w])  # rotation about the axis through R p + t (camera frame)
         n /= np.linalg.norm(n)
+        lam = 1e6 * float(np.abs(np.diag(W)).max())
         try:
-            return float(rms_px) ** 2 * np.linalg.inv(W + 1e6 * float(np.abs(np.diag(W)).max()) * np.outer(n, n))
+            from mst.pipeline.tracking.exact import inverse
+
+            C_fixed = float(rms_px) ** 2 * inverse(W + lam * np.outer(n, n))
         except np.linalg.LinAlgError:
             return cov
+        if jk is not None:
+            from mst.pipeline.tracking.covariance import edge_jackknife_cov, psd_max
+
+            C = edge_jackknife_cov(*jk, gauge=n, gauge_lambda=lam)[0]
+            if C is not None:
+                return psd_max(C_fixed, C)
+        return C_fixed
 
     def align_to(self, T_ref: np.ndarray, T: np.ndarray) -> np.ndarray:
         """``T`` (T_cam_model) with the model turned about its axis of revolution so that the camera centre's angle

@@ -61,15 +61,36 @@ def check_pose_in_view(model, T_cam_model: np.ndarray, cam, path, near: float = 
 
 
 # ---------------------------------------------------------------------------- outputs
+def _psd_text(cov: np.ndarray) -> list[str] | None:
+    """The 36 entries of ``cov`` as written (6 significant digits; 17 where rounding to 6 would leave a
+    strongly correlated covariance indefinite), or None when the written matrix would not be symmetric
+    positive definite (not finite, a variance <= 0, a negative eigenvalue: no covariance is written)."""
+    if not np.isfinite(cov).all():
+        return None
+    C = 0.5 * (cov + cov.T)
+    for fmt in (".6g", ".17g"):
+        txt = [f"{x:{fmt}}" for x in C.ravel()]
+        Cw = np.array([float(x) for x in txt]).reshape(6, 6)
+        if (np.diag(Cw) > 0).all():
+            d = 1.0 / np.sqrt(np.diag(Cw))
+            if np.linalg.eigvalsh(Cw * d[:, None] * d[None, :]).min() > 1e-12:  # of the correlation matrix
+                return txt
+    return None
+
+
 def cov_row(idx: int, status: str, cov: np.ndarray | None, T_cam_model: np.ndarray | None) -> list:
-    """One ``.cov.csv`` row (see :data:`COV_HEADER`)."""
-    if status != "model" or cov is None or T_cam_model is None or not np.isfinite(cov).all():
+    """One ``.cov.csv`` row (see :data:`COV_HEADER`); empty where the frame's pose is not the edge pose,
+    or its covariance is not symmetric positive definite as written (:func:`_psd_text`: a singular fit
+    at a re-acquisition had been written with negative variances of 1e10, which ``mst nav fuse`` refuses)."""
+    txt = None if status != "model" or cov is None or T_cam_model is None else _psd_text(np.asarray(cov, float))
+    if txt is None:
         return [idx, status] + [""] * (len(COV_HEADER) - 2)
+    cov = np.array([float(x) for x in txt]).reshape(6, 6)
     R = T_cam_model[:3, :3]
     C_pos = R.T @ cov[:3, :3] @ R  # camera centre c = -R^T t moves by -R^T v
     std = np.sqrt(np.maximum(np.diag(C_pos), 0.0))
-    rot = np.degrees(np.sqrt(max(float(np.linalg.eigvalsh(0.5 * (cov[3:, 3:] + cov[3:, 3:].T)).max()), 0.0)))
-    return [idx, status, *(f"{x:.6g}" for x in std), f"{rot:.6g}", *(f"{x:.6g}" for x in cov.ravel())]
+    rot = np.degrees(np.sqrt(max(float(np.linalg.eigvalsh(cov[3:, 3:]).max()), 0.0)))
+    return [idx, status, *(f"{x:.6g}" for x in std), f"{rot:.6g}", *txt]
 
 
 def _mean_or_none(vals: list[float]) -> float | None:

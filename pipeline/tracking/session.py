@@ -47,7 +47,9 @@ MAP_CHECK_MIN_VIEW = 0.5
 
 #: the first frame: the tolerant multi-pass search from the user's pose and a plain search from it
 #: (one pass, the usual range and robust scale) must agree within this many sigma (Mahalanobis
-#: distance of the twist between them, under the tolerant fit's covariance); beyond it the image
+#: distance of the twist between them, under the tolerant fit's i.i.d. covariance ``rms^2 W^-1``:
+#: the jackknife covariance of the output, which also counts the edges' correlated errors, put
+#: the Rotterdam FPV search's 20 px move within 10 sigma); beyond it the image
 #: is multi-modal around the user's pose and the solution nearer to it (the plain one) is kept.
 #: Measured from the initial pose: real teabox (clicks a few px off) 5.0 sigma (1.3 px); exact
 #: initial poses, Rotterdam FPV 30 m 21 sigma (the tolerant search moved 20 px, 0.73 m, 2.4 %; the
@@ -374,10 +376,11 @@ class TrackingSession:
         if not fr_p.healthy or fr_p.T_cam_model is None:
             return fr
         dx = se3_log(self._modulo_symmetry(fr.T_cam_model, fr_p.T_cam_model) @ inv_T(fr.T_cam_model))
-        try:
-            d = float(np.sqrt(max(dx @ np.linalg.solve(fr.cov, dx), 0.0)))
-        except np.linalg.LinAlgError:
+        if fr.W is None or not np.isfinite(fr.W).all() or not fr.residual_px > 0:
             return fr
+        # in the metric of the fit's information and residual noise (i.i.d.: how far apart the image puts
+        # the two fits), not of its covariance, which also counts the edges' correlated errors
+        d = float(np.sqrt(max(dx @ fr.W @ dx, 0.0))) / float(fr.residual_px)
         if d <= FIRST_FRAME_AGREE_SIGMA:
             return fr
         log.info(f"first frame: the tolerant search moved {d:.0f} sigma away from the plain fit from the initial pose "

@@ -82,6 +82,10 @@ class VVSResult:
     iters: int
     klt_inlier: np.ndarray | None = None
     status: SolveStatus = SolveStatus.OK
+    cov_classical: np.ndarray | None = None  #: ``rms^2 W^-1`` (i.i.d. residuals), for comparison
+    #: the jackknife's inputs (T, K, X, e, A, B, w, r, klt X, klt uv, klt w): a gauge-fixed one is computed
+    #: from them (:meth:`mst.pipeline.tracking.render_edges.RenderEdgeProvider.gauge_cov`)
+    jk_inputs: tuple | None = None
 
     @property
     def has_pose(self) -> bool:
@@ -148,10 +152,12 @@ def _line_jacobian(nx, ny, x, y, iz, fx, fy) -> np.ndarray:
 
 
 def _vvs_result(T, H, w, r, w_tukey, wk, nk: int, klt_weight: float, has, n_samples: int, sigma: float,
-                it: int) -> VVSResult:
+                it: int, jk: tuple | None = None) -> VVSResult:
     """The solve's result from its last linearisation: weights, residuals (px) and the Tukey inlier
     mask back on all ``n_samples`` (NaN residual / zero weight where a sample had no candidate), the
-    covariance ``rms^2 H^-1`` and the status (degenerate H, non-finite pose)."""
+    covariance and the status (degenerate H, non-finite pose). The covariance is ``cov_jk`` (the
+    delete-one-edge jackknife of :mod:`mst.pipeline.tracking.covariance` from the inputs ``jk``) where
+    there is one, else the classical ``rms^2 H^-1`` (kept as ``cov_classical``)."""
     sw = float(w.sum())
     ssr = float(np.sum(w * r * r))
     klt_in = None
@@ -174,7 +180,14 @@ def _vvs_result(T, H, w, r, w_tukey, wk, nk: int, klt_weight: float, has, n_samp
     Wt_full[has] = w_tukey
     R_full = np.full(n_samples, np.nan)
     R_full[has] = r
-    return VVSResult(T, H, cov, W_full, R_full, Wt_full > 0.5, sigma, rms, it, klt_in, status)
+    cov_classical = cov
+    if jk is not None and status is SolveStatus.OK:
+        from mst.pipeline.tracking.covariance import edge_jackknife_cov, psd_max
+
+        cov_jk = edge_jackknife_cov(*jk)[0]
+        if cov_jk is not None:
+            cov = psd_max(cov_classical, cov_jk)
+    return VVSResult(T, H, cov, W_full, R_full, Wt_full > 0.5, sigma, rms, it, klt_in, status, cov_classical, jk)
 
 
 def solve_pose(T0: np.ndarray, K: np.ndarray, X_model: np.ndarray, edge: np.ndarray, A_model: np.ndarray,
@@ -219,7 +232,8 @@ def solve_pose(T0: np.ndarray, K: np.ndarray, X_model: np.ndarray, edge: np.ndar
                                   T, H, w, r, w_tukey, wk)
     if status == 1:  # the damped retry of an accepted step could not be solved
         return _no_pose(T0, len(X_model), SolveStatus.DIVERGED, min_mad_px)
-    return _vvs_result(T, H, w, r, w_tukey, wk, nk, klt_weight, has, len(X_model), float(sigma), int(it))
+    jk = (T, K, X, e, A_model, B_model, w, r, Xk if nk else None, uk if nk else None, wk)
+    return _vvs_result(T, H, w, r, w_tukey, wk, nk, klt_weight, has, len(X_model), float(sigma), int(it), jk)
 
 
 def solve_pose_numpy(T0: np.ndarray, K: np.ndarray, X_model: np.ndarray, edge: np.ndarray, A_model: np.ndarray,
@@ -344,4 +358,5 @@ def solve_pose_numpy(T0: np.ndarray, K: np.ndarray, X_model: np.ndarray, edge: n
             r_old = r_all[rows, prev[2]]
             if float(np.sum(prev[3] * r_old * r_old)) > prev[1] * (1 + 1e-9):
                 T = prev[0]
-    return _vvs_result(T, H, w, r, w_tukey, wk, nk, klt_weight, has, len(X_model), sigma, it)
+    jk = (T, K, X, e, A_model, B_model, w, r, klt_X_model if nk else None, klt_uv if nk else None, wk)
+    return _vvs_result(T, H, w, r, w_tukey, wk, nk, klt_weight, has, len(X_model), sigma, it, jk)
