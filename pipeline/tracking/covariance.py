@@ -1,4 +1,4 @@
-"""The edge pose's 6x6 covariance (issues #11/#12/#13): a delete-one-edge jackknife of the robust VVS.
+"""The edge pose's 6x6 covariance (issues #11/#12/#13): a delete-one-cluster jackknife of the robust VVS.
 
 The classical ``rms^2 (J^T W J)^-1`` of :func:`mst.pipeline.tracking.vvs.solve_pose` assumes that
 the residuals of all samples are independent. They are not: a moving edge pulled by texture, blur or
@@ -11,7 +11,11 @@ off, had 2 sigma = 1.1-1.6 % classical, 3.0-4.3 % jackknife), Rotterdam FPV 6.1 
 ``G / (G - 1)``) was 1.78 / 4.1 / 1.80 / 1.03: with 15-70 edges of very unequal leverage it is
 biased low, the known small-sample failure that the jackknife does not have.
 
-Clusters: the samples of one model edge (``e``), and each KLT point (its two rows). With
+Clusters: runs of :data:`CHUNK_SAMPLES` consecutive samples of one model edge (the length over which
+their residuals are measured to be correlated), and each KLT point (its two rows). The numbers above
+are for whole edges as clusters; runs of 8 give 1.93 / 1.60 / (turntable not re-measured) and keep the
+real teabox's edges-only poses (see :data:`CHUNK_SAMPLES`). The result is floored by the classical
+covariance along every direction (:func:`psd_max`: never more optimistic than the i.i.d. model). With
 ``s_g = sum_{i in g} w_i r_i J_i`` and ``H_g = sum_{i in g} w_i J_i J_i^T`` the fit without cluster
 ``g`` moves by ``D_g = (H - H_g)^-1 s_g`` (one Gauss-Newton step from the full fit, whose gradient
 ``sum_g s_g`` is zero), and the covariance is ``(G - 1) / G sum_g D_g D_g^T`` (un-centred, as the
@@ -38,9 +42,13 @@ from numba import njit
 #: within 15 % (err / sigma: demo UAV 1.93 / 1.70, FPV 1.60 / 1.42, 250 m 1.15 / 1.15)
 CHUNK_SAMPLES = 8
 
-#: fewer clusters than this: no jackknife (the classical covariance stays; 6 dof need at least
-#: three edges, and a delete-one estimate from three is no estimate)
-MIN_CLUSTERS = 4
+#: fewer clusters than this: no cluster-robust term, the classical covariance stays. A cluster-robust
+#: covariance from few clusters is itself too noisy to trust (a 6x6 estimate from G outer products; the
+#: "few clusters" regime of the literature, G below a few times the parameters): on the 320x240 corridor
+#: (40-60 samples: 12-20 runs) it was 1.5-2.5x the classical one while the classical was already 1.5x
+#: pessimistic (err / sigma 0.45 against 0.67), and the error budget refused every correct pose after the
+#: first frame; with 20 clusters or more the CR2 term is used (demo UAV, FPV, 250 m, teabox: 20-600)
+MIN_CLUSTERS = 20
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -76,7 +84,7 @@ def _gauss6(A, b, x):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def jackknife_kernel(X, e, nE, cl, nC, AB, Xk, uk, T, fx, fy, cx, cy, w, r, wk, gn, glam, C_out):
+def jackknife_kernel(X, e, nE, cl, nC, AB, Xk, uk, T, fx, fy, cx, cy, w, r, wk, gn, glam, cr2, C_out):
     """The delete-one-cluster covariance (module docstring) into ``C_out (6, 6)``. ``X (n, 3)`` model
     points of the samples with a candidate, ``e (n,)`` their edge, ``cl (n,)`` their cluster (``0 ..
     nC - 1``, :func:`edge_chunks`), ``AB (2 nE, 3)`` the edge end
@@ -176,18 +184,62 @@ def jackknife_kernel(X, e, nE, cl, nC, AB, Xk, uk, T, fx, fy, cx, cy, w, r, wk, 
         return m, False
     A = np.empty((6, 6))
     D = np.empty(6)
+    if cr2:
+        for p in range(6):
+            for c in range(6):
+                A[p, c] = H[p, c] + glam * gn[p] * gn[c]
+        L = np.zeros((6, 6))
+        if not _chol6(A, L):
+            return m, False
+        Y = np.empty((6, 6))
+        M = np.empty((6, 6))
+        U = np.empty((6, 6))
+        lam = np.empty(6)
+        y = np.empty(6)
+        z = np.empty(6)
     for g in range(G):
         if not used[g]:
             continue
-        for p in range(6):
-            for c in range(6):
-                A[p, c] = H[p, c] - Hg[g, p, c] + glam * gn[p] * gn[c]
-        if not _gauss6(A, S[g], D):
-            return m, False
+        if cr2:
+            # D = L^-T U diag((1 - l)^-1/2) U^T L^-1 s_g with L^-1 H_g L^-T = U diag(l) U^T
+            _lower_solve(L, Hg[g], Y)  # Y = L^-1 H_g
+            _lower_solve(L, Y.T.copy(), M)  # M = L^-1 Y^T = L^-1 H_g L^-T
+            for p in range(6):
+                for c in range(p + 1, 6):
+                    v = 0.5 * (M[p, c] + M[c, p])
+                    M[p, c] = v
+                    M[c, p] = v
+            _jacobi_eig(M, U, lam)
+            for p in range(6):
+                v = S[g, p]
+                for k in range(p):
+                    v -= L[p, k] * y[k]
+                y[p] = v / L[p, p]
+            for j in range(6):  # z = U diag(f) U^T y
+                v = 0.0
+                for k in range(6):
+                    v += U[k, j] * y[k]
+                z[j] = v / np.sqrt(max(1.0 - lam[j], 1e-12))
+            for p in range(6):
+                v = 0.0
+                for j in range(6):
+                    v += U[p, j] * z[j]
+                y[p] = v
+            for p in range(5, -1, -1):  # D = L^-T y
+                v = y[p]
+                for k in range(p + 1, 6):
+                    v -= L[k, p] * D[k]
+                D[p] = v / L[p, p]
+        else:
+            for p in range(6):
+                for c in range(6):
+                    A[p, c] = H[p, c] - Hg[g, p, c] + glam * gn[p] * gn[c]
+            if not _gauss6(A, S[g], D):
+                return m, False
         for p in range(6):
             for c in range(p, 6):
                 C_out[p, c] += D[p] * D[c]
-    f = (m - 1.0) / m
+    f = 1.0 if cr2 else (m - 1.0) / m
     for p in range(6):
         for c in range(p, 6):
             C_out[p, c] *= f
@@ -203,7 +255,7 @@ def jackknife_kernel(X, e, nE, cl, nC, AB, Xk, uk, T, fx, fy, cx, cy, w, r, wk, 
 def edge_jackknife_cov(T: np.ndarray, K: np.ndarray, X: np.ndarray, e: np.ndarray, A: np.ndarray, B: np.ndarray,
                        w: np.ndarray, r: np.ndarray, klt_X: np.ndarray | None = None, klt_uv: np.ndarray | None = None,
                        wk: np.ndarray | None = None, gauge: np.ndarray | None = None,
-                       gauge_lambda: float = 0.0) -> tuple[np.ndarray | None, int]:
+                       gauge_lambda: float = 0.0, cr2: bool = True) -> tuple[np.ndarray | None, int]:
     """The jackknife covariance (6, 6) of the edge pose ``T`` (T_cam_model) from the samples of its last
     VVS linearisation (``X`` model points, ``e`` edge ids, ``w`` weights, ``r`` residuals px; only
     samples with a candidate) and its KLT points (``gauge``: a unit twist that no image sees, held
@@ -221,10 +273,39 @@ def edge_jackknife_cov(T: np.ndarray, K: np.ndarray, X: np.ndarray, e: np.ndarra
                              float(K[1, 2]), np.ascontiguousarray(w, np.float64), np.ascontiguousarray(r, np.float64),
                              np.ascontiguousarray(wk, np.float64) if nk else np.zeros(0),
                              np.zeros(6) if gauge is None else np.ascontiguousarray(gauge, np.float64),
-                             0.0 if gauge is None else float(gauge_lambda), C)
+                             0.0 if gauge is None else float(gauge_lambda), bool(cr2), C)
     if not ok or m < MIN_CLUSTERS:
         return None, int(m)
     return C, int(m)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _chol6(A, L):
+    """Lower Cholesky factor ``L`` of the symmetric 6x6 ``A`` (fixed order); False when not positive definite."""
+    for j in range(6):
+        s = A[j, j]
+        for k in range(j):
+            s -= L[j, k] * L[j, k]
+        if not (s > 0.0):
+            return False
+        L[j, j] = np.sqrt(s)
+        for i in range(j + 1, 6):
+            s = 0.5 * (A[i, j] + A[j, i])
+            for k in range(j):
+                s -= L[i, k] * L[j, k]
+            L[i, j] = s / L[j, j]
+    return True
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _lower_solve(L, B, out):
+    """``out = L^-1 B`` for a lower-triangular 6x6 ``L`` and a 6x6 ``B`` (forward substitution per column)."""
+    for c in range(6):
+        for i in range(6):
+            s = B[i, c]
+            for k in range(i):
+                s -= L[i, k] * out[k, c]
+            out[i, c] = s / L[i, i]
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
