@@ -97,11 +97,11 @@ def test_psd_max_is_the_larger_along_every_direction():
 def test_no_cluster_term_with_too_few_clusters():
     """The 5-sample cube: 12 clusters, fewer than MIN_CLUSTERS: no cluster term, the classical covariance
     stays (solve_pose's cov is its cov_classical)."""
-    from mst.pipeline.tracking.covariance import MIN_CLUSTERS, edge_jackknife_cov
+    from mst.pipeline.tracking.covariance import MIN_CLUSTERS, edge_cluster_cov
 
     X, edge, A, B = _cube()
     T = _true_pose()
-    C, m = edge_jackknife_cov(T, K, X, edge, A, B, np.ones(len(X)), np.full(len(X), 0.1))
+    C, m = edge_cluster_cov(T, K, X, edge, A, B, np.ones(len(X)), np.full(len(X), 0.1))
     assert C is None and m == 12 < MIN_CLUSTERS
     res = solve_pose(_start(T), K, X, edge, A, B, _project(T, X)[:, None, :], min_mad_px=0.3, iters=50)
     assert np.array_equal(res.cov, res.cov_classical)
@@ -148,13 +148,13 @@ def test_cluster_term_identical_to_a_numpy_reference(cr2):
     samples ``g``, with ``H = L L^T`` and ``L^-1 H_g L^-T = U diag(l) U^T``, ``D_g = L^-T U diag(f(l)) U^T
     L^-1 s_g``; CR2 ``f = (1 - l)^-1/2``, ``C = sum D_g D_g^T``; the delete-one jackknife (``cr2=False``)
     ``D_g = (H - H_g)^-1 s_g``, ``C = (G - 1) / G sum D_g D_g^T``."""
-    from mst.pipeline.tracking.covariance import edge_chunks, edge_jackknife_cov
+    from mst.pipeline.tracking.covariance import edge_chunks, edge_cluster_cov
 
     X, edge, A, B = _dense_cube()
     T = _true_pose()
     rng = np.random.default_rng(int(cr2))
     w, r = rng.uniform(0.2, 1.0, len(X)), rng.normal(0, 0.5, len(X))
-    C, m = edge_jackknife_cov(T, K, X, edge, A, B, w, r, cr2=cr2)
+    C, m = edge_cluster_cov(T, K, X, edge, A, B, w, r, cr2=cr2)
     Xc = X @ T[:3, :3].T + T[:3, 3]
     x, y, iz = Xc[:, 0] / Xc[:, 2], Xc[:, 1] / Xc[:, 2], 1 / Xc[:, 2]
     nx, ny = _normals(T, A, B, edge).T
@@ -178,3 +178,35 @@ def test_cluster_term_identical_to_a_numpy_reference(cr2):
     ref = D.T @ D * (1.0 if cr2 else (G - 1) / G)
     assert m == G == 60
     np.testing.assert_allclose(C, ref, rtol=1e-7, atol=1e-9 * np.abs(ref).max())
+
+
+@pytest.mark.slow
+def test_tracked_corridor_covariances_are_positive_definite(tmp_path):
+    """The rgbd corridor at 6 fps (320x240, 150 frames), where a re-acquisition (frame 111) had been
+    written with negative variances of 1e10: every written row is symmetric positive definite, and
+    ``mst nav fuse``'s reader takes the file (it refuses a non-positive variance)."""
+    import csv
+
+    from mst.core.trajectory import read_tum
+    from mst.eval.bench.slam import SAMPLE_MODEL
+    from mst.pipeline.nav.fusion import FusionConfig
+    from mst.pipeline.nav.run import read_track_cov
+    from mst.pipeline.synth import SynthConfig, synthesize
+    from mst.pipeline.tracking import TrackConfig, run_track
+
+    if not SAMPLE_MODEL.exists():
+        pytest.skip("samples/building_tin.obj missing")
+    seq = tmp_path / "corridor"
+    synthesize("corridor", SAMPLE_MODEL, seq, SynthConfig(width=320, height=240, frames=150, fps=6.0, aa_samples=4,
+                                                          texture_size=512))
+    out = tmp_path / "traj.txt"
+    run_track(seq / "rgb", seq / "model.obj", seq / "camera.json", seq / "cMo" / "000000.txt", out, TrackConfig(),
+              depth_dir=seq / "depth", fps=6.0)
+    rows = [r for r in csv.DictReader(open(out.with_suffix(".cov.csv"))) if r["c00"]]
+    assert len(rows) >= 30  # the model frames before and after the stretch away
+    for r in rows:
+        C = np.array([float(r[f"c{i}{j}"]) for i in range(6) for j in range(6)]).reshape(6, 6)
+        assert np.array_equal(C, C.T) and np.linalg.eigvalsh(C).min() > 0, r["frame"]
+    t, T = read_tum(out)
+    C = read_track_cov(out.with_suffix(".cov.csv"), out, t, T, FusionConfig())
+    assert C.shape == (len(t), 6, 6)

@@ -177,10 +177,12 @@ def turntable(tmp_path_factory):
 
 
 _BUDGET_320 = pytest.mark.xfail(strict=True, reason=(
-    "session 5: at 320x240 the edge error budget (pipeline/tracking/budget.py) refuses the still "
-    "object's correct poses from frame 1 as 'pose uncertain' (2 sigma = 1.2-1.4 % of the distance, "
-    "measured error ~0.1 %: the fit's covariance is pessimistic at this resolution); the 640x480 "
-    "variants in the default suite pass. Open: a per-sequence covariance calibration"))
+    "sessions 5-6: at 320x240 the error budget refuses still-object poses as 'pose uncertain' (2 sigma "
+    "~1.7 % of the nearest-vertex distance, median) and it is right to: measured against the truth (turntable, "
+    "still frames 0-23) the poses are 0.89 % off (median), 1.99 % (max), the covariance is not "
+    "pessimistic (err / sigma 1.35 with the cluster-robust covariance, 1.66 classical); these tests ask "
+    "every still frame to be output, which the issue's 1 % bound does not allow at this resolution "
+    "(640x480: 0.08 % off, the default-suite variants pass). Open: the moving edges' accuracy at 320x240"))
 
 
 @_BUDGET_320

@@ -1,27 +1,32 @@
-"""The edge pose's 6x6 covariance (issues #11/#12/#13): a delete-one-cluster jackknife of the robust VVS.
+"""The edge pose's 6x6 covariance (issues #11/#12/#13): a cluster-robust (CR2) covariance of the robust VVS.
 
-The classical ``rms^2 (J^T W J)^-1`` of :func:`mst.pipeline.tracking.vvs.solve_pose` assumes that
-the residuals of all samples are independent. They are not: a moving edge pulled by texture, blur or
-a rendering offset moves all the samples of that model edge together, and with a few edges in view
-one edge alone can pin a direction of the pose. Measured against the truth (``err / sigma`` of the
-camera centre, RMS over the frames whose pose was output or refused by the error budget; 1 is
-calibrated), classical vs this jackknife: demo UAV pass 2.11 / 1.39 (its frames 163-172, 2.3-4.8 %
-off, had 2 sigma = 1.1-1.6 % classical, 3.0-4.3 % jackknife), Rotterdam FPV 6.1 / 1.4, turntable
-320x240 1.65 / 1.28, 640x480 0.81 / 0.69. A cluster-robust sandwich (Huber-White clustered by edge,
-``G / (G - 1)``) was 1.78 / 4.1 / 1.80 / 1.03: with 15-70 edges of very unequal leverage it is
-biased low, the known small-sample failure that the jackknife does not have.
+The classical ``rms^2 (J^T W J)^-1`` of :func:`mst.pipeline.tracking.vvs.solve_pose` assumes that the
+residuals of all samples are independent. They are not: a moving edge pulled by texture, blur or a
+rendering offset moves neighbouring samples of one model edge together (measured: the residuals'
+autocorrelation along an edge is 0.2-0.6 at the next sample and gone beyond 4-8 samples, see
+:data:`CHUNK_SAMPLES`), which an i.i.d. model cannot see.
 
-Clusters: runs of :data:`CHUNK_SAMPLES` consecutive samples of one model edge (the length over which
-their residuals are measured to be correlated), and each KLT point (its two rows). The numbers above
-are for whole edges as clusters; runs of 8 give 1.93 / 1.60 / (turntable not re-measured) and keep the
-real teabox's edges-only poses (see :data:`CHUNK_SAMPLES`). The result is floored by the classical
-covariance along every direction (:func:`psd_max`: never more optimistic than the i.i.d. model). With
-``s_g = sum_{i in g} w_i r_i J_i`` and ``H_g = sum_{i in g} w_i J_i J_i^T`` the fit without cluster
-``g`` moves by ``D_g = (H - H_g)^-1 s_g`` (one Gauss-Newton step from the full fit, whose gradient
-``sum_g s_g`` is zero), and the covariance is ``(G - 1) / G sum_g D_g D_g^T`` (un-centred, as the
-CR3 cluster estimator: conservative with few clusters). It is symmetric and positive semi-definite
-by construction (a sum of outer products, each summed in one fixed order: the same bits on every CPU,
-no BLAS, :mod:`mst.pipeline.tracking.exact`). Frames: twists ``(v m, w rad)`` of the left
+Clusters: runs of :data:`CHUNK_SAMPLES` consecutive samples of one model edge, and each KLT point (its
+two rows). With ``s_g = sum_{i in g} w_i r_i J_i``, ``H_g = sum_{i in g} w_i J_i J_i^T``, ``H = sum_g
+H_g = L L^T`` and ``L^-1 H_g L^-T = U diag(l) U^T`` (``l`` the cluster's leverages), each cluster
+contributes ``D_g = L^-T U diag((1 - l)^-1/2) U^T L^-1 s_g`` and the covariance is ``sum_g D_g D_g^T``
+(Bell & McCaffrey's bias-reduced linearisation: exact for i.i.d. residuals, and the residuals of a
+high-leverage cluster, which the fit has absorbed, are scaled back). It is floored by the classical
+covariance along every direction (:func:`psd_max`), and used only with :data:`MIN_CLUSTERS` clusters
+or more. Symmetric and positive semi-definite by construction (sums of outer products, each in one
+fixed order: the same bits on every CPU, no BLAS, :mod:`mst.pipeline.tracking.exact`).
+
+Measured against the truth (``err / sigma`` of the camera centre, RMS over the frames that were output
+or refused by the error budget; 1 is calibrated), classical -> this: demo UAV pass 2.15 -> 2.02,
+Rotterdam FPV 6.07 -> 2.88 (7 frames, two of them 2.1 / 2.9 % off in a wrong minimum: the ambiguity
+test's), Rotterdam 250 m survey band 1.61 -> 1.21 (poses > 1 % off within the 2 sigma budget: 4 -> 0),
+turntable 320x240 1.66 -> 1.35, its 640x480 variant 1.05 -> 0.99, synthetic teabox 1.03 -> 1.02,
+fast x10 orbit 320x240 1.98 -> 1.32, corridor 320x240 0.67 (fewer than 20 clusters: classical).
+Rejected: the delete-one-cluster jackknife (CR3, ``D_g = (H - H_g)^-1 s_g``): FPV 1.42 and demo UAV
+1.70, but 0.27 on the corridor (3.7x pessimistic: every correct pose refused) and, with whole edges as
+clusters, 2 sigma = 2.9-3.2 % on the real teabox's edges-only poses (classical 0.33 %, mst against
+ViSP's hybrid tracker 1.2 mm RMS); Huber-White clustered by edge with ``G / (G - 1)`` (CR1): FPV 4.1,
+demo UAV 1.78 (biased low with few, unequal clusters). Frames: twists ``(v m, w rad)`` of the left
 perturbation in the camera frame, as :class:`mst.pipeline.tracking.vvs.VVSResult`.
 """
 
@@ -84,14 +89,16 @@ def _gauss6(A, b, x):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def jackknife_kernel(X, e, nE, cl, nC, AB, Xk, uk, T, fx, fy, cx, cy, w, r, wk, gn, glam, cr2, C_out):
-    """The delete-one-cluster covariance (module docstring) into ``C_out (6, 6)``. ``X (n, 3)`` model
+def cluster_cov_kernel(X, e, nE, cl, nC, AB, Xk, uk, T, fx, fy, cx, cy, w, r, wk, gn, glam, cr2, C_out):
+    """The cluster-robust covariance (module docstring; ``cr2`` False: the delete-one-cluster
+    jackknife ``(G - 1) / G sum_g ((H - H_g)^-1 s_g) (...)^T``, kept for comparison) into ``C_out (6, 6)``.
+    ``X (n, 3)`` model
     points of the samples with a candidate, ``e (n,)`` their edge, ``cl (n,)`` their cluster (``0 ..
     nC - 1``, :func:`edge_chunks`), ``AB (2 nE, 3)`` the edge end
     points, ``w, r (n,)`` their last VVS weights and residuals (px), ``Xk (nk, 3)`` / ``uk (nk, 2)``
     the KLT points and ``wk (2 nk,)`` their weights; Jacobians at the pose ``T``; ``glam gn gn^T``
     added to every information matrix (a gauge freedom ``gn`` (6,) fixed; ``glam`` 0: none). Returns
-    ``(clusters, ok)``: ``ok`` False when a fit without one cluster is singular (that cluster alone
+    ``(clusters, ok)``: ``ok`` False when ``H`` (CR2) or a fit without one cluster (CR3) is singular (one cluster alone
     pins a direction: no finite estimate)."""
     n = X.shape[0]
     nk = Xk.shape[0]
@@ -252,20 +259,20 @@ def jackknife_kernel(X, e, nE, cl, nC, AB, Xk, uk, T, fx, fy, cx, cy, w, r, wk, 
     return m, ok
 
 
-def edge_jackknife_cov(T: np.ndarray, K: np.ndarray, X: np.ndarray, e: np.ndarray, A: np.ndarray, B: np.ndarray,
+def edge_cluster_cov(T: np.ndarray, K: np.ndarray, X: np.ndarray, e: np.ndarray, A: np.ndarray, B: np.ndarray,
                        w: np.ndarray, r: np.ndarray, klt_X: np.ndarray | None = None, klt_uv: np.ndarray | None = None,
                        wk: np.ndarray | None = None, gauge: np.ndarray | None = None,
                        gauge_lambda: float = 0.0, cr2: bool = True) -> tuple[np.ndarray | None, int]:
-    """The jackknife covariance (6, 6) of the edge pose ``T`` (T_cam_model) from the samples of its last
+    """The cluster-robust covariance (6, 6) of the edge pose ``T`` (T_cam_model) from the samples of its last
     VVS linearisation (``X`` model points, ``e`` edge ids, ``w`` weights, ``r`` residuals px; only
     samples with a candidate) and its KLT points (``gauge``: a unit twist that no image sees, held
     fixed with ``gauge_lambda``, see :meth:`RenderEdgeProvider.gauge_cov`); ``(None, clusters)`` when it has fewer than
     :data:`MIN_CLUSTERS` clusters or a fit without one of them is singular (see
-    :func:`jackknife_kernel`)."""
+    :func:`cluster_cov_kernel`)."""
     nk = 0 if klt_X is None else len(klt_X)
     C = np.empty((6, 6))
     cl, nC = edge_chunks(e)
-    m, ok = jackknife_kernel(np.ascontiguousarray(X, np.float64), np.ascontiguousarray(e, np.int64), len(A), cl, nC,
+    m, ok = cluster_cov_kernel(np.ascontiguousarray(X, np.float64), np.ascontiguousarray(e, np.int64), len(A), cl, nC,
                              np.ascontiguousarray(np.concatenate([A, B]), np.float64),
                              np.ascontiguousarray(klt_X, np.float64) if nk else np.zeros((0, 3)),
                              np.ascontiguousarray(klt_uv, np.float64) if nk else np.zeros((0, 2)),

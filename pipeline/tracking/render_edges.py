@@ -268,9 +268,9 @@ class RenderEdgeProvider:
         for a body of revolution (:func:`revolution_axis`) a turn of the model about its axis changes no image, so
         its twist is a gauge freedom (any value is as right as any other) and not an uncertainty of the pose: the
         covariance is ``rms^2 (W + lambda n n^T)^-1`` for the unit twist ``n`` of that turn (lambda: 1e6 x the
-        largest diagonal of the information ``W``); with the solve's jackknife inputs ``jk``
-        (:attr:`VVSResult.jk_inputs`) the delete-one-edge covariance with the same ``lambda n n^T``
-        (:func:`mst.pipeline.tracking.covariance.edge_jackknife_cov`). Other meshes: ``cov`` unchanged."""
+        largest diagonal of the information ``W``); with the solve's cluster-covariance inputs ``jk``
+        (:attr:`VVSResult.jk_inputs`) the cluster-robust covariance with the same ``lambda n n^T``
+        (:func:`mst.pipeline.tracking.covariance.edge_cluster_cov`). Other meshes: ``cov`` unchanged."""
         if self.axis is None or W is None or cov is None or not np.isfinite(W).all():
             return cov
         a, p = self.axis
@@ -286,9 +286,9 @@ class RenderEdgeProvider:
         except np.linalg.LinAlgError:
             return cov
         if jk is not None:
-            from mst.pipeline.tracking.covariance import edge_jackknife_cov, psd_max
+            from mst.pipeline.tracking.covariance import edge_cluster_cov, psd_max
 
-            C = edge_jackknife_cov(*jk, gauge=n, gauge_lambda=lam)[0]
+            C = edge_cluster_cov(*jk, gauge=n, gauge_lambda=lam)[0]
             if C is not None:
                 return psd_max(C_fixed, C)
         return C_fixed

@@ -33,7 +33,8 @@ CSV_HEADER = ["frame", "time", "status", "samples", "inliers", "residual_px", "h
 #: ``<stem>.cov.csv``: per frame the 6x6 covariance of the edge (VVS) pose, for frames whose output
 #: pose is the edge pose (status ``model``; empty otherwise): the twist ``xi = (v, w)`` of the left
 #: perturbation ``T_cam_model' = exp(xi) T_cam_model`` (v metres, w radians, camera frame),
-#: ``sigma^2 (J^T W J)^-1``; and derived 1-sigma values: the camera position in the model frame
+#: the cluster-robust covariance of :mod:`mst.pipeline.tracking.covariance` (floored by ``sigma^2 (J^T W
+#: J)^-1``), only where it is symmetric positive definite as written; and derived 1-sigma values: the camera position in the model frame
 #: (``std_x_m .. std_z_m``, covariance ``R^T C_vv R``) and the rotation (``std_rot_deg``, the
 #: square root of the largest eigenvalue of ``C_ww``).
 COV_HEADER = (["frame", "status", "std_x_m", "std_y_m", "std_z_m", "std_rot_deg"]

@@ -14,7 +14,9 @@ KLT point reprojection errors (pixels):
 Perturbation convention (shared with the SLAM aid): ``T_cam_model_new = se3_exp(xi) @ T_cam_model``
 with ``xi = (v, w)``, v in metres and w in radians, in the camera frame. ``W = J^T diag(w) J``
 (pixels^-2 per unit twist, i.e. the information matrix for 1 px residual noise) and the covariance
-``sigma^2 W^-1`` with ``sigma`` the weighted residual RMS (pixels) are returned in that order.
+are returned in that order: the cluster-robust (CR2) covariance of :mod:`mst.pipeline.tracking.covariance`
+(the samples' errors are correlated along an edge), floored by the classical ``sigma^2 W^-1``
+(``sigma`` the weighted residual RMS, pixels; kept as ``VVSResult.cov_classical``).
 
 The solver does not raise to mean "no pose": :attr:`VVSResult.status` (:class:`mst.errors.SolveStatus`)
 says ``TOO_FEW`` (fewer than 6 residuals), ``DIVERGED`` (a non-finite pose or information matrix),
@@ -83,7 +85,7 @@ class VVSResult:
     klt_inlier: np.ndarray | None = None
     status: SolveStatus = SolveStatus.OK
     cov_classical: np.ndarray | None = None  #: ``rms^2 W^-1`` (i.i.d. residuals), for comparison
-    #: the jackknife's inputs (T, K, X, e, A, B, w, r, klt X, klt uv, klt w): a gauge-fixed one is computed
+    #: the cluster covariance's inputs (T, K, X, e, A, B, w, r, klt X, klt uv, klt w): a gauge-fixed one is computed
     #: from them (:meth:`mst.pipeline.tracking.render_edges.RenderEdgeProvider.gauge_cov`)
     jk_inputs: tuple | None = None
 
@@ -156,7 +158,7 @@ def _vvs_result(T, H, w, r, w_tukey, wk, nk: int, klt_weight: float, has, n_samp
     """The solve's result from its last linearisation: weights, residuals (px) and the Tukey inlier
     mask back on all ``n_samples`` (NaN residual / zero weight where a sample had no candidate), the
     covariance and the status (degenerate H, non-finite pose). The covariance is ``cov_jk`` (the
-    delete-one-edge jackknife of :mod:`mst.pipeline.tracking.covariance` from the inputs ``jk``) where
+    cluster-robust covariance of :mod:`mst.pipeline.tracking.covariance` from the inputs ``jk``) where
     there is one, else the classical ``rms^2 H^-1`` (kept as ``cov_classical``)."""
     sw = float(w.sum())
     ssr = float(np.sum(w * r * r))
@@ -182,9 +184,9 @@ def _vvs_result(T, H, w, r, w_tukey, wk, nk: int, klt_weight: float, has, n_samp
     R_full[has] = r
     cov_classical = cov
     if jk is not None and status is SolveStatus.OK:
-        from mst.pipeline.tracking.covariance import edge_jackknife_cov, psd_max
+        from mst.pipeline.tracking.covariance import edge_cluster_cov, psd_max
 
-        cov_jk = edge_jackknife_cov(*jk)[0]
+        cov_jk = edge_cluster_cov(*jk)[0]
         if cov_jk is not None:
             cov = psd_max(cov_classical, cov_jk)
     return VVSResult(T, H, cov, W_full, R_full, Wt_full > 0.5, sigma, rms, it, klt_in, status, cov_classical, jk)
