@@ -266,56 +266,71 @@ def missing_cells(P, lo, inv_h, dims, cell):
 def refine_cells(centres, r, par, pptr, ptri, tol, T):
     """Candidate lists of cells (centres (n, 3), half-diagonal ``r``) from their parents' lists.
 
-    Keeps the parent candidates whose distance to the cell centre is at most ``dmin + 2 r + tol``.
-    Returns ``(ptr (n + 1,), tri, lower_bound (n,) = dmin - r)``.
+    Keeps the parent candidates whose distance to the cell centre is at most ``dmin + 2 r + tol``,
+    ordered by that distance (ties: parent-list order). One pass over a parent's list finds ``dmin``
+    and keeps each candidate's box bound and distance (when computed) in a scratch row, a second pass
+    over the scratch selects; the selected lists go to an upper-bound buffer (the parents' list
+    lengths), then are packed. Returns ``(ptr (n + 1,), tri, lower_bound (n,) = dmin - r)``.
     """
     n = len(centres)
     dmin = np.empty(n)
     cnt = np.zeros(n, np.int64)
-    for i in prange(n):
-        p = par[i]
-        best = np.inf
-        for j in range(pptr[p], pptr[p + 1]):
-            if _box_d2(centres[i, 0], centres[i, 1], centres[i, 2], ptri[j], T) >= best:
-                continue
-            d2 = pt_tri(centres[i, 0], centres[i, 1], centres[i, 2], ptri[j], T)[0]
-            if d2 < best:
-                best = d2
-        dmin[i] = np.sqrt(best)
-        lim = dmin[i] + 2.0 * r + tol
-        lim2 = lim * lim
-        c = 0
-        for j in range(pptr[p], pptr[p + 1]):
-            if _box_d2(centres[i, 0], centres[i, 1], centres[i, 2], ptri[j], T) > lim2:
-                continue
-            d2 = pt_tri(centres[i, 0], centres[i, 1], centres[i, 2], ptri[j], T)[0]
-            if d2 <= lim2:
-                c += 1
-        cnt[i] = c
+    ub = np.zeros(n + 1, np.int64)
+    mx = 0
+    for i in range(n):
+        c = pptr[par[i] + 1] - pptr[par[i]]
+        ub[i + 1] = ub[i] + c
+        mx = max(mx, c)
+    tbuf = np.empty(ub[n], np.int64)
+    kbuf = np.empty(ub[n])
+    blk = 256
+    for bi in prange((n + blk - 1) // blk):
+        sbox = np.empty(mx)
+        sd2 = np.empty(mx)
+        for i in range(bi * blk, min(n, (bi + 1) * blk)):
+            p = par[i]
+            cx, cy, cz = centres[i, 0], centres[i, 1], centres[i, 2]
+            j0, j1 = pptr[p], pptr[p + 1]
+            best = np.inf
+            for j in range(j0, j1):
+                bx = _box_d2(cx, cy, cz, ptri[j], T)
+                sbox[j - j0] = bx
+                if bx >= best:
+                    sd2[j - j0] = -1.0  # not computed
+                    continue
+                d2 = pt_tri(cx, cy, cz, ptri[j], T)[0]
+                sd2[j - j0] = d2
+                if d2 < best:
+                    best = d2
+            dmin[i] = np.sqrt(best)
+            lim = dmin[i] + 2.0 * r + tol
+            lim2 = lim * lim
+            b = ub[i]
+            k = b
+            for j in range(j0, j1):
+                if sbox[j - j0] > lim2:
+                    continue
+                d2 = sd2[j - j0]
+                if d2 < 0.0:
+                    d2 = pt_tri(cx, cy, cz, ptri[j], T)[0]
+                if d2 <= lim2:
+                    # insertion by distance to the centre (lists are short)
+                    q = k
+                    while q > b and kbuf[q - 1] > d2:
+                        tbuf[q] = tbuf[q - 1]
+                        kbuf[q] = kbuf[q - 1]
+                        q -= 1
+                    tbuf[q] = ptri[j]
+                    kbuf[q] = d2
+                    k += 1
+            cnt[i] = k - b
     ptr = np.zeros(n + 1, np.int64)
     for i in range(n):
         ptr[i + 1] = ptr[i] + cnt[i]
     tri = np.empty(ptr[n], np.int64)
-    key = np.empty(ptr[n])
     for i in prange(n):
-        p = par[i]
-        lim = dmin[i] + 2.0 * r + tol
-        lim2 = lim * lim
-        k = ptr[i]
-        for j in range(pptr[p], pptr[p + 1]):
-            if _box_d2(centres[i, 0], centres[i, 1], centres[i, 2], ptri[j], T) > lim2:
-                continue
-            d2 = pt_tri(centres[i, 0], centres[i, 1], centres[i, 2], ptri[j], T)[0]
-            if d2 <= lim2:
-                # insertion by distance to the centre (lists are short)
-                q = k
-                while q > ptr[i] and key[q - 1] > d2:
-                    tri[q] = tri[q - 1]
-                    key[q] = key[q - 1]
-                    q -= 1
-                tri[q] = ptri[j]
-                key[q] = d2
-                k += 1
+        for q in range(cnt[i]):
+            tri[ptr[i] + q] = tbuf[ub[i] + q]
     return ptr, tri, dmin - r
 
 
