@@ -89,14 +89,16 @@ def _gauss6(A, b, x):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def cluster_cov_kernel(X, e, nE, cl, nC, AB, Xk, uk, T, fx, fy, cx, cy, w, r, wk, gn, glam, cr2, C_out):
+def cluster_cov_kernel(X, e, nE, cl, nC, AB, Xk, uk, T, fx, fy, cx, cy, w, r, wk, kcap, gn, glam, cr2, C_out):
     """The cluster-robust covariance (module docstring; ``cr2`` False: the delete-one-cluster
     jackknife ``(G - 1) / G sum_g ((H - H_g)^-1 s_g) (...)^T``, kept for comparison) into ``C_out (6, 6)``.
     ``X (n, 3)`` model
     points of the samples with a candidate, ``e (n,)`` their edge, ``cl (n,)`` their cluster (``0 ..
     nC - 1``, :func:`edge_chunks`), ``AB (2 nE, 3)`` the edge end
     points, ``w, r (n,)`` their last VVS weights and residuals (px), ``Xk (nk, 3)`` / ``uk (nk, 2)``
-    the KLT points and ``wk (2 nk,)`` their weights; Jacobians at the pose ``T``; ``glam gn gn^T``
+    the KLT points and ``wk (2 nk,)`` their weights (``kcap`` > 0: scaled as the solve's KLT information
+    cap, ``edges.klt_info_cap``: to at most ``kcap`` x the edges' information, ``tr(H_e^-1 H_k) / 6``);
+    Jacobians at the pose ``T``; ``glam gn gn^T``
     added to every information matrix (a gauge freedom ``gn`` (6,) fixed; ``glam`` 0: none). Returns
     ``(clusters, ok)``: ``ok`` False when ``H`` (CR2) or a fit without one cluster (CR3) is singular (one cluster alone
     pins a direction: no finite estimate)."""
@@ -176,6 +178,35 @@ def cluster_cov_kernel(X, e, nE, cl, nC, AB, Xk, uk, T, fx, fy, cx, cy, w, r, wk
                 wp = ww * J[p]
                 for c in range(6):
                     Hg[g, p, c] += wp * J[c]
+    if kcap > 0.0 and nk > 0:  # the solve's KLT information cap (kernels.vvs_solve), at this pose
+        He = np.zeros((6, 6))
+        Hk = np.zeros((6, 6))
+        for g in range(G):
+            for p in range(6):
+                for c in range(6):
+                    if g < nC:
+                        He[p, c] += Hg[g, p, c]
+                    else:
+                        Hk[p, c] += Hg[g, p, c]
+        col = np.empty(6)
+        xc = np.empty(6)
+        rho = 0.0
+        solved = True
+        for j in range(6):
+            for i in range(6):
+                col[i] = Hk[i, j]
+            if not _gauss6(He, col, xc):
+                solved = False
+                break
+            rho += xc[j]
+        rho /= 6.0
+        if solved and rho > kcap:
+            sc = kcap / rho
+            for g in range(nC, G):
+                for p in range(6):
+                    S[g, p] *= sc
+                    for c in range(6):
+                        Hg[g, p, c] *= sc
     H = np.zeros((6, 6))
     m = 0
     for g in range(G):
@@ -261,7 +292,7 @@ def cluster_cov_kernel(X, e, nE, cl, nC, AB, Xk, uk, T, fx, fy, cx, cy, w, r, wk
 
 def edge_cluster_cov(T: np.ndarray, K: np.ndarray, X: np.ndarray, e: np.ndarray, A: np.ndarray, B: np.ndarray,
                        w: np.ndarray, r: np.ndarray, klt_X: np.ndarray | None = None, klt_uv: np.ndarray | None = None,
-                       wk: np.ndarray | None = None, gauge: np.ndarray | None = None,
+                       wk: np.ndarray | None = None, klt_info_cap: float | None = None, gauge: np.ndarray | None = None,
                        gauge_lambda: float = 0.0, cr2: bool = True) -> tuple[np.ndarray | None, int]:
     """The cluster-robust covariance (6, 6) of the edge pose ``T`` (T_cam_model) from the samples of its last
     VVS linearisation (``X`` model points, ``e`` edge ids, ``w`` weights, ``r`` residuals px; only
@@ -278,7 +309,7 @@ def edge_cluster_cov(T: np.ndarray, K: np.ndarray, X: np.ndarray, e: np.ndarray,
                              np.ascontiguousarray(klt_uv, np.float64) if nk else np.zeros((0, 2)),
                              np.ascontiguousarray(T, np.float64), float(K[0, 0]), float(K[1, 1]), float(K[0, 2]),
                              float(K[1, 2]), np.ascontiguousarray(w, np.float64), np.ascontiguousarray(r, np.float64),
-                             np.ascontiguousarray(wk, np.float64) if nk else np.zeros(0),
+                             np.ascontiguousarray(wk, np.float64) if nk else np.zeros(0), float(klt_info_cap or 0.0),
                              np.zeros(6) if gauge is None else np.ascontiguousarray(gauge, np.float64),
                              0.0 if gauge is None else float(gauge_lambda), bool(cr2), C)
     if not ok or m < MIN_CLUSTERS:
