@@ -50,6 +50,19 @@ def _keep_freed_memory() -> None:
         pass
 
 
+def _no_final_collection() -> None:
+    """At interpreter exit, freeze the objects left (gc.freeze, from an atexit handler: it runs before
+    the final collection): the process ends, nothing needs collecting, and the final collection's walk
+    over every object of numpy, click and mst took 25-35 ms CPU of the 810k-point UTM bench case
+    (perf stat task-clock, medians of 5, 300-340 ms). In-process callers are unaffected until their exit."""
+    import atexit
+    import gc
+
+    if not getattr(_no_final_collection, "done", False):
+        atexit.register(gc.freeze)
+        _no_final_collection.done = True
+
+
 #: config field -> the option that sets it (errors on these fields name the option)
 FLAGS = {"thresholds_m": "--thresholds", "signed": "--signed", "max_dist_m": "--max-dist",
          "chunk_points": "--chunk", "engine": "--engine"}
@@ -172,6 +185,7 @@ def c2m(clouds, mesh, thresholds, signed, max_dist, output, as_csv, markdown, pl
         raise InputError(output, "-o must be a .ply file")
     total = open_cloud(cloud).count
     _keep_freed_memory()
+    _no_final_collection()
     with progress_bar(total, "c2m", quiet=quiet or total < 2_000_000) as advance:
         result = run_c2m(cloud, mesh, cfg, out_cloud=output, progress=advance)
     dist = result.distances
