@@ -103,3 +103,26 @@ def test_vertex_writer_blocks_write_the_same_bytes(tmp_path, monkeypatch):
             w.write(data)
         raw = p.read_bytes()
         assert raw[raw.index(b"end_header\n") + len(b"end_header\n"):] == want.tobytes()
+
+
+def test_parent_lists_from_the_kernel_chain_give_the_numpy_hierarchys_cell_lists():
+    """The dense grid's parents refined level by level in the compiled kernel (distance-ordered) give
+    every fine cell the candidate list (same triangles, same order, same lower bound) that parents
+    from the numpy coarse-to-fine hierarchy (triangle-id ordered) give."""
+    from mst.eval.c2m.grids import DenseGrid
+    from mst.meshtools.generate import courtyard
+
+    V, F = courtyard(split=3)
+    idx = c2m.prepare_mesh(V, F, engine="grid")
+    P = np.random.default_rng(8).uniform(V.min(0) - 2, V.max(0) + 2, (20000, 3)) - idx.shift
+    g1, g2 = DenseGrid(idx), DenseGrid(idx)
+    if g1.nb is None or g1.levels < 2:
+        pytest.skip("no compiled kernels or too few levels for parent lists")
+    g2._ancestor_lists = lambda keys, up: g2._tg.candidates(keys, g2.lo, g2.h * (1 << up), g2.levels - up, g2.nb)[:2]
+    flat = g1.nb.missing_cells(P, g1.lo.astype(np.float64), 1.0 / g1.h, g1.dims, g1.cell)
+    assert len(flat) > 1000
+    g1._fill(flat)
+    g2._fill(flat)
+    np.testing.assert_array_equal(g1.cell, g2.cell)
+    np.testing.assert_array_equal(g1.cand, g2.cand)
+    np.testing.assert_array_equal(g1.lb, g2.lb)

@@ -267,7 +267,7 @@ def refine_cells(centres, r, par, pptr, ptri, tol, T):
     """Candidate lists of cells (centres (n, 3), half-diagonal ``r``) from their parents' lists.
 
     Keeps the parent candidates whose distance to the cell centre is at most ``dmin + 2 r + tol``,
-    ordered by that distance (ties: parent-list order). One pass over a parent's list finds ``dmin``
+    ordered by that distance (ties: by triangle id). One pass over a parent's list finds ``dmin``
     and keeps each candidate's box bound and distance (when computed) in a scratch row, a second pass
     over the scratch selects; the selected lists go to an upper-bound buffer (the parents' list
     lengths), then are packed. Returns ``(ptr (n + 1,), tri, lower_bound (n,) = dmin - r)``.
@@ -314,13 +314,15 @@ def refine_cells(centres, r, par, pptr, ptri, tol, T):
                 if d2 < 0.0:
                     d2 = pt_tri(cx, cy, cz, ptri[j], T)[0]
                 if d2 <= lim2:
-                    # insertion by distance to the centre (lists are short)
+                    # insertion by distance to the centre, then triangle id (lists are short): the
+                    # order does not depend on the parent list's
+                    t = ptri[j]
                     q = k
-                    while q > b and kbuf[q - 1] > d2:
+                    while q > b and (kbuf[q - 1] > d2 or (kbuf[q - 1] == d2 and tbuf[q - 1] > t)):
                         tbuf[q] = tbuf[q - 1]
                         kbuf[q] = kbuf[q - 1]
                         q -= 1
-                    tbuf[q] = ptri[j]
+                    tbuf[q] = t
                     kbuf[q] = d2
                     k += 1
             cnt[i] = k - b
