@@ -20,15 +20,16 @@ from mst.pipeline.tracking.session import FIRST_FRAME_AGREE_SIGMA, TrackingPolic
 
 
 def _fr(sigma_m: float, T=None) -> FrameResult:
-    """A healthy edge pose with an isotropic position covariance of ``sigma_m`` over the 3 axes."""
+    """A healthy edge pose with an isotropic position covariance of ``sigma_m`` over the 3 axes (the
+    classical one: information ``W`` = rms^2 cov^-1 for its 0.1 px residual RMS)."""
     cov = np.diag([sigma_m**2 / 3] * 3 + [1e-8] * 3)
     T = T if T is not None else se3_exp(np.array([0.0, 0.0, 100.0, 0.0, 0.0, 0.0]))
-    return FrameResult(T, True, 50, 45, 0.1, 3.0, np.linalg.inv(cov), cov)
+    return FrameResult(T, True, 50, 45, 0.1, 3.0, 0.1**2 * np.linalg.inv(cov), cov)
 
 
 def test_first_frame_keeps_the_plain_fit_when_the_tolerant_one_moved_many_sigma():
     """The session's first frame: the tolerant fit is replaced by the plain fit from the initial pose
-    when they disagree by more than FIRST_FRAME_AGREE_SIGMA under the tolerant fit's covariance."""
+    when they disagree by more than FIRST_FRAME_AGREE_SIGMA under the tolerant fit's classical covariance."""
     from mst.pipeline.tracking.session import TrackingSession
 
     T0 = se3_exp(np.array([0.0, 0.0, 100.0, 0.0, 0.0, 0.0]))
