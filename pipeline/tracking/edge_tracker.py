@@ -97,6 +97,7 @@ class EdgeTracker:
         self.klt_pts: np.ndarray | None = None  # (M,2) px in prev frame
         self.klt_X: np.ndarray | None = None  # (M,3) model frame
         self.prev_gray: np.ndarray | None = None
+        self._pyramids = None  # the KLT pyramids of the last two frames (core.klt.PyramidCache)
         self._klt_next: tuple[np.ndarray, np.ndarray] | None = None  # the last fit's KLT inliers (model points, px)
         self._klt_age = 0  # frames since the KLT corners were detected
         self._klt_n0 = 0  # corners at the last detection
@@ -240,8 +241,13 @@ class EdgeTracker:
 
         if self.klt_pts is None or len(self.klt_pts) < 4 or self.prev_gray is None:
             return None
+        pyr = self._pyramids
+        if pyr is None:
+            from mst.core.klt import PyramidCache
+
+            pyr = self._pyramids = PyramidCache(self.klt_cfg)  # each frame's pyramid built once
         # forward-backward check: drops unstable tracks (noise, occlusion boundaries)
-        p1, ok, _ = track_forward_backward(self.prev_gray, gray, self.klt_pts, self.klt_cfg)
+        p1, ok, _ = track_forward_backward(pyr.get(self.prev_gray), pyr.get(gray), self.klt_pts, self.klt_cfg)
         if ok.sum() < 4:
             return None
         return self.klt_X[ok], p1[ok].astype(np.float64)
