@@ -38,13 +38,14 @@ class KltConfig(Config):
 @dataclass(frozen=True)
 class Pyramid:
     """One frame's image pyramid for :func:`track_forward_backward` (built once per frame by
-    :func:`build_pyramid`; a frame-to-frame tracker keeps the previous frame's). ``buf``: all
-    levels' pixels (uint8, row-major, base level first); ``tab`` (L + 1, 3) int64: each level's
-    offset in ``buf``, height and width; ``image``: the base level (H, W) uint8."""
+    :func:`build_pyramid`; a frame-to-frame tracker keeps the previous frame's). ``image``: the
+    base level (H, W) uint8 (the frame itself, not copied); ``buf``: the coarser levels' pixels
+    (uint8, row-major, one after the other); ``tab`` (L + 1, 3) int64: each level's offset (in
+    ``buf``; 0 for the base level, read from ``image``), height and width."""
 
+    image: np.ndarray
     buf: np.ndarray
     tab: np.ndarray
-    image: np.ndarray
 
     @property
     def levels(self) -> int:
@@ -58,18 +59,20 @@ def build_pyramid(gray: np.ndarray, levels: int, window_px: int = 3) -> Pyramid:
     import cv2
 
     img = np.ascontiguousarray(to_gray(gray))
-    lv = [img]
-    while len(lv) <= levels:
-        h, w = lv[-1].shape
+    shapes = [img.shape]
+    while len(shapes) <= levels:
+        h, w = shapes[-1]
         if (h + 1) // 2 <= window_px or (w + 1) // 2 <= window_px:
             break
-        lv.append(cv2.pyrDown(lv[-1]))
-    tab = np.zeros((len(lv), 3), np.int64)
-    sizes = np.array([a.size for a in lv], np.int64)
-    tab[1:, 0] = np.cumsum(sizes)[:-1]
-    tab[:, 1] = [a.shape[0] for a in lv]
-    tab[:, 2] = [a.shape[1] for a in lv]
-    return Pyramid(np.concatenate([a.ravel() for a in lv]), tab, img)
+        shapes.append(((h + 1) // 2, (w + 1) // 2))
+    tab = np.zeros((len(shapes), 3), np.int64)
+    tab[:, 1:] = shapes
+    tab[2:, 0] = np.cumsum(tab[1:, 1] * tab[1:, 2])[:-1]
+    buf = np.empty(int(tab[-1, 0] + tab[-1, 1] * tab[-1, 2]) if len(shapes) > 1 else 0, np.uint8)
+    lv = [img] + [buf[o:o + h * w].reshape(h, w) for o, h, w in tab[1:]]
+    for k in range(1, len(lv)):  # each level written in place into the flat buffer
+        cv2.pyrDown(lv[k - 1], dst=lv[k], dstsize=(int(tab[k, 2]), int(tab[k, 1])))
+    return Pyramid(img, buf, tab)
 
 
 class PyramidCache:
@@ -102,7 +105,7 @@ def _lk(prev: Pyramid, cur: Pyramid, p0: np.ndarray, guess: np.ndarray | None, c
     n = len(p0)
     out, st = np.empty((n, 2)), np.empty(n, np.uint8)
     g = p0 if guess is None else np.ascontiguousarray(guess, np.float64)
-    lk_track(prev.buf, prev.tab, cur.buf, cur.tab, p0, g, guess is not None, int(cfg.window_px),
+    lk_track(prev.image.reshape(-1), prev.buf, prev.tab, cur.image.reshape(-1), cur.buf, cur.tab, p0, g, guess is not None, int(cfg.window_px),
              int(min(cfg.pyramid_levels, prev.levels, cur.levels)), int(cfg.max_iterations), float(cfg.eps_px),
              MIN_EIG, out, st)
     return out, st.astype(bool)

@@ -17,8 +17,8 @@ image is refused (OpenCV keeps those within a window of the border, matched agai
 reflected border). Tracked positions agree with OpenCV's within its stopping step
 (tests/test_core_klt.py). No fastmath, sums in a fixed order: the same on every CPU.
 
-A pyramid is one flat uint8 buffer (all levels, row-major) and an ``(L + 1, 3)`` int64 table of
-each level's offset, height and width. Pixels: (u, v) of the base image; level ``l`` holds
+A pyramid is the base image (flat), one flat uint8 buffer of the coarser levels (row-major) and
+an ``(L + 1, 3)`` int64 table of each level's offset, height and width. Pixels: (u, v) of the base image; level ``l`` holds
 ``(u, v) / 2**l`` (OpenCV's convention).
 """
 
@@ -63,8 +63,10 @@ def _weights(a, b):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def lk_track(pbuf, ptab, nbuf, ntab, pts, guess, use_guess, win, max_level, max_iter, eps, min_eig, out, status):
-    """Track ``pts`` (N, 2) float64 px from the pyramid ``(pbuf, ptab)`` to ``(nbuf, ntab)``.
+def lk_track(pbase, pbuf, ptab, nbase, nbuf, ntab, pts, guess, use_guess, win, max_level, max_iter, eps, min_eig,
+             out, status):
+    """Track ``pts`` (N, 2) float64 px from the pyramid ``(pbase, pbuf, ptab)`` to ``(nbase, nbuf, ntab)``
+    (the base level flat, the coarser levels, the table of :class:`mst.core.klt.Pyramid`).
 
     ``guess`` (N, 2): start positions in the next image when ``use_guess`` (else the points
     themselves). ``win``: the square window's side (px, every level); ``max_level``: the coarsest
@@ -118,7 +120,7 @@ def lk_track(pbuf, ptab, nbuf, ntab, pts, guess, use_guess, win, max_level, max_
                     st = 0
                 continue
             w00, w01, w10, w11 = _weights(px - ix, py - iy)
-            _patch(pbuf, off, H, W, iy - 1, ix - 1, win + 3, S, P)
+            _patch(pbase if level == 0 else pbuf, off, H, W, iy - 1, ix - 1, win + 3, S, P)
             for k in range(U(ws * S)):  # Scharr 3-10-3 at the window's pixels and neighbours
                 gx[k] = 3 * (P[k + u2] - P[k] + P[k + uS2 + u2] - P[k + uS2]) + 10 * (P[k + uS + u2] - P[k + uS])
                 gy[k] = 3 * (P[k + uS2] - P[k] + P[k + uS2 + u2] - P[k + u2]) + 10 * (P[k + uS2 + u1] - P[k + u1])
@@ -148,7 +150,7 @@ def lk_track(pbuf, ptab, nbuf, ntab, pts, guess, use_guess, win, max_level, max_
                         st = 0
                     break
                 v00, v01, v10, v11 = _weights(nx - jx, ny - jy)
-                _patch(nbuf, noff, nH, nW, jy, jx, ws, S, Q)
+                _patch(nbase if level == 0 else nbuf, noff, nH, nW, jy, jx, ws, S, Q)
                 b1, b2 = 0, 0
                 for k in range(U(win * S)):
                     d = (((v00 * Q[k] + v01 * Q[k + u1] + v10 * Q[k + uS] + v11 * Q[k + uS + u1] + r5) >> (W_BITS - 5))

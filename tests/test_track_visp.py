@@ -78,11 +78,6 @@ def _mst(t, d, aid, corners):
     return s, corners(inv_T(P))
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "since the BLAS-free float64 convolutions (session 5, same bytes on every CPU) --slam off moved "
-    "closer to ViSP's hybrid (0.763 -> 0.739 px) and the default did not (0.793 px): paired difference "
-    "+0.054 px against its 2-SE bound 0.051; forward-backward still favours the default (0.257 vs 0.320 px). "
-    "The old pass depended on the CPU's BLAS (+0.030 Haswell, +0.037 Sandybridge)"))
 def test_default_agrees_with_visp_hybrid(teabox):
     t, d, corners, visp = teabox
     n = len(visp["hybrid"])

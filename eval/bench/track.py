@@ -69,7 +69,8 @@ BUDGET_STAGES = (
     ("visibility_sampling", ("visible_samples",)),
     ("moving_edge_search", ("search_edges",)),
     ("vvs", ("solve_pose",)),
-    ("klt", ("_klt_points", "track_forward_backward")),
+    ("klt_tracking", ("_klt_track",)),  # the frame's pyramid (built once) and the forward-backward LK
+    ("klt_detection", ("_klt_points",)),  # re-detection (on few frames: its share of the whole run)
     ("health_evidence", ("evidence", "_absolute_health")),
 )
 

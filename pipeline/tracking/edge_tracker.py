@@ -26,6 +26,10 @@ from mst.pipeline.tracking.config import TrackConfig, lod_thresholds, scene_near
 from mst.pipeline.tracking.health import ORIENT_TOL_DEG, PoseEvidence, image_noise_sigma
 from mst.pipeline.tracking.moving_edges import _image
 
+#: fewer KLT points than this in a fit: no ``klt_agree`` for the health score (one cluster of the
+#: monitor's noise model, :class:`mst.pipeline.tracking.health.HealthMonitor`)
+KLT_SIGNAL_MIN = 10
+
 
 @dataclass
 class FrameResult:
@@ -380,7 +384,10 @@ class EdgeTracker:
         if self.health_score:
             out.evidence = self.evidence(img, T, S)  # the last pass's samples, re-projected at T
         if klt is not None and res.klt_inlier is not None:
-            out.klt_agree, out.n_klt = float(np.mean(res.klt_inlier)), int(len(res.klt_inlier))
+            out.n_klt = int(len(res.klt_inlier))
+            # the health monitor counts KLT points in clusters of 10 (they move together): fewer
+            # than one cluster is no agreement signal (one of 4 points flipping moved the score by 0.6)
+            out.klt_agree = float(np.mean(res.klt_inlier)) if out.n_klt >= KLT_SIGNAL_MIN else None
         return out
 
     def _absolute_health(self, img, S, T, res, recover: bool):
