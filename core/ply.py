@@ -244,16 +244,41 @@ class VertexStream:
             cols = [self._names.index(k) for k in names]
             yield from ascii_rows(h.path, h.data_offset, n, cols, "ascii vertex data", "vertices")(size)
             return
+        # the vertex record is exactly ``names`` of one native type (a plain x y z cloud): read as a
+        # (k, len(names)) array, no record buffer (float64 files need no conversion at all)
+        flat = self._flat_type(names)
         # plain reads (not a memory map): file pages would otherwise stay in the resident set
         with open(h.path, "rb") as f:
             f.seek(self.offset)
             for s in range(0, n, size):
-                blk = np.fromfile(f, dtype=self.dtype, count=min(size, n - s))
+                k = min(size, n - s)
+                if flat is not None:
+                    a = np.fromfile(f, dtype=flat, count=k * len(names)).reshape(-1, len(names))
+                    if a.dtype != np.float64:
+                        with np.errstate(invalid="ignore"):  # signalling NaNs pass through as NaN
+                            a = a.astype(np.float64)
+                    yield a
+                    continue
+                blk = np.fromfile(f, dtype=self.dtype, count=k)
                 out = np.empty((len(blk), len(names)), np.float64)
                 with np.errstate(invalid="ignore"):  # signalling NaNs pass through as NaN
-                    for j, k in enumerate(names):
-                        out[:, j] = blk[k]
+                    for j, nm in enumerate(names):
+                        out[:, j] = blk[nm]
+                del blk  # not held while the caller works on the chunk
                 yield out
+
+    def _flat_type(self, names: Sequence[str]) -> np.dtype | None:
+        """The common native dtype when the vertex record is exactly ``names`` in order, packed."""
+        dt = self.dtype
+        if tuple(dt.names) != tuple(names):
+            return None
+        types = {dt.fields[nm][0] for nm in names}
+        if len(types) != 1:
+            return None
+        t = types.pop()
+        if not t.isnative or t.kind not in "fiu" or dt.itemsize != t.itemsize * len(names):
+            return None
+        return t
 
     def read(self, names: Sequence[str] = ("x", "y", "z")) -> np.ndarray:
         """All vertices: float64 ``(count, len(names))``."""
@@ -477,20 +502,30 @@ class PlyVertexWriter:
         self._f.write(_header_bytes([("vertex", self.count, props)], comments))
         self.written = 0
 
+    #: rows interleaved and written per step: the record buffer (~1 MiB) is reused, so a chunk of a
+    #: million points costs no fresh 28 MiB buffer (7,000 page faults, ~15 ms CPU)
+    BLOCK_ROWS = 1 << 15
+
     def write(self, columns: Sequence[np.ndarray]) -> None:
         """One chunk: a column per property, in order (cast to the property types)."""
         n = len(columns[0])
         one = {self.dtype[k] for k in self.dtype.names}
-        if len(one) == 1:  # all of one type: a plain (n, k) array has the same layout
-            arr = np.empty((n, len(self.dtype.names)), one.pop())
-            for j, c in enumerate(columns):
-                arr[:, j] = c
-            arr.tofile(self._f)
+        single = len(one) == 1
+        step = max(1, min(n, self.BLOCK_ROWS))
+        if single:  # all of one type: a plain (n, k) array has the same layout
+            buf = np.empty((step, len(self.dtype.names)), one.pop())
         else:
-            rec = np.empty(n, self.dtype)
-            for k, c in zip(self.dtype.names, columns):
-                rec[k] = c
-            rec.tofile(self._f)
+            buf = np.empty(step, self.dtype)
+        for s in range(0, n, step):
+            e = min(n, s + step)
+            b = buf[: e - s]
+            if single:
+                for j, c in enumerate(columns):
+                    b[:, j] = c[s:e]
+            else:
+                for k, c in zip(self.dtype.names, columns):
+                    b[k] = c[s:e]
+            b.tofile(self._f)
         self.written += n
 
     def close(self) -> None:

@@ -221,17 +221,18 @@ class _EdgeScorer:
     def sim_scores(self, s, shifts: np.ndarray, sims: np.ndarray, coarse: bool) -> np.ndarray:
         """Scores (k, M) of the samples ``s`` under each image similarity ``sims`` (k, 2) = (scale about
         the samples' image centroid, rotation about the principal point, rad) followed by each image
-        shift (M, 2) px; at most ``shift_samples`` samples, evenly spaced; a sample moved out of the
+        shift (M, 2) px (or (k, M, 2): a shift set per similarity); at most ``shift_samples`` samples, evenly spaced; a sample moved out of the
         image is a miss. ``coarse``: on the distance transforms eroded by half the coarse grid step
         (a grid node then scores as well as the best position within its cell)."""
-        from mst.pipeline.autoinit_kernels import sim_shift_means
+        from mst.pipeline.autoinit_kernels import sim_own_shift_means, sim_shift_means
 
         D = self.D_coarse if coarse else self.D
         idx = np.linspace(0, len(s) - 1, min(len(s), self.cfg.shift_samples)).astype(np.int64)
         uv = np.ascontiguousarray(s.uv[idx], np.float64)
-        m = sim_shift_means(D, uv, np.ascontiguousarray(s.normal[idx], np.float64), uv.mean(0),
-                            np.ascontiguousarray(self.K[:2, 2], np.float64), np.ascontiguousarray(sims, np.float64),
-                            np.ascontiguousarray(shifts, np.float64), self.n_bins)
+        kern = sim_own_shift_means if shifts.ndim == 3 else sim_shift_means  # (k, M, 2): a shift set per similarity
+        m = kern(D, uv, np.ascontiguousarray(s.normal[idx], np.float64), uv.mean(0),
+                 np.ascontiguousarray(self.K[:2, 2], np.float64), np.ascontiguousarray(sims, np.float64),
+                 np.ascontiguousarray(shifts, np.float64), self.n_bins)
         n = len(s)
         return (m * n + max(self.n_ref - n, 0)) / max(n, self.n_ref, 1)
 
@@ -282,16 +283,13 @@ def _search_shifts(sc_: _EdgeScorer, T_mc: np.ndarray, shifts: np.ndarray, sims:
         if len(s) < sc_.cfg.min_samples:
             continue
         sc = sc_.sim_scores(s, shifts, sims, coarse=fine is not None)
-        if fine is not None:  # each similarity's best coarse shift, refined on the plain transforms
-            best = (np.inf, 0, None)
+        if fine is not None:  # each similarity's 3 best coarse shifts, refined on the plain transforms
             top = np.argsort(sc, 1)[:, :3]
-            for k in range(len(sims)):
-                cand = (shifts[top[k]][:, None] + fine[None]).reshape(-1, 2)
-                f2 = sc_.sim_scores(s, cand, sims[k:k + 1], coarse=False)[0]
-                j2 = int(np.argmin(f2))
-                if f2[j2] < best[0]:
-                    best = (f2[j2], k, cand[j2])
-            scores[i], k, sh = best
+            cand = (shifts[top][:, :, None] + fine[None, None]).reshape(len(sims), -1, 2)
+            f2 = sc_.sim_scores(s, cand, sims, coarse=False)
+            k = int(np.argmin(f2.min(1)))  # the first similarity reaching the minimum, its first shift
+            j2 = int(np.argmin(f2[k]))
+            scores[i], sh = f2[k, j2], cand[k, j2]
         else:
             k, j = np.unravel_index(int(np.argmin(sc)), sc.shape)
             scores[i], sh = sc[k, j], shifts[j]

@@ -5,16 +5,18 @@ house, with depth), tracked by ``mst track`` in its default mode (with depth: th
 model at 10 Hz: GPS 3 m / 5 m white + 0.05 m/sqrt(s) bias walk + 2 % multipath, AHRS 3 deg, 60 deg
 mount, lever 0.18 m; one GPS dropout of 10-11 s; the model georeferenced: its model-to-world transform
 given, as for a surveyed building). A 6 s vision gap is cut from the tracked trajectory in the half
-of the flight away from the dropout (the tracker does not lose this sequence by itself).
+of the flight away from the dropout (the tracker's error budget refuses 7 of the 60 poses by itself,
+frames 2-6 and 15-16: 2 sigma 0.5-1.0 % against its 1 %, 0.5 x after a refusal).
 
-Budgets: GPS sigma 3 m horizontal; the tracked vision here is 4.1 cm / 0.20 deg RMS (its
-covariances in traj.cov.csv are optimistic: NEES 8.4 for 3). Seeds 0-7 measured (2026-12-02, load
-~20): fused/vision position RMSE on the tracked frames 1.00 (the issue's 0.5 x min(vision, GPS) is
-NOT reached: the tracker's error is correlated from frame to frame, a 15-frame moving average keeps
-0.73 of it, so no smoothing removes it, and the 7 m GPS cannot see 4 cm); attitude RMSE 0.19-0.20
-deg on the tracked frames, 0.39-0.57 deg over all frames (the 6 s gap, 20 % of the frames, is
-bridged by the 3 deg AHRS); mount yaw error <= 0.38 deg; gap error <= 0.68 m; at the GPS's return
-the error changes by 1-9 mm against 7-10 mm RMS per frame.
+Budgets: GPS sigma 3 m horizontal; the tracked vision here is 3.9 cm / 0.19 deg RMS (its
+covariances in traj.cov.csv are optimistic: NEES 8.4 for 3, measured last session). Seeds 0-7
+re-measured 2026-12-02 on the track with the error budget (load ~5): fused/vision position RMSE on
+the tracked frames 0.999-1.001 (the issue's 0.5 x min(vision, GPS) is NOT reached, and no GPS
+fusion can reach it: the oracle Wiener bound is 0.955-0.97x, test below: the tracker's error is a
+slow bias, lag-1 autocorrelation 0.97, and the 6.6 m GPS averaged over 30 s is still ~0.4 m per
+axis); attitude RMSE 0.19 deg on the tracked frames, 0.51-0.75 deg over all frames (the 6 s gap,
+20 % of the frames, is bridged by the 3 deg AHRS alone); mount yaw error <= 0.24 deg; gap error
+<= 2.05 m; at the GPS's return the error changes by 1-10 mm against 7-11 mm RMS per frame.
 """
 
 from __future__ import annotations
@@ -166,3 +168,47 @@ def test_refine_nav_factors_do_not_spoil_centimetre_poses(tracked_flyover, tmp_p
     with_nav, without = _refine(tracked_flyover, tmp_path, True), _refine(tracked_flyover, tmp_path, False)
     assert with_nav.ate["after_m"] <= 1.1 * without.ate["after_m"] + 0.001, (with_nav.ate, without.ate)
     assert with_nav.ate["after_ba_m"] <= 1.1 * without.ate["after_ba_m"] + 0.001, (with_nav.ate, without.ate)
+
+
+def _vision_errors(seq):
+    """Frame indices, position errors (N, 3) and 3-D RMSE of the whole tracked trajectory (no gap cut)."""
+    from mst.core.trajectory import read_tum
+
+    t_gt, T_gt = read_tum(seq / "gt.txt")
+    t_v, T_v = read_tum(seq / "traj.txt")
+    k = np.rint(t_v * FPS).astype(int)
+    e = T_v[:, :3, 3] - T_gt[k, :3, 3]
+    return k, e, T_gt[k, :3, 3], float(np.sqrt(np.mean(np.sum(e**2, 1))))
+
+
+def test_the_issues_half_of_the_vision_is_beyond_any_gps_fusion(tracked_flyover):
+    """Why the issue's "fused RMSE <= 0.5 x min(vision, GPS)" is not met here: the oracle Wiener bound
+    (pipeline/nav/bound.py: an ideal linear smoother that knows the realised spectrum of the vision
+    error, the GPS noise's -- 3/3/5 m at 10 Hz + 0.05 m/sqrt(s) walk -- and, for the motion prior, the
+    fusion's constant-acceleration model at its stiffest scale) stays above 0.5 x the vision (the
+    better of the two: 4 cm against 6.6 m). Measured 2026-12-02: 0.97x with GPS alone, 0.955x with
+    the motion prior (the error is a slow bias, lag-1 autocorrelation 0.97); only a prior that knew
+    the true path's own spectrum (the straight line) would reach 0.49x. Margin: the bound must
+    exceed 0.5x by 0.2 (white vision errors of the same RMS give 0.54x: the correlation, not the
+    size, of the error is what no GPS averaging removes)."""
+    from mst.pipeline.nav.bound import tracked_fusion_bound
+    from mst.pipeline.nav.fusion import FusionConfig
+    from mst.pipeline.nav.models import MOTION_NOISE_SCALES
+
+    k, e, _, ev = _vision_errors(tracked_flyover)
+    q = FusionConfig().jerk_sigma_mps3 * np.sqrt(MOTION_NOISE_SCALES.min())
+    b_gps = tracked_fusion_bound(k, e, FPS, 10.0)
+    b_ca = tracked_fusion_bound(k, e, FPS, 10.0, jerk_psd=q)
+    assert b_ca <= b_gps <= ev * 1.001  # more information never hurts the oracle
+    assert b_ca >= (0.5 + 0.2) * ev, (b_gps / ev, b_ca / ev)
+    # the same RMS as white noise: the motion prior alone would smooth half of it away (0.54x)
+    w = np.random.default_rng(0).normal(size=e.shape) * ev / np.sqrt(3)
+    assert tracked_fusion_bound(k, w, FPS, 10.0, jerk_psd=q) < 0.75 * ev
+
+
+@pytest.mark.xfail(strict=True, reason="the issue's 0.5 x min(vision, GPS): the fused/vision RMSE is ~1.0 on the "
+                   "tracked flyover; the oracle Wiener bound of any fusion with this GPS and motion model is 0.955-0.97x "
+                   "(test_the_issues_half_of_the_vision_is_beyond_any_gps_fusion)")
+def test_fused_rmse_half_the_better_of_vision_and_gps(fused):
+    for s, r in fused.items():
+        assert _rms(r["ep"][r["hv"]]) <= 0.5 * _rms(r["ev"]), s

@@ -206,8 +206,6 @@ _NOT_MET = {
                              "contour (at the true pose of frame 6 only 150 of 234 silhouette samples find a moving "
                              "edge: bright side on a bright textured floor); without the budget 0.60 % / 0.36 deg",
     ("blob", "fast", "auto"): "10 of 16 frames output (the same refusals; the aid does not help an untextured object)",
-    ("vase", "fast", "auto"): "7 of 16 frames output: the edges cannot see the orbit about the vase's axis, the "
-                              "aid (on the floor) does, and its map of the two disagreeing motions is wrong",
 }
 _CASES = [pytest.param(sh, sc, sl, marks=[pytest.mark.slow] + ([pytest.mark.xfail(reason=_NOT_MET[(sh, sc, sl)],
                                                                                   strict=True)]

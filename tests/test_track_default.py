@@ -4,7 +4,8 @@ Forward-backward consistency: track the 39 frames forward from the clicked pose,
 frames from the last forward pose; per frame, the mean distance (px) between the box corners
 projected with the forward and the backward pose. It folds translation and rotation into one image
 error; a tracker that drifts or jitters shows it, a perfect one gives 0. Measured (README, tracking
-section): edges only 0.28 px, edges + KLT 0.23 px, always-on mono SLAM 0.28 px at 2-3x the time.
+section, session 6): edges only 0.320 px, the default (edges + KLT with the KLT information cap)
+0.218 px (0.257 px uncapped), always-on mono SLAM 0.32 px at 2-3x the time (session 4).
 """
 
 from __future__ import annotations

@@ -178,6 +178,16 @@ def test_uav_survey_band_default_mode(survey):
     both = np.isin(d["idx"], o["idx"])
     e_d, e_o = d["err"][both], o["err"][np.isin(o["idx"], d["idx"])]
     assert _rms(e_d) <= _rms(e_o) + 0.2 * o["budget"], (_rms(e_d), _rms(e_o))
+    # "at least as accurate as edges only" when the default outputs more frames (README, UAV survey):
+    # the frames both output are compared (above); each extra frame (a turn frame edges only gave
+    # up) is held to the per-pose output bound (1 % / 2 deg, above); and the extra frames may not
+    # make the whole pass worse than the ATE target (0.1 % of the camera-building
+    # distance) or, where edges only misses that target too (the pixel-limited bands), than edges
+    # only's own whole-pass ATE (within the comparison's noise, 0.2 x its budget). Measured
+    # (session 6): 40 m 159 frames 0.040 m (0.07 %; edges only 134, 0.022 m), 120 m 156 frames
+    # 0.217 m (edges only 142, 0.220 m; target 0.15 m)
+    ate_d, ate_o = _rms(d["err"]), _rms(o["err"])
+    assert ate_d <= max(0.001 * dist, ate_o + 0.2 * o["budget"]), (ate_d, ate_o, dist)
 
 
 def _assert_slam_within_budget(run, V) -> None:

@@ -111,10 +111,15 @@ def _box_problem(seed: int):
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
-@pytest.mark.parametrize("klt", [False, True])
+@pytest.mark.parametrize("klt", [False, True, "cap"])
 def test_vvs_kernels_solve_the_numpy_pose(seed, klt):
     T0, X, edge, A, B, cand, Xk, uk = _box_problem(seed)
     kw = {"klt_X_model": Xk, "klt_uv": uk} if klt else {}
+    if klt == "cap":  # the KLT information capped (0.05 x the edges': binding on this problem)
+        kw["klt_info_cap"] = 0.05
+        free = solve_pose(T0, K, X, edge, A, B, cand, klt_X_model=Xk, klt_uv=uk)
+        capped = solve_pose(T0, K, X, edge, A, B, cand, **kw)
+        assert not np.allclose(free.T_cam_model, capped.T_cam_model, rtol=0, atol=1e-9)
     for mad, spread in ((0.3, True), (1.0, False)):
         a = solve_pose(T0, K, X, edge, A, B, cand, min_mad_px=mad, edge_spread_weight=spread, **kw)
         b = solve_pose_numpy(T0, K, X, edge, A, B, cand, min_mad_px=mad, edge_spread_weight=spread, **kw)

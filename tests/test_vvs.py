@@ -99,3 +99,48 @@ def test_too_few_matches_is_a_status_not_an_exception(n):
     res = solve_pose(T0, K, X, edge, A, B, cand, min_mad_px=0.3)
     assert res.status is SolveStatus.TOO_FEW and not res.has_pose
     assert np.array_equal(res.T_cam_model, T0) and not res.inlier.any()
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2, 3])
+def test_klt_points_lifted_under_a_wrong_pose_do_not_outvote_the_edges(seed):
+    """200 KLT points whose model coordinates were lifted from the faces under a detection pose off
+    by ~3 mm / 0.3 deg (the error all of them share), and exact edge matches. Uncapped, the points
+    outweigh the edges and the pose follows the detection pose's error (in the image: >= 0.85 of
+    it); with the information cap at 1 (the points know the pose as well as the edges did, no
+    better) the two count equally: about half of it (<= 0.7: equal information gives one half,
+    the margin for the two blocks' information not being proportional and the Tukey weights)."""
+    from mst.pipeline.tracking.vvs import klt_info_scale
+
+    X, edge, A, B = _cube()
+    T_true = _true_pose()
+    rng = np.random.default_rng(seed)
+    Xk = rng.uniform(-0.1, 0.1, (200, 3))
+    Xk[np.arange(200), rng.integers(0, 3, 200)] = rng.choice([-0.1, 0.1], 200)  # on the faces
+    d = rng.normal(0, 1, 6)
+    d[:3] *= 0.003 / np.linalg.norm(d[:3])
+    d[3:] *= np.radians(0.3) / np.linalg.norm(d[3:])
+    T_det = se3_exp(d) @ T_true
+    Ti = inv_T(T_det)
+    Xk_model = (Xk @ T_true[:3, :3].T + T_true[:3, 3]) @ Ti[:3, :3].T + Ti[:3, 3]  # lifted under T_det
+    uk = _project(T_true, Xk)  # where they are seen
+    corners = np.array([[x, y, z] for x in (-0.1, 0.1) for y in (-0.1, 0.1) for z in (-0.1, 0.1)])
+
+    def corner_px(T):
+        return np.linalg.norm(_project(T, corners) - _project(T_true, corners), axis=1).mean()
+
+    err = {}
+    for cap in (None, 1.0):
+        res = solve_pose(_start(T_true), K, X, edge, A, B, _project(T_true, X)[:, None, :], min_mad_px=0.3,
+                         iters=50, klt_X_model=Xk_model, klt_uv=uk, klt_info_cap=cap)
+        assert res.has_pose
+        err[cap] = corner_px(res.T_cam_model) / corner_px(T_det)
+    assert err[None] >= 0.85, err
+    assert err[1.0] <= 0.7, err
+    # the scale itself: the capped KLT information is exactly `cap` x the edges', whatever the units
+    He = np.diag([4.0, 3.0, 2.0, 1.0, 0.5, 0.25])
+    Hk = 10.0 * He + np.diag([1.0, 0, 0, 0, 0, 2.0])
+    s = klt_info_scale(He, Hk, 1.0)
+    assert abs(np.trace(np.linalg.solve(He, s * Hk)) / 6 - 1.0) < 1e-12
+    U = np.diag([1e3, 1e3, 1e3, 1, 1, 1])  # metres -> millimetres: H -> U^-1 H U^-1
+    assert abs(klt_info_scale(np.linalg.inv(U) @ He @ np.linalg.inv(U), np.linalg.inv(U) @ Hk @ np.linalg.inv(U), 1.0) - s) < 1e-12
+    assert klt_info_scale(He, 0.5 * He, 1.0) == 1.0 and klt_info_scale(He, Hk, None) == 1.0

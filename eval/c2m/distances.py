@@ -16,18 +16,16 @@ def point_distances(idx: MeshIndex, P: np.ndarray, signed: bool = False, max_dis
     ``max_dist`` (when given).
     """
     n = len(P)
-    d = np.full(n, np.nan)
-    s = np.full(n, np.nan) if signed else None
     if n == 0:
-        return d, s
-    todo = slice(None)
+        return np.full(0, np.nan), (np.full(0, np.nan) if signed else None)
+    todo = slice(None)  # the rows of P that Q holds (all of them until some are left out)
     Q = P
     if max_dist is not None and idx.engine != "grid":  # outside the mesh box grown by max_dist (the
         # grid engine skips far cells itself, from their distance lower bound)
         lo, hi = idx.V.min(0) - max_dist, idx.V.max(0) + max_dist
         todo = np.nonzero(((P >= lo) & (P <= hi)).all(1))[0]
         if not len(todo):
-            return d, s
+            return np.full(n, np.nan), (np.full(n, np.nan) if signed else None)
         Q = P[todo]
     if idx.engine == "grid":
         tri, d2, feat = idx.grid_nearest(Q, max_dist)
@@ -40,7 +38,9 @@ def point_distances(idx: MeshIndex, P: np.ndarray, signed: bool = False, max_dis
     dist = np.sqrt(d2)
     if max_dist is not None:
         dist[dist > max_dist] = np.nan
-    d[todo] = dist
+    every = isinstance(todo, slice)  # Q is P: no NaN rows to fill, no copy
+    d = dist if every else _at_rows(dist, todo, n)
+    s = None
     if signed:
         sgn = np.empty(len(Q))
         inner = feat == 0
@@ -50,8 +50,16 @@ def point_distances(idx: MeshIndex, P: np.ndarray, signed: bool = False, max_dis
         if len(bi):
             _, fb, Cb = triangle_distances(idx, Q[bi], tri[bi], need_closest=True)
             sgn[bi] = _dot(Q[bi] - Cb, _feature_normals(idx, tri[bi], fb))
-        s[todo] = np.where(sgn < 0, -1.0, 1.0) * dist
+        sd = np.where(sgn < 0, -1.0, 1.0) * dist
+        s = sd if every else _at_rows(sd, todo, n)
     return d, s
+
+
+def _at_rows(v: np.ndarray, rows: np.ndarray, n: int) -> np.ndarray:
+    """``v`` at ``rows`` of a length-``n`` array, NaN elsewhere."""
+    out = np.full(n, np.nan)
+    out[rows] = v
+    return out
 
 
 def _bvh_nearest(idx: MeshIndex, Q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

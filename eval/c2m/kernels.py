@@ -10,9 +10,12 @@ columns 0-2 corner a, 3-5 b - a, 6-8 c - a, 9-11 c - b, 12-14 unit normal, 15-17
 192-byte row, and an inlined helper binds one array, whose reference count numba updates (atomically)
 where it cannot prove the update redundant: with seven arrays that was 2-8 atomic updates per
 triangle or cell tested, 3x the search time of the serial (ahead-of-time) build. For the same reason
-the cell scan of the binned grid is written out in its two callers instead of an inlined helper.
+the searches of :func:`grid_query` and :func:`bins_query` (its cell scan included) are written out in
+their loops: as inlined helpers taking the arrays they ran 2x slower, 25% of the 200k-triangle bench
+case went to those atomic updates (only the rare far-point scan keeps :func:`_scan_cell`).
 Kernels never write into their array arguments (the ahead-of-time build marks them noalias).
-Loops run in parallel over points (``prange``), using every core.
+Loops run in parallel over points (``prange``), using every core; the searches visit their points in
+blocks of :data:`QUERY_BLOCK` (gathered in visiting order, searched, scattered back).
 """
 
 from __future__ import annotations
@@ -153,56 +156,78 @@ def bucket_order(P, lo, inv_h, dims, shift):
     return order
 
 
+#: points per block of the searches: each block's points are gathered into visiting order in a
+#: small buffer (96 KiB, reused: no fresh pages), searched in sequence, the results scattered back
+QUERY_BLOCK = 4096
+
+
 @njit(cache=True, parallel=True)
 def grid_query(P, lo, inv_h, dims, cell, lb, cand, max_dist, T, order):
     """Nearest triangle of every point from its grid cell's candidate list.
 
     ``cell[c]`` packs ``(start << 16) | count`` of cell c's candidates in ``cand`` (-1: not computed).
-    The triangles' bounding boxes (``T[:, 18:24]``) skip candidates cheaply.
-    Returns ``(tri, d2, feature, status)``; status 0 done, 1 outside the grid (not evaluated),
-    2 cell not computed yet (not evaluated), 3 farther than ``max_dist`` (tri -1). ``max_dist`` < 0: none.
+    The triangles' bounding boxes (``T[:, 18:24]``) skip candidates cheaply. Points are visited in
+    ``order`` (a spatially coherent permutation), :data:`QUERY_BLOCK` at a time: gathered into a
+    buffer, searched in sequence, the results scattered back (indexing through ``order`` inside the
+    search was 2x slower on a shuffled cloud: a random read and four random writes between the steps
+    of every search). Returns ``(tri, d2, feature, status)``; status 0 done, 1 outside the grid (not
+    evaluated), 2 cell not computed yet (not evaluated), 3 farther than ``max_dist`` (tri -1).
+    ``max_dist`` < 0: none.
     """
     n = len(P)
-    tri = np.full(n, -1, np.int64)
-    d2 = np.full(n, np.inf)
-    feat = np.zeros(n, np.int8)
-    status = np.zeros(n, np.int8)
+    tri = np.empty(n, np.int64)
+    d2 = np.empty(n)
+    feat = np.empty(n, np.int8)
+    status = np.empty(n, np.int8)
     dy, dz = dims[1], dims[2]
-    for kk in prange(n):
-        i = order[kk]
-        px, py, pz = P[i, 0], P[i, 1], P[i, 2]
-        fx = (px - lo[0]) * inv_h
-        fy = (py - lo[1]) * inv_h
-        fz = (pz - lo[2]) * inv_h
-        if not (0.0 <= fx < dims[0] and 0.0 <= fy < dims[1] and 0.0 <= fz < dims[2]):
-            status[i] = 1
-            continue
-        ix, iy, iz = int(fx), int(fy), int(fz)
-        if ix >= dims[0] or iy >= dy or iz >= dz:
-            status[i] = 1
-            continue
-        c = (ix * dy + iy) * dz + iz
-        word = cell[c]
-        if word < 0:
-            status[i] = 2
-            continue
-        if max_dist >= 0.0 and lb[c] > max_dist:
-            status[i] = 3
-            continue
-        best = np.inf
-        bt = -1
-        bf = 0
-        s = word >> 16
-        for j in range(word & 0xFFFF):
-            k = np.int64(cand[s + j])
-            if j > 0 and _box_d2(px, py, pz, k, T) >= best:  # box already farther than the best
+    B = QUERY_BLOCK
+    for blk in prange((n + B - 1) // B):
+        b0 = blk * B
+        m = min(n, b0 + B) - b0
+        Ps = np.empty((B, 3))
+        ts = np.empty(B, np.int64)
+        ds = np.empty(B)
+        fs = np.empty(B, np.int8)
+        ss = np.empty(B, np.int8)
+        for t in range(m):
+            i = order[b0 + t]
+            Ps[t, 0], Ps[t, 1], Ps[t, 2] = P[i, 0], P[i, 1], P[i, 2]
+        for t in range(m):  # the search, written out (an inlined helper taking the arrays ran 2x slower)
+            px, py, pz = Ps[t, 0], Ps[t, 1], Ps[t, 2]
+            ts[t], ds[t], fs[t], ss[t] = -1, np.inf, 0, 0
+            fx = (px - lo[0]) * inv_h
+            fy = (py - lo[1]) * inv_h
+            fz = (pz - lo[2]) * inv_h
+            if not (0.0 <= fx < dims[0] and 0.0 <= fy < dims[1] and 0.0 <= fz < dims[2]):
+                ss[t] = 1
                 continue
-            r, f = pt_tri(px, py, pz, k, T)
-            if r < best:
-                best, bt, bf = r, k, f
-        tri[i] = bt
-        d2[i] = best
-        feat[i] = bf
+            ix, iy, iz = int(fx), int(fy), int(fz)
+            if ix >= dims[0] or iy >= dy or iz >= dz:
+                ss[t] = 1
+                continue
+            c = (ix * dy + iy) * dz + iz
+            word = cell[c]
+            if word < 0:
+                ss[t] = 2
+                continue
+            if max_dist >= 0.0 and lb[c] > max_dist:
+                ss[t] = 3
+                continue
+            best = np.inf
+            bt = -1
+            bf = 0
+            s = word >> 16
+            for j in range(word & 0xFFFF):
+                k = np.int64(cand[s + j])
+                if j > 0 and _box_d2(px, py, pz, k, T) >= best:  # box already farther than the best
+                    continue
+                r, f = pt_tri(px, py, pz, k, T)
+                if r < best:
+                    best, bt, bf = r, k, f
+            ts[t], ds[t], fs[t] = bt, best, bf
+        for t in range(m):
+            i = order[b0 + t]
+            tri[i], d2[i], feat[i], status[i] = ts[t], ds[t], fs[t], ss[t]
     return tri, d2, feat, status
 
 
@@ -238,56 +263,71 @@ def missing_cells(P, lo, inv_h, dims, cell):
 def refine_cells(centres, r, par, pptr, ptri, tol, T):
     """Candidate lists of cells (centres (n, 3), half-diagonal ``r``) from their parents' lists.
 
-    Keeps the parent candidates whose distance to the cell centre is at most ``dmin + 2 r + tol``.
-    Returns ``(ptr (n + 1,), tri, lower_bound (n,) = dmin - r)``.
+    Keeps the parent candidates whose distance to the cell centre is at most ``dmin + 2 r + tol``,
+    ordered by that distance (ties: parent-list order). One pass over a parent's list finds ``dmin``
+    and keeps each candidate's box bound and distance (when computed) in a scratch row, a second pass
+    over the scratch selects; the selected lists go to an upper-bound buffer (the parents' list
+    lengths), then are packed. Returns ``(ptr (n + 1,), tri, lower_bound (n,) = dmin - r)``.
     """
     n = len(centres)
     dmin = np.empty(n)
     cnt = np.zeros(n, np.int64)
-    for i in prange(n):
-        p = par[i]
-        best = np.inf
-        for j in range(pptr[p], pptr[p + 1]):
-            if _box_d2(centres[i, 0], centres[i, 1], centres[i, 2], ptri[j], T) >= best:
-                continue
-            d2 = pt_tri(centres[i, 0], centres[i, 1], centres[i, 2], ptri[j], T)[0]
-            if d2 < best:
-                best = d2
-        dmin[i] = np.sqrt(best)
-        lim = dmin[i] + 2.0 * r + tol
-        lim2 = lim * lim
-        c = 0
-        for j in range(pptr[p], pptr[p + 1]):
-            if _box_d2(centres[i, 0], centres[i, 1], centres[i, 2], ptri[j], T) > lim2:
-                continue
-            d2 = pt_tri(centres[i, 0], centres[i, 1], centres[i, 2], ptri[j], T)[0]
-            if d2 <= lim2:
-                c += 1
-        cnt[i] = c
+    ub = np.zeros(n + 1, np.int64)
+    mx = 0
+    for i in range(n):
+        c = pptr[par[i] + 1] - pptr[par[i]]
+        ub[i + 1] = ub[i] + c
+        mx = max(mx, c)
+    tbuf = np.empty(ub[n], np.int64)
+    kbuf = np.empty(ub[n])
+    blk = 256
+    for bi in prange((n + blk - 1) // blk):
+        sbox = np.empty(mx)
+        sd2 = np.empty(mx)
+        for i in range(bi * blk, min(n, (bi + 1) * blk)):
+            p = par[i]
+            cx, cy, cz = centres[i, 0], centres[i, 1], centres[i, 2]
+            j0, j1 = pptr[p], pptr[p + 1]
+            best = np.inf
+            for j in range(j0, j1):
+                bx = _box_d2(cx, cy, cz, ptri[j], T)
+                sbox[j - j0] = bx
+                if bx >= best:
+                    sd2[j - j0] = -1.0  # not computed
+                    continue
+                d2 = pt_tri(cx, cy, cz, ptri[j], T)[0]
+                sd2[j - j0] = d2
+                if d2 < best:
+                    best = d2
+            dmin[i] = np.sqrt(best)
+            lim = dmin[i] + 2.0 * r + tol
+            lim2 = lim * lim
+            b = ub[i]
+            k = b
+            for j in range(j0, j1):
+                if sbox[j - j0] > lim2:
+                    continue
+                d2 = sd2[j - j0]
+                if d2 < 0.0:
+                    d2 = pt_tri(cx, cy, cz, ptri[j], T)[0]
+                if d2 <= lim2:
+                    # insertion by distance to the centre (lists are short)
+                    q = k
+                    while q > b and kbuf[q - 1] > d2:
+                        tbuf[q] = tbuf[q - 1]
+                        kbuf[q] = kbuf[q - 1]
+                        q -= 1
+                    tbuf[q] = ptri[j]
+                    kbuf[q] = d2
+                    k += 1
+            cnt[i] = k - b
     ptr = np.zeros(n + 1, np.int64)
     for i in range(n):
         ptr[i + 1] = ptr[i] + cnt[i]
     tri = np.empty(ptr[n], np.int64)
-    key = np.empty(ptr[n])
     for i in prange(n):
-        p = par[i]
-        lim = dmin[i] + 2.0 * r + tol
-        lim2 = lim * lim
-        k = ptr[i]
-        for j in range(pptr[p], pptr[p + 1]):
-            if _box_d2(centres[i, 0], centres[i, 1], centres[i, 2], ptri[j], T) > lim2:
-                continue
-            d2 = pt_tri(centres[i, 0], centres[i, 1], centres[i, 2], ptri[j], T)[0]
-            if d2 <= lim2:
-                # insertion by distance to the centre (lists are short)
-                q = k
-                while q > ptr[i] and key[q - 1] > d2:
-                    tri[q] = tri[q - 1]
-                    key[q] = key[q - 1]
-                    q -= 1
-                tri[q] = ptri[j]
-                key[q] = d2
-                k += 1
+        for q in range(cnt[i]):
+            tri[ptr[i] + q] = tbuf[ub[i] + q]
     return ptr, tri, dmin - r
 
 
@@ -391,67 +431,89 @@ def bins_query(P, lo, h, dims, start, items, max_d2, far_d2, T, order):
     yet searched: the closest point of the nearest triangle lies in a cell the triangle is binned in,
     so the answer is exact (float64, ties keep the first found). ``max_d2`` (inf: none) starts the
     search radius: nothing farther is looked at (tri -1, status 3). Points whose distance to the grid
-    box exceeds ``sqrt(far_d2)`` are not evaluated (status 1). Returns ``(tri, d2, feature, status)``.
+    box exceeds ``sqrt(far_d2)`` are not evaluated (status 1). Points are visited in ``order``, in blocks
+    as in :func:`grid_query`. Returns ``(tri, d2, feature, status)``.
     """
     n = len(P)
-    tri = np.full(n, -1, np.int64)
-    d2 = np.full(n, np.inf)
-    feat = np.zeros(n, np.int8)
-    status = np.zeros(n, np.int8)
+    tri = np.empty(n, np.int64)
+    d2 = np.empty(n)
+    feat = np.empty(n, np.int8)
+    status = np.empty(n, np.int8)
     nx, ny, nz = dims[0], dims[1], dims[2]
     inv_h = 1.0 / h
     eps = 1e-9 * h
-    for kk in prange(n):
-        i = order[kk]
-        px, py, pz = P[i, 0], P[i, 1], P[i, 2]
-        ox = max(lo[0] - px, 0.0, px - (lo[0] + nx * h))
-        oy = max(lo[1] - py, 0.0, py - (lo[1] + ny * h))
-        oz = max(lo[2] - pz, 0.0, pz - (lo[2] + nz * h))
-        if not (ox * ox + oy * oy + oz * oz <= far_d2):  # also catches NaN
-            status[i] = 1
-            continue
-        ix = min(max(int(np.floor((px - lo[0]) * inv_h)), 0), nx - 1)
-        iy = min(max(int(np.floor((py - lo[1]) * inv_h)), 0), ny - 1)
-        iz = min(max(int(np.floor((pz - lo[2]) * inv_h)), 0), nz - 1)
-        best = max_d2
-        bt = -1
-        bf = 0
-        r = 0
-        while True:
-            for cx in range(max(ix - r, 0), min(ix + r, nx - 1) + 1):
-                ex = max(lo[0] + cx * h - px, 0.0, px - (lo[0] + (cx + 1) * h))
-                ax = cx == ix - r or cx == ix + r
-                for cy in range(max(iy - r, 0), min(iy + r, ny - 1) + 1):
-                    ey = max(lo[1] + cy * h - py, 0.0, py - (lo[1] + (cy + 1) * h))
-                    exy = ex * ex + ey * ey
-                    if exy >= best:
-                        continue
-                    full = ax or cy == iy - r or cy == iy + r
-                    z0 = max(iz - r, 0)
-                    z1 = min(iz + r, nz - 1)
-                    step = 1 if (full or r == 0) else 2 * r
-                    for cz in range(iz - r if not full else z0, z1 + 1, step):
-                        if cz < z0:
+    B = QUERY_BLOCK
+    for blk in prange((n + B - 1) // B):
+        b0 = blk * B
+        m = min(n, b0 + B) - b0
+        Ps = np.empty((B, 3))
+        ts = np.empty(B, np.int64)
+        ds = np.empty(B)
+        fs = np.empty(B, np.int8)
+        ss = np.empty(B, np.int8)
+        for t in range(m):
+            i = order[b0 + t]
+            Ps[t, 0], Ps[t, 1], Ps[t, 2] = P[i, 0], P[i, 1], P[i, 2]
+        for t in range(m):  # the search, written out (an inlined helper taking the arrays ran 2x slower)
+            px, py, pz = Ps[t, 0], Ps[t, 1], Ps[t, 2]
+            ts[t], ds[t], fs[t], ss[t] = -1, np.inf, 0, 0
+            ox = max(lo[0] - px, 0.0, px - (lo[0] + nx * h))
+            oy = max(lo[1] - py, 0.0, py - (lo[1] + ny * h))
+            oz = max(lo[2] - pz, 0.0, pz - (lo[2] + nz * h))
+            if not (ox * ox + oy * oy + oz * oz <= far_d2):  # also catches NaN
+                ss[t] = 1
+                continue
+            ix = min(max(int(np.floor((px - lo[0]) * inv_h)), 0), nx - 1)
+            iy = min(max(int(np.floor((py - lo[1]) * inv_h)), 0), ny - 1)
+            iz = min(max(int(np.floor((pz - lo[2]) * inv_h)), 0), nz - 1)
+            best = max_d2
+            bt = -1
+            bf = 0
+            r = 0
+            while True:
+                for cx in range(max(ix - r, 0), min(ix + r, nx - 1) + 1):
+                    ex = max(lo[0] + cx * h - px, 0.0, px - (lo[0] + (cx + 1) * h))
+                    ax = cx == ix - r or cx == ix + r
+                    for cy in range(max(iy - r, 0), min(iy + r, ny - 1) + 1):
+                        ey = max(lo[1] + cy * h - py, 0.0, py - (lo[1] + (cy + 1) * h))
+                        exy = ex * ex + ey * ey
+                        if exy >= best:
                             continue
-                        ez = max(lo[2] + cz * h - pz, 0.0, pz - (lo[2] + (cz + 1) * h))
-                        if exy + ez * ez >= best:
-                            continue
-                        c = (cx * ny + cy) * nz + cz
-                        best, bt, bf = _scan_cell(px, py, pz, c, start, items, T, best, bt, bf)
-            g = min(_axis_gap(px, lo[0], h, ix, r, nx), _axis_gap(py, lo[1], h, iy, r, ny),
-                    _axis_gap(pz, lo[2], h, iz, r, nz))
-            if g == np.inf:
-                break
-            g -= eps
-            if g > 0.0 and g * g >= best:
-                break
-            r += 1
-        tri[i] = bt
-        if bt < 0:
-            status[i] = 3
-        else:
-            d2[i] = best
-            feat[i] = bf
+                        full = ax or cy == iy - r or cy == iy + r
+                        z0 = max(iz - r, 0)
+                        z1 = min(iz + r, nz - 1)
+                        step = 1 if (full or r == 0) else 2 * r
+                        for cz in range(iz - r if not full else z0, z1 + 1, step):
+                            if cz < z0:
+                                continue
+                            ez = max(lo[2] + cz * h - pz, 0.0, pz - (lo[2] + (cz + 1) * h))
+                            if exy + ez * ez >= best:
+                                continue
+                            c = (cx * ny + cy) * nz + cz
+                            # the cell scan written out: as an inlined helper (_scan_cell) taking the
+                            # arrays, numba's atomic reference counting of them was 25% of the run
+                            for jj in range(start[c], start[c + 1]):
+                                k = np.int64(items[jj])
+                                if _box_d2(px, py, pz, k, T) >= best:
+                                    continue
+                                r2, f = pt_tri(px, py, pz, k, T)
+                                if r2 < best:
+                                    best, bt, bf = r2, k, f
+                g = min(_axis_gap(px, lo[0], h, ix, r, nx), _axis_gap(py, lo[1], h, iy, r, ny),
+                        _axis_gap(pz, lo[2], h, iz, r, nz))
+                if g == np.inf:
+                    break
+                g -= eps
+                if g > 0.0 and g * g >= best:
+                    break
+                r += 1
+            if bt < 0:
+                ss[t] = 3
+            else:
+                ts[t], ds[t], fs[t] = bt, best, bf
+        for t in range(m):
+            i = order[b0 + t]
+            tri[i], d2[i], feat[i], status[i] = ts[t], ds[t], fs[t], ss[t]
     return tri, d2, feat, status
 
 

@@ -67,13 +67,25 @@ class DistanceStats:
         the median and are partitioned in place."""
         if mo.n == 0:
             return cls(count=0)
-        # overwrite_input: the stored distances are only needed unordered afterwards (histogram)
-        return cls(count=mo.n, mean=mo.mean, median=float(np.median(values, overwrite_input=True)), std=mo.std(),
+        return cls(count=mo.n, mean=mo.mean, median=median_in_place(values), std=mo.std(),
                    rms=float(np.sqrt(mo.sumsq / mo.n)), min=mo.min, max=mo.max)
 
     def to_json(self) -> dict:
         return {"count": self.count, "mean": self.mean, "median": self.median, "std": self.std, "rms": self.rms,
                 "min": self.min, "max": self.max}
+
+
+def median_in_place(values: np.ndarray) -> float:
+    """The median of the NaN-free 1-D ``values``, partitioning them in place (the stored distances are
+    only needed unordered afterwards): ``np.median(values, overwrite_input=True)``'s value, in the
+    array's dtype, without its NaN check (whose first use imports numpy.ma, 11 ms of every run)."""
+    n = len(values)
+    h = n // 2
+    if n % 2:
+        values.partition(h)
+        return float(values[h])
+    values.partition([h - 1, h])
+    return float((values[h - 1] + values[h]) / 2)
 
 
 @dataclass(frozen=True)

@@ -21,8 +21,8 @@ class StandbyAid:
     """The default aid (``--slam auto`` without depth): the mono SLAM switched on only when needed.
 
     Measured on the real ``teabox.mp4`` (README, tracking section): with the model in view, the
-    always-on mono aid does not make the edge poses better (forward-backward error 0.28 px against
-    0.28 px edges only and 0.23 px edges + KLT) and costs 2-3x the time. So while the edge poses are
+    always-on mono aid does not make the edge poses better (forward-backward error 0.32 px, edges
+    only 0.32 px, edges + KLT with the KLT information cap 0.22 px) and costs 2-3x the time. So while the edge poses are
     healthy and strong (``trace(W)`` at least ``wake_info_ratio`` x its running mean) this aid only
     keeps the last ``buffer_frames`` frames with their model poses (references, no work). On the
     first weak or unhealthy edge pose (the model leaving the view, occluded, fast motion) it

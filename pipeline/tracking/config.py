@@ -123,6 +123,10 @@ class EdgesConfig(Config):
     fine_mad_px: float = param(0.15, min=1e-6, max=100, help="floor of the fine VVS stage, px (>= min_mad_px: off)")
     tukey_c: float = param(4.6851, min=0.1, max=100, help="Tukey constant, MAD units")
     klt_weight: float = param(1.0, min=0, max=1e3, help="weight of the KLT points relative to the edge samples")
+    #: the KLT points' model coordinates come from the pose at their detection, whose error all of
+    #: them share: together they know the pose no better than the edges did (vvs.klt_info_scale)
+    klt_info_cap: float | None = param(1.0, min=0, min_open=True, max=1e6,
+                                       help="the KLT points' information at most this x the edge samples' (null: no cap)")
     # health
     max_proj_error_deg: float = param(25.0, min=0, max=90, help="mean gradient / model-normal angle above which a frame is lost, deg")
     min_inlier_ratio: float = param(0.25, min=0, max=1, help="robust inliers / samples at least")

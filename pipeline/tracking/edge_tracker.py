@@ -168,7 +168,7 @@ class EdgeTracker:
         kx, ku = (None, None) if klt is None else klt
         res = solve_pose(T, K, S.X_model, S.edge, S.A_model, S.B_model, cand, iters=c.vvs_iters, lm_mu=c.lm_mu,
                          min_mad_px=c.min_mad_px if min_mad_px is None else min_mad_px, tukey_c=c.tukey_c, klt_X_model=kx,
-                         klt_uv=ku, klt_weight=c.klt_weight)
+                         klt_uv=ku, klt_weight=c.klt_weight, klt_info_cap=c.klt_info_cap)
         if res.status is SolveStatus.TOO_FEW:
             n_m = int(np.isfinite(cand[..., 0]).any(axis=1).sum())
             self._fail = (f"pose solver failed: only {n_m} of {len(S)} edge samples found a moving edge within "
@@ -183,7 +183,7 @@ class EdgeTracker:
             # floor) skips it
             fine = solve_pose(res.T_cam_model, K, S.X_model, S.edge, S.A_model, S.B_model, cand, iters=c.vvs_iters,
                               lm_mu=c.lm_mu, min_mad_px=c.fine_mad_px, tukey_c=c.tukey_c, klt_X_model=kx,
-                              klt_uv=ku, klt_weight=c.klt_weight)
+                              klt_uv=ku, klt_weight=c.klt_weight, klt_info_cap=c.klt_info_cap)
             if fine.has_pose:
                 res = fine
         if not res.has_pose:

@@ -423,7 +423,7 @@ def _tukey_into(r, min_scale, tukey_c, w):
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def vvs_solve(X, e, AB, nE, cu, cv, Xk, uk, T0, fx, fy, cx, cy, iters, lm_mu, min_mad, tukey_c, klt_weight, stop_px,
-              spread, spread_k, T_out, H_out, w_out, r_out, wt_out, wk_out):
+              spread, spread_k, T_out, H_out, w_out, r_out, wt_out, wk_out, klt_info_cap=0.0):
     """The whole robust VVS of :func:`mst.pipeline.tracking.vvs.solve_pose` in one call (the loop of
     :func:`~mst.pipeline.tracking.vvs.solve_pose_numpy`: residuals, candidate choice, Tukey and
     edge-spread weights, the Levenberg-Marquardt step with undo, the stopping test), every sum and
@@ -432,8 +432,11 @@ def vvs_solve(X, e, AB, nE, cu, cv, Xk, uk, T0, fx, fy, cx, cy, iters, lm_mu, mi
     edge, ``AB (2 nE, 3)`` the edge end points, ``cu, cv (n, C)`` candidates (1e9: none), ``Xk (nk,
     3)`` / ``uk (nk, 2)`` KLT points (nk may be 0). Outputs in place: ``T_out`` the pose, ``H_out``
     the last information matrix, ``w_out``, ``r_out``, ``wt_out`` the last edge weights, residuals,
-    Tukey weights, ``wk_out (2 nk)`` the KLT weights. Returns ``(iterations, sigma, status)`` with
-    status 0 = a pose, 1 = diverged (a damped retry could not be solved: no pose)."""
+    Tukey weights, ``wk_out (2 nk)`` the KLT weights (Tukey x ``klt_weight``, before the cap).
+    ``klt_info_cap`` > 0: the KLT block's information is scaled down to at most this x the edge
+    samples' (``tr(H_e^-1 H_k) / 6``, :func:`~mst.pipeline.tracking.vvs.klt_info_scale`). Returns
+    ``(iterations, sigma, status)`` with status 0 = a pose, 1 = diverged (a damped retry could not be
+    solved: no pose)."""
     n = X.shape[0]
     nk = Xk.shape[0]
     C = cu.shape[1]
@@ -451,6 +454,10 @@ def vvs_solve(X, e, AB, nE, cu, cv, Xk, uk, T0, fx, fy, cx, cy, iters, lm_mu, mi
     rk = np.zeros(2 * nk)
     Jk = np.empty((2 * nk, 6))
     wk = np.zeros(2 * nk)
+    Hk = np.zeros((6, 6))
+    gk = np.zeros(6)
+    col = np.empty(6)
+    xc = np.empty(6)
     # the accepted linearisation: its pose, cost, choice, weights, H and g
     pT = np.empty((4, 4))
     pch = np.zeros(n, np.int64)
@@ -535,6 +542,7 @@ def vvs_solve(X, e, AB, nE, cu, cv, Xk, uk, T0, fx, fy, cx, cy, iters, lm_mu, mi
         cost = 0.0
         for i in range(n):
             cost += w[i] * r[i] * r[i]
+        sc = 1.0  # the KLT block's information cap
         if nk:
             _tukey_into(rk, min_mad, tukey_c, wk)
             for i in range(2 * nk):
@@ -544,13 +552,31 @@ def vvs_solve(X, e, AB, nE, cu, cv, Xk, uk, T0, fx, fy, cx, cy, iters, lm_mu, mi
                     s = 0.0
                     for i in range(2 * nk):
                         s += Jk[i, p] * (wk[i] * Jk[i, q])
-                    H[p, q] += s
+                    Hk[p, q] = s
                 s = 0.0
                 for i in range(2 * nk):
                     s += Jk[i, p] * (wk[i] * rk[i])
-                g[p] += s
+                gk[p] = s
+            if klt_info_cap > 0.0:
+                # rho = tr(H_e^-1 H_k) / 6: the KLT block's information in units of the edges'
+                rho = 0.0
+                solved = True
+                for j in range(6):
+                    for i in range(6):
+                        col[i] = Hk[i, j]
+                    if not _solve6(H, col, xc):
+                        solved = False
+                        break
+                    rho += xc[j]
+                rho /= 6.0
+                if solved and rho > klt_info_cap:
+                    sc = klt_info_cap / rho
+            for p in range(6):
+                for q in range(6):
+                    H[p, q] += sc * Hk[p, q]
+                g[p] += sc * gk[p]
             for i in range(2 * nk):
-                cost += wk[i] * rk[i] * rk[i]
+                cost += sc * wk[i] * rk[i] * rk[i]
         for i in range(6):
             for j in range(6):
                 A[i, j] = H[i, j]
@@ -564,7 +590,8 @@ def vvs_solve(X, e, AB, nE, cu, cv, Xk, uk, T0, fx, fy, cx, cy, iters, lm_mu, mi
         pcost = cost
         pch[:] = ch
         pw[:] = w
-        pwk[:] = wk
+        for i in range(2 * nk):
+            pwk[i] = sc * wk[i]
         pH[:, :] = H
         pg[:] = g
         have_prev = True

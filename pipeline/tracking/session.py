@@ -308,6 +308,15 @@ class TrackingSession:
                 fr_s = p.judge(tr.track(gray, T_wake, recover=p.recover), False)
                 if fr_s.healthy:
                     fr = fr_s
+        if (not fr.healthy and aid is not None and not p.first and not reacq and p.lost_streak == 0
+                and p.prev_status == "model" and T_start is not p.T_prev):
+            # the other way round: the aid's prediction may be the one off (a map triangulated from
+            # edge poses that could not see a turn about a body of revolution's axis: the vase's
+            # `fast` orbit, frame 11, 3.2 deg off where the last edge pose was 2.3 deg off and
+            # edges alone converge from it); the edges' own last pose is the second start
+            fr_p = p.judge(tr.track(gray, p.T_prev, recover=p.recover), False)
+            if fr_p.healthy:
+                fr = fr_p
         if reacq:
             # also the widened search; keep the better fit (healthy, then gradient support)
             fr_w = p.judge(tr.track(gray, T_start, recover=True), False)
@@ -415,6 +424,11 @@ class TrackingSession:
                 aid.close()  # the default's map belongs to the lost stretch: back to standby
             elif _standby(aid) is None:
                 aid.follow_model()
+        if aid is not None and T_pred is not None and fr.T_cam_model is not None:
+            # a body of revolution's turn about its axis is no difference of the image: the edge pose
+            # is the one of its equivalents nearest the map's prediction (the map sees that turn,
+            # the edges cannot), so that the aid's gates compare what the image determines
+            fr.T_cam_model = self._modulo_symmetry(T_pred, fr.T_cam_model)
         if aid is not None:
             # an edge pose refused only by the health score still says where the image
             # puts the object: the aid outputs no map pose that contradicts it
