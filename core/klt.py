@@ -100,14 +100,21 @@ MIN_EIG = 1e-4 * 1024.0
 
 
 def _lk(prev: Pyramid, cur: Pyramid, p0: np.ndarray, guess: np.ndarray | None, cfg: KltConfig):
-    from mst.core.klt_kernels import lk_track
+    from mst.core.klt_kernels import lk_track, lk_track_5, lk_track_11
 
     n = len(p0)
     out, st = np.empty((n, 2)), np.empty(n, np.uint8)
     g = p0 if guess is None else np.ascontiguousarray(guess, np.float64)
-    lk_track(prev.image.reshape(-1), prev.buf, prev.tab, cur.image.reshape(-1), cur.buf, cur.tab, p0, g, guess is not None, int(cfg.window_px),
-             int(min(cfg.pyramid_levels, prev.levels, cur.levels)), int(cfg.max_iterations), float(cfg.eps_px),
-             MIN_EIG, out, st)
+    args = (prev.image.reshape(-1), prev.buf, prev.tab, cur.image.reshape(-1), cur.buf, cur.tab, p0, g, guess is not None)
+    rest = (int(min(cfg.pyramid_levels, prev.levels, cur.levels)), int(cfg.max_iterations), float(cfg.eps_px), MIN_EIG,
+            out, st)
+    win = int(cfg.window_px)
+    if win == 5:
+        lk_track_5(*args, *rest)
+    elif win == 11:
+        lk_track_11(*args, *rest)
+    else:
+        lk_track(*args, win, *rest)
     return out, st.astype(bool)
 
 

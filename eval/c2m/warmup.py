@@ -102,7 +102,8 @@ def warm_tracking() -> None:
     from mst.core.klt import KltConfig, track_forward_backward
 
     pts = np.array([[40.0, 20.0], [41.0, 40.0]])
-    track_forward_backward(img, img, pts, KltConfig(pyramid_levels=1), guess_px=pts)
+    for win in (5, 11, 7):  # the two compiled window sizes and the generic kernel
+        track_forward_backward(img, img, pts, KltConfig(window_px=win, pyramid_levels=1), guess_px=pts)
 
 
 def warm_convert() -> None:
