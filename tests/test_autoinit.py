@@ -57,8 +57,9 @@ def _trials(view, n, seed):
 
 
 @pytest.mark.slow
-@pytest.mark.timeout(3600)  # 100 searches of ~2 s CPU; minutes of wall on a loaded machine
+@pytest.mark.timeout(3600)  # 100 searches of ~0.7 s CPU; minutes of wall on a loaded machine
 def test_converges_in_95_of_100_trials(view):
+    # measured 2026-12-02: 100 of 100, none wrong (0.70 s CPU median per search, load ~5)
     good, wrong = _trials(view, 100, seed=1)
     assert good >= 95 and wrong == 0, (good, wrong)
 
@@ -127,14 +128,16 @@ def house(request, tmp_path_factory):
 
 
 @pytest.mark.slow
-@pytest.mark.timeout(3600)  # 100 searches of ~2 s CPU; minutes of wall on a loaded machine
+@pytest.mark.timeout(3600)  # 100 searches of ~0.7 s CPU; minutes of wall on a loaded machine
 def test_sample_house_converges_in_95_of_100_trials(house):
     """The issue's bound on the bundled sample house. Budget as above: converged = within 0.5 % of
     the distance (6 cm at 12 m, 11 cm at 22 m) and 0.5 deg; the edge tracker from the TRUE pose
     reaches 0.07 % (orbit) and 0.40 % / 0.24 deg (flyover: the house is 130 px wide, its walls' foot
     has little contrast against the terrain) -- the flyover's margin is the tracker's own accuracy.
-    Measured 2026-12-02 (30 seeds each, load ~15): orbit 30/30, flyover 30/30, none wrong; before (every Canny
-    edge, 6-D random search, 70 % inlier refusal) 0 of 30, all refused."""
+    Measured 2026-12-02 (these 100 seeds, load ~5): orbit 96, flyover 99 converged, none wrong, the rest
+    refused (0.55 / 0.71 s CPU median per search); with "distinct" at 20 px instead of 1 px the flyover
+    accepted one WRONG pose (3.5 % / 1.8 deg off, 1.3 px from five right candidates, scoring 0.35 against
+    their 0.39). Before (every Canny edge, 6-D random search, 70 % inlier refusal) 0 of 30, all refused."""
     m, cam, T_mc, _, gray = house
     good, wrong = _trials((m, cam, T_mc, None, gray), 100, seed=1)
     assert good >= 95 and wrong == 0, (good, wrong)
@@ -173,3 +176,28 @@ def test_sample_house_refuses_the_frame_without_the_house(house):
         G = T_mc if i == 0 else _guess(T_mc, rng)
         r = auto_init(gray, m, cam, inv_T(G), AutoInitConfig(seed=i))
         assert not r.ok and r.T_cam_model is None, (i, r.score, r.null_score, r.reason)
+
+
+def test_a_candidate_a_few_pixels_away_is_a_distinct_pose(view):
+    """Refined candidates of one pose agree to ~0.1 px; one whose projection lies 3 px from the best's
+    is another answer (distinct for the score margin) while still in the best's basin (agreeing within
+    dt_max_px): the rule that refuses the flyover's 3.5 %-off pose, 1.3 px from the right ones."""
+    from mst.pipeline.autoinit import _EdgeScorer, _second_best
+    from mst.pipeline.tracking.config import TrackConfig
+
+    m, cam, T_mc, _, gray = view
+    cfg = AutoInitConfig()
+    sc_ = _EdgeScorer(gray, m, cam, inv_T(T_mc), cfg, TrackConfig())
+    T_cm = inv_T(T_mc)
+
+    def turned(px):  # the camera turned about its y axis: the image moves ~px sideways
+        R = so3_exp(np.array([0.0, px / cam.K[0, 0], 0.0]))
+        T = T_cm.copy()
+        T[:3, :3], T[:3, 3] = R @ T[:3, :3], R @ T[:3, 3]
+        return T
+
+    near, far = turned(0.05), turned(3.0)
+    second, agree = _second_best(sc_, [(0.30, T_cm, None), (0.31, near, None)], T_cm, cfg.distinct_px, cfg.dt_max_px)
+    assert second is None and agree == 2
+    second, agree = _second_best(sc_, [(0.30, T_cm, None), (0.31, far, None)], T_cm, cfg.distinct_px, cfg.dt_max_px)
+    assert second == 0.31 and agree == 2

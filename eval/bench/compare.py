@@ -15,6 +15,7 @@ from __future__ import annotations
 import os
 import shutil
 from pathlib import Path
+from statistics import median
 
 
 def cloudcompare() -> str | None:
@@ -31,42 +32,47 @@ def cloudcompare_c2m_cmd(exe: str, cloud: Path, mesh: Path, out: Path) -> list[s
 
 def best_of(cmds: dict[str, list[str]], repeats: int = 3, env: dict[str, dict] | None = None) -> dict[str, dict]:
     """Run every command of ``cmds`` ``repeats`` times, interleaved; per name the run with the
-    smallest wall time (``timed_command``'s dict) plus ``walls_s`` (all runs) and ``load_avg_first``."""
+    smallest wall time (``timed_command``'s dict) plus ``walls_s`` and ``cpus_s`` (all runs) and
+    ``load_avg_first``."""
     from mst.eval.bench.harness import timed_command
 
     best: dict[str, dict] = {}
     walls: dict[str, list[float]] = {k: [] for k in cmds}
+    cpus: dict[str, list[float]] = {k: [] for k in cmds}
     load0 = os.getloadavg()[0]
     for _ in range(repeats):
         for name, cmd in cmds.items():
             kw = {"env": env[name]} if env and name in env else {}
             r = timed_command(cmd, **kw)
             walls[name].append(round(r["wall_s"], 3))
+            cpus[name].append(round(r["cpu_s"], 3))
             if name not in best or r["wall_s"] < best[name]["wall_s"]:
                 best[name] = r
     for name, r in best.items():
         r["walls_s"] = walls[name]
+        r["cpus_s"] = cpus[name]
         r["load_avg_first"] = load0
     return best
 
 
-def c2m_side_by_side(mst_cmd: list[str], cloud: Path, mesh: Path, out_dir: Path, points: int, repeats: int = 3,
-                     target_ratio: float = 0.5) -> dict | None:
-    """Whole-process times of ``mst_cmd`` (an ``mst c2m`` command) and CloudCompare's C2M on the same
-    files, best of ``repeats``; None when CloudCompare is absent. ``ok``: mst <= ``target_ratio`` x CC."""
+def c2m_side_by_side(mst_cmd: list[str], cloud: Path, mesh: Path, out_dir: Path, points: int, repeats: int = 5,
+                     target_ratio: float = 0.5, mst_env: dict | None = None) -> dict | None:
+    """Whole-process times of ``mst_cmd`` (an ``mst c2m`` command, run with ``mst_env``) and
+    CloudCompare's C2M on the same files, best of ``repeats``; None when CloudCompare is absent.
+    ``ok``: mst <= ``target_ratio`` x CC."""
     exe = cloudcompare()
     if exe is None:
         return None
     cc_out = Path(out_dir) / f"{Path(cloud).stem}_cc_out.ply"
     env = dict(os.environ, QT_QPA_PLATFORM="offscreen")  # no display needed
     cmds = {"mst": mst_cmd, "cc": cloudcompare_c2m_cmd(exe, cloud, mesh, cc_out)}
-    envs = {"cc": env}
+    envs = {"cc": env, "mst": dict(mst_env or os.environ)}
     from mst.core.aot import is_current
 
     if is_current("mst.eval.c2m.kernels"):  # the same command on numba's JIT kernels (before issue #14's AOT)
         jit_out = Path(out_dir) / f"{Path(cloud).stem}_jit_out.ply"
         cmds["mst_jit"] = [str(jit_out) if str(a).endswith("_out.ply") else a for a in mst_cmd]
-        envs["mst_jit"] = dict(os.environ, MST_AOT="0")
+        envs["mst_jit"] = dict(mst_env or os.environ, MST_AOT="0")
     runs = best_of(cmds, repeats, env=envs)
     cc_out.unlink(missing_ok=True)
     m, c = runs["mst"], runs["cc"]
@@ -80,6 +86,9 @@ def c2m_side_by_side(mst_cmd: list[str], cloud: Path, mesh: Path, out_dir: Path,
     return {"mst_best_s": round(m["wall_s"], 3), "mst_runs_s": m["walls_s"], "mst_cpu_s": round(m["cpu_s"], 3),
             "kernels": "ahead-of-time" if jit else "numba JIT", **jit,
             "ratio_cpu_vs_cloudcompare": round(m["cpu_s"] / c["cpu_s"], 3),
+            "mst_cpu_runs_s": m["cpus_s"], "cloudcompare_cpu_runs_s": c["cpus_s"],
+            # CPU seconds depend less on the other processes than wall times: the medians' ratio
+            "ratio_cpu_median_vs_cloudcompare": round(median(m["cpus_s"]) / median(c["cpus_s"]), 3),
             "mst_peak_rss_mib": round(m["peak_rss_mib"], 1),
             "cloudcompare_best_s": round(c["wall_s"], 3), "cloudcompare_runs_s": c["walls_s"],
             "cloudcompare_cpu_s": round(c["cpu_s"], 3), "cloudcompare_peak_rss_mib": round(c["peak_rss_mib"], 1),

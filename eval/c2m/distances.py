@@ -35,7 +35,7 @@ def point_distances(idx: MeshIndex, P: np.ndarray, signed: bool = False, max_dis
             Q, tri, d2, feat = Q[ok], tri[ok], d2[ok], feat[ok]
     else:
         tri, d2, feat = _bvh_nearest(idx, Q)
-    dist = np.sqrt(d2)
+    dist = np.sqrt(d2, out=d2)  # in place: d2 is this call's own array
     if max_dist is not None:
         dist[dist > max_dist] = np.nan
     every = isinstance(todo, slice)  # Q is P: no NaN rows to fill, no copy

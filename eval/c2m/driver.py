@@ -147,14 +147,15 @@ def _chunk_work(idx: MeshIndex, cfg: C2MConfig, cloud: str | None):
 
     def work(xyz: np.ndarray):
         ts = time.perf_counter()
-        with np.errstate(invalid="ignore"):
-            far = (np.abs(xyz) > MAX_CLOUD_COORD_M) & np.isfinite(xyz)
-        if far.any():
-            n_far = int(far.any(axis=1).sum())
+        if nb is not None:  # shift, finite rows and the coordinate check in one compiled pass
+            P, fin, n_far = nb.shift_points(np.ascontiguousarray(xyz, np.float64), shift, MAX_CLOUD_COORD_M)
+        else:
+            with np.errstate(invalid="ignore"):
+                n_far = int(((np.abs(xyz) > MAX_CLOUD_COORD_M) & np.isfinite(xyz)).any(axis=1).sum())
+        if n_far:
             raise InputError(cloud, f"{n_far} point(s) with a coordinate beyond {MAX_CLOUD_COORD_M:g} m "
                                     "(corrupt values?); NaN/inf points are excluded, these are refused")
         if nb is not None:
-            P, fin = nb.shift_points(np.ascontiguousarray(xyz, np.float64), shift)
             if not fin.all():
                 P = P[fin]
         else:

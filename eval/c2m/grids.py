@@ -257,13 +257,14 @@ class DenseGrid:
             ijk = np.stack([flat // (dy * dz), (flat // dz) % dy, flat % dz], axis=1)
             up = PARENT_LEVELS
             if self.nb is not None and self.levels >= up:
-                # parents ``up`` levels up (2**up x coarser cells), their lists by the numpy hierarchy,
-                # then the fine cells refined from their parent's list in the compiled kernel. Any
-                # ancestor's list holds every triangle within dmin + 2 r of a child's centre, so the
-                # children's lists (and their order: distance, then triangle id) do not depend on ``up``
+                # parents ``up`` levels up (2**up x coarser cells), their lists refined level by level
+                # from the coarsest (:meth:`_ancestor_lists`), then the fine cells refined from their
+                # parent's list, all in the compiled kernel. Any ancestor's list holds every triangle
+                # within dmin + 2 r of a child's centre, so the children's lists (and their order:
+                # distance, then triangle id) depend neither on ``up`` nor on how the parents' were made
                 pkey = _key(ijk >> up)
                 upk, pinv = np.unique(pkey, return_inverse=True)
-                pptr, ptri, _ = self._tg.candidates(upk, self.lo, self.h * (1 << up), self.levels - up, self.nb)
+                pptr, ptri = self._ancestor_lists(upk, up)
                 centres = self.lo + (ijk + 0.5) * self.h
                 r, tol, par = 0.5 * self.h * np.sqrt(3.0), 1e-9 * self.ext, pinv.reshape(-1)
 
@@ -286,6 +287,26 @@ class DenseGrid:
             self.cand = np.concatenate([self.cand, tri.astype(np.int32)])
             self.cell[cells] = ((base + ptr[:-1]) << 16) | np.diff(ptr)  # last: marks the cells as computed
             self._filled = True
+
+    def _ancestor_lists(self, keys: np.ndarray, up: int) -> tuple[np.ndarray, np.ndarray]:
+        """CSR candidate lists ``(ptr, tri)`` of the cells ``up`` levels above the fine grid with the
+        sorted unique ``keys``: the coarsest level's cells test every triangle, each finer level its
+        parents' lists (:func:`mst.eval.c2m.kernels.refine_cells`, the rule of
+        :meth:`TriangleGrid.candidates`; 16 -> 4 ms CPU for the UTM bench case's 5,051 parents)."""
+        nb, m = self.nb, self.idx.n_triangles
+        top = self.levels - up  # levels above ``keys``
+        ptr, tri = np.array([0, m], np.int64), np.arange(m, dtype=np.int64)
+        prev = None
+        tol = 1e-9 * self.ext
+        for lev in range(top, -1, -1):
+            u = _unique(_shift_key(keys, lev))
+            hl = self.h * (1 << (up + lev))
+            par = np.zeros(len(u), np.int64) if prev is None else np.searchsorted(prev, _shift_key(u, 1))
+            centres = self.lo + (_unkey(u) + 0.5) * hl
+            ptr, tri, _ = nb.refine_cells(np.ascontiguousarray(centres), 0.5 * hl * np.sqrt(3.0), par, ptr, tri, tol,
+                                          self.T)
+            prev = u
+        return ptr, tri
 
     def nearest(self, P: np.ndarray, max_dist: float | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(tri, d2, feature)`` per point; tri = -1 where provably farther than ``max_dist``."""

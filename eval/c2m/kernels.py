@@ -133,26 +133,29 @@ def bucket_order(P, lo, inv_h, dims, shift):
     n = len(P)
     bx, by, bz = (dims[0] >> shift) + 1, (dims[1] >> shift) + 1, (dims[2] >> shift) + 1
     nb = bx * by * bz + 1
-    key = np.empty(n, np.int64)
     cnt = np.zeros(nb + 1, np.int64)
-    for i in range(n):
-        fx = (P[i, 0] - lo[0]) * inv_h
-        fy = (P[i, 1] - lo[1]) * inv_h
-        fz = (P[i, 2] - lo[2]) * inv_h
-        b = nb - 1
-        if 0.0 <= fx < dims[0] and 0.0 <= fy < dims[1] and 0.0 <= fz < dims[2]:
-            ix, iy, iz = int(fx), int(fy), int(fz)
-            if ix < dims[0] and iy < dims[1] and iz < dims[2]:
-                b = ((ix >> shift) * by + (iy >> shift)) * bz + (iz >> shift)
-        key[i] = b
-        cnt[b + 1] += 1
-    for b in range(nb):
-        cnt[b + 1] += cnt[b]
     order = np.empty(n, np.int64)
-    for i in range(n):
-        b = key[i]
-        order[cnt[b]] = i
-        cnt[b] += 1
+    # two passes computing each point's bucket (the last one: outside the grid), counting then placing:
+    # no (n,) key array (6.5 MB of fresh pages per 810k points); written out, not as a helper taking
+    # the arrays (see the module docstring)
+    for rep in range(2):
+        for i in range(n):
+            fx = (P[i, 0] - lo[0]) * inv_h
+            fy = (P[i, 1] - lo[1]) * inv_h
+            fz = (P[i, 2] - lo[2]) * inv_h
+            b = nb - 1
+            if 0.0 <= fx < dims[0] and 0.0 <= fy < dims[1] and 0.0 <= fz < dims[2]:
+                ix, iy, iz = int(fx), int(fy), int(fz)
+                if ix < dims[0] and iy < dims[1] and iz < dims[2]:
+                    b = ((ix >> shift) * by + (iy >> shift)) * bz + (iz >> shift)
+            if rep == 0:
+                cnt[b + 1] += 1
+            else:
+                order[cnt[b]] = i
+                cnt[b] += 1
+        if rep == 0:
+            for b in range(nb):
+                cnt[b + 1] += cnt[b]
     return order
 
 
@@ -264,7 +267,7 @@ def refine_cells(centres, r, par, pptr, ptri, tol, T):
     """Candidate lists of cells (centres (n, 3), half-diagonal ``r``) from their parents' lists.
 
     Keeps the parent candidates whose distance to the cell centre is at most ``dmin + 2 r + tol``,
-    ordered by that distance (ties: parent-list order). One pass over a parent's list finds ``dmin``
+    ordered by that distance (ties: by triangle id). One pass over a parent's list finds ``dmin``
     and keeps each candidate's box bound and distance (when computed) in a scratch row, a second pass
     over the scratch selects; the selected lists go to an upper-bound buffer (the parents' list
     lengths), then are packed. Returns ``(ptr (n + 1,), tri, lower_bound (n,) = dmin - r)``.
@@ -311,13 +314,15 @@ def refine_cells(centres, r, par, pptr, ptri, tol, T):
                 if d2 < 0.0:
                     d2 = pt_tri(cx, cy, cz, ptri[j], T)[0]
                 if d2 <= lim2:
-                    # insertion by distance to the centre (lists are short)
+                    # insertion by distance to the centre, then triangle id (lists are short): the
+                    # order does not depend on the parent list's
+                    t = ptri[j]
                     q = k
-                    while q > b and kbuf[q - 1] > d2:
+                    while q > b and (kbuf[q - 1] > d2 or (kbuf[q - 1] == d2 and tbuf[q - 1] > t)):
                         tbuf[q] = tbuf[q - 1]
                         kbuf[q] = kbuf[q - 1]
                         q -= 1
-                    tbuf[q] = ptri[j]
+                    tbuf[q] = t
                     kbuf[q] = d2
                     k += 1
             cnt[i] = k - b
@@ -332,16 +337,20 @@ def refine_cells(centres, r, par, pptr, ptri, tol, T):
 
 
 @njit(cache=True, parallel=True)
-def shift_points(xyz, shift):
-    """``(xyz - shift, finite mask)`` in one pass (float64)."""
+def shift_points(xyz, shift, max_coord):
+    """``(xyz - shift, finite mask, rows with a finite |coordinate| > max_coord)`` in one pass (float64)."""
     n = len(xyz)
     P = np.empty((n, 3))
     fin = np.empty(n, np.bool_)
+    n_far = 0
     for i in prange(n):
         x, y, z = xyz[i, 0], xyz[i, 1], xyz[i, 2]
-        fin[i] = np.isfinite(x) and np.isfinite(y) and np.isfinite(z)
+        fx, fy, fz = np.isfinite(x), np.isfinite(y), np.isfinite(z)
+        fin[i] = fx and fy and fz
+        if (fx and abs(x) > max_coord) or (fy and abs(y) > max_coord) or (fz and abs(z) > max_coord):
+            n_far += 1
         P[i, 0], P[i, 1], P[i, 2] = x - shift[0], y - shift[1], z - shift[2]
-    return P, fin
+    return P, fin, n_far
 
 
 @njit(cache=True)
