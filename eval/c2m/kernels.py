@@ -16,6 +16,10 @@ case went to those atomic updates (only the rare far-point scan keeps :func:`_sc
 Kernels never write into their array arguments (the ahead-of-time build marks them noalias).
 Loops run in parallel over points (``prange``), using every core; the searches visit their points in
 blocks of :data:`QUERY_BLOCK` (gathered in visiting order, searched, scattered back).
+
+Longer than 500 lines: the searches are written out in their loops (helpers taking arrays cost the
+atomic reference counting above), and the dense grid's, the binned grid's and the shared geometry
+kernels are compiled ahead of time as one extension module (:mod:`mst.core.aot`), one source file.
 """
 
 from __future__ import annotations

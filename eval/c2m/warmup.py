@@ -46,6 +46,11 @@ def warm_c2m() -> None:
             for md in (None, 0.5):
                 idx = prepare_mesh(V, F, signed=signed, engine="grid", small_mesh_triangles=small)
                 c2m(P, idx, C2MConfig(signed=signed, max_dist_m=md))
+    # a dense grid of few levels: its cells' lists by the coarse-to-fine hierarchy (pairs_d2), not
+    # from parent lists (a mesh whose grid has under 8 cells along every axis)
+    from mst.eval.c2m.grids import DenseGrid
+
+    DenseGrid(prepare_mesh(V, F, engine="grid"), max_cells=64).nearest(P[10:] - (V.min(0) + V.max(0)) / 2, None)
 
 
 def warm_tracking() -> None:
