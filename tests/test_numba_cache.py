@@ -26,24 +26,25 @@ def _warmup_json() -> dict:
 
 def _cached_kernels() -> set[str]:
     """Names of the module-level ``cache=True`` dispatchers of mst.eval.c2m.kernels and
-    mst.pipeline.tracking.kernels (prefixed ``tracking.``) and mst.meshtools.kernels (``convert.``) that Python calls (the ``inline="always"``
+    mst.pipeline.tracking.kernels (prefixed ``tracking.``), mst.meshtools.kernels (``convert.``) and mst.core.klt_kernels (``klt.``) that Python calls (the ``inline="always"``
     helpers are compiled into their callers)."""
     import re
 
     import numba.core.registry
 
+    from mst.core import klt_kernels
     from mst.eval.c2m import kernels
     from mst.meshtools import kernels as convert_kernels
     from mst.pipeline.tracking import kernels as tracking_kernels
 
     root = Path(kernels.__file__).resolve().parents[2]
-    mods = (kernels, tracking_kernels, convert_kernels)
+    mods = (kernels, tracking_kernels, convert_kernels, klt_kernels)
     # the Python code outside the kernel modules: a kernel only ever called from other kernels is
     # compiled into them (its dispatcher gets no signature when its caller is loaded from the cache)
     others = "\n".join(p.read_text() for p in root.rglob("*.py")
                        if p.resolve() not in {Path(m.__file__).resolve() for m in mods} and "tests" not in p.parts)
     out = set()
-    for mod, prefix in zip(mods, ("", "tracking.", "convert.")):
+    for mod, prefix in zip(mods, ("", "tracking.", "convert.", "klt.")):
         for name in dir(mod):
             d = getattr(mod, name)
             if isinstance(d, numba.core.registry.CPUDispatcher) and d.targetoptions.get("inline") != "always":
@@ -71,7 +72,8 @@ def test_second_process_loads_every_c2m_and_tracking_kernel_from_the_cache(cache
     for name, st in second.items():
         assert st["cache_misses"] == 0, f"{name} recompiled in the second process"
         assert st["cache_hits"] >= 1, name
-        idx = list(Path(st["cache_path"]).glob(f"kernels.{name.removeprefix('tracking.').removeprefix('convert.')}-*.nbi"))
+        stem = "klt_kernels" if name.startswith("klt.") else "kernels"  # the module file's name
+        idx = list(Path(st["cache_path"]).glob(f"{stem}.{name.split('.')[-1]}-*.nbi"))
         assert idx, f"no cache index file for {name} in {st['cache_path']}"
 
 

@@ -97,7 +97,7 @@ def test_visp_xml_is_the_base_layer(shared_data, tmp_path):
     base = visp_xml_settings(xml)
     c = build_config(TrackConfig, base=base, preset="uav-480p", set_values=["edges.passes=2"])
     assert c.edges.far_clip_m is None and c.edges.angle_appear_deg == 80.0 and c.edges.passes == 2
-    assert c.klt.window_px == 11  # <window_size>5</window_size>: ViSP's half window
+    assert c.klt.window_px == 5  # <window_size>5</window_size>: the window's side (ViSP's vpKltOpencv)
 
 
 def test_show_config_lists_the_sections(tmp_path):

@@ -62,8 +62,8 @@ def test_settings_from_visp_xml(shared_data):
     e, k = c.edges, c.klt
     assert (e.mask_px, e.n_masks, e.search_range_px, e.edge_threshold, e.mu1, e.mu2, e.sample_step_px) == (5, 180, 8, 20, 0.5, 0.5, 4)
     assert (e.angle_appear_deg, e.angle_disappear_deg, e.near_clip_m, e.far_clip_m) == (70, 80, 0.1, 100)
-    # ViSP's <window_size> 5 is a half window: an 11 px LK window
-    assert (k.max_features, k.window_px, k.quality, k.min_distance_px, k.pyramid_levels) == (300, 11, 0.015, 8, 3)
+    # ViSP's <window_size> 5 is the LK window's side (vpKltOpencv hands it to OpenCV as cv::Size(5, 5))
+    assert (k.max_features, k.window_px, k.quality, k.min_distance_px, k.pyramid_levels) == (300, 5, 0.015, 8, 3)
 
 
 def test_settings_bad_xml(tmp_path):

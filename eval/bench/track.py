@@ -13,7 +13,10 @@ Issue #14: each timed mode is followed by its per-frame budget (:func:`_budget_r
 sampling, moving-edge search, VVS, KLT, health evidence, Python overhead), and the ViSP rows (when
 the runner is built; ``VISP_ANCHOR=/path/visp_mbt_anchor``) state mst's median of the same mode in
 this run and the ratio (target <= 1.0), on teabox and on the rendered L-building orbit (ViSP with
-and without its scanline hidden-line removal). Run alone: ``python -m mst.eval.bench.track``.
+and without its scanline hidden-line removal). On teabox both trackers run 5 times and the target
+is judged on each frame's fastest run (median over frames): on the shared 2-core machine a frame
+that the scheduler interrupted in one run is not interrupted in all, while a single run's wall
+median of the longer hybrid frames was 2-3x their CPU time (for ViSP's as for mst's). Run alone: ``python -m mst.eval.bench.track``.
 """
 
 from __future__ import annotations
@@ -28,13 +31,22 @@ ROOT = Path(__file__).resolve().parents[2]
 SHARED = ROOT.parent / "shared" / "data"
 
 
-def _time_tracker(model, cam, cfg, grays, T0, repeats: int = 2) -> dict:
+def _frame_min_median(runs: list[np.ndarray]) -> float:
+    """Median over frames of each frame's fastest time over repeated runs (ms): the load-robust
+    figure (a frame interrupted in one run is not in another; the minimum over runs is the
+    frame's uninterrupted time, as ``timeit`` takes the minimum), used for both trackers alike."""
+    n = min(len(r) for r in runs)
+    return float(np.median(np.min(np.stack([np.asarray(r[:n]) for r in runs]), axis=0)))
+
+
+def _time_tracker(model, cam, cfg, grays, T0, repeats: int = 5) -> dict:
     from mst.pipeline.tracking import EdgeTracker
 
-    wall, cpu, lost = [], [], 0
+    wall, cpu, lost, runs = [], [], 0, []
     for _ in range(repeats):
         tr = EdgeTracker(model, cam, cfg)
         T = T0
+        run = []
         for k, g in enumerate(grays):
             t0, c0 = time.perf_counter(), time.process_time()
             fr = tr.track(g, T, first=k == 0)
@@ -46,9 +58,12 @@ def _time_tracker(model, cam, cfg, grays, T0, repeats: int = 2) -> dict:
             if k > 0:
                 wall.append((time.perf_counter() - t0) * 1e3)
                 cpu.append((time.process_time() - c0) * 1e3)
+                run.append(wall[-1])
+        runs.append(np.array(run))
     w, c = np.array(wall), np.array(cpu)
     return {"frames": len(grays), "lost": lost, "median_ms": float(np.median(w)), "p95_ms": float(np.percentile(w, 95)),
-            "cpu_median_ms": float(np.median(c)), "cpu_p95_ms": float(np.percentile(c, 95))}
+            "cpu_median_ms": float(np.median(c)), "cpu_p95_ms": float(np.percentile(c, 95)),
+            "frame_min_median_ms": _frame_min_median(runs)}
 
 
 def _rows(name: str, model, cam, cfg, grays, T0) -> list[dict]:
@@ -69,7 +84,8 @@ BUDGET_STAGES = (
     ("visibility_sampling", ("visible_samples",)),
     ("moving_edge_search", ("search_edges",)),
     ("vvs", ("solve_pose",)),
-    ("klt", ("_klt_points", "track_forward_backward")),
+    ("klt_tracking", ("_klt_track",)),  # the frame's pyramid (built once) and the forward-backward LK
+    ("klt_detection", ("_klt_points",)),  # re-detection (on few frames: its share of the whole run)
     ("health_evidence", ("evidence", "_absolute_health")),
 )
 
@@ -133,9 +149,13 @@ def _visp_anchor_rows(tb: Path, workdir: Path, mst_median: dict | None = None) -
     out = []
     for mode, flag in (("edge", "--no-klt"), ("hybrid", "--klt")):
         vf = workdir / f"visp_{mode}.txt"
-        subprocess.run([str(exe), "--mode", mode, "--model", str(tb / "teabox.cao"), "--input", str(tb / "teabox.mp4"),
-                        "--cam", "839.21470", "839.44555", "325.66776", "243.69727", "--init-clicks", str(tb / "teabox.clicks"),
-                        "--init-points", str(tb / "teabox.init"), "--out", str(vf)], check=True, capture_output=True)
+        visp_runs = []
+        for _ in range(5):  # as mst's rows: 5 runs, each frame's fastest for the load-robust figure
+            subprocess.run([str(exe), "--mode", mode, "--model", str(tb / "teabox.cao"), "--input", str(tb / "teabox.mp4"),
+                            "--cam", "839.21470", "839.44555", "325.66776", "243.69727", "--init-clicks",
+                            str(tb / "teabox.clicks"), "--init-points", str(tb / "teabox.init"), "--out", str(vf)],
+                           check=True, capture_output=True)
+            visp_runs.append(np.loadtxt(vf, comments="#")[1:, 14])  # the first frame: mst's rows exclude it too
         a = np.loadtxt(vf, comments="#")
         T = np.tile(np.eye(4), (len(a), 1, 1))
         T[:, :3, :] = a[:, 1:13].reshape(-1, 3, 4)
@@ -147,15 +167,20 @@ def _visp_anchor_rows(tb: Path, workdir: Path, mst_median: dict | None = None) -
         row = {"bench": f"ViSP 3.5 {mode} on teabox (same machine, now)", "median_ms": float(np.median(a[:, 14])),
                "mst_vs_visp_median_mm": float(np.median(dt) * 1e3), "mst_vs_visp_max_mm": float(dt.max() * 1e3),
                "mst_vs_visp_median_deg": float(np.median(dr)), "mst_vs_visp_max_deg": float(dr.max())}
+        row["frame_min_median_ms"] = round(_frame_min_median(visp_runs), 3)
         if mst_median and mode in mst_median:  # issue #14: mst's median (same frames, this run) / ViSP's
-            wall, cpu = mst_median[mode]
+            wall, cpu, fmin = mst_median[mode]
             row["mst_median_ms"] = round(wall, 3)
             row["ratio_vs_visp"] = round(wall / row["median_ms"], 3)
             # on a loaded machine mst's wall median is inflated by waiting; its CPU median is not
+            # (ViSP's runner reports wall times only: its CPU median is not known here)
             row["mst_cpu_median_ms"] = round(cpu, 3)
             row["ratio_vs_visp_mst_cpu"] = round(cpu / row["median_ms"], 3)
-            row["target"] = "mst median <= 1.0 x ViSP's (same run)"
-            row["ok"] = bool(row["ratio_vs_visp"] <= 1.0)
+            # the load-robust comparison: each frame's fastest of 5 runs, both trackers alike
+            row["mst_frame_min_median_ms"] = round(fmin, 3)
+            row["ratio_vs_visp_frame_min"] = round(fmin / row["frame_min_median_ms"], 3)
+            row["target"] = "mst median <= 1.0 x ViSP's (same run; per-frame fastest of 5 runs, both trackers)"
+            row["ok"] = bool(row["ratio_vs_visp_frame_min"] <= 1.0)
         out.append(row)
     return out
 
@@ -290,7 +315,8 @@ def run(workdir: Path) -> list[dict]:
             grays.append(cv2.cvtColor(img, cv2.COLOR_BGR2GRAY))
         tb_rows = _rows("teabox", model, cam, cfg, grays, T0)
         rows += tb_rows
-        mst_median = {("hybrid" if "klt" in r["bench"] else "edge"): (r["median_ms"], r["cpu_median_ms"])
+        mst_median = {("hybrid" if "klt" in r["bench"] else "edge"): (r["median_ms"], r["cpu_median_ms"],
+                                                                      r["frame_min_median_ms"])
                       for r in tb_rows if "frames" in r}
         from mst.core.trajectory import write_pose_file
 

@@ -103,6 +103,12 @@ def warm_tracking() -> None:
     args = (img, S.X_model, S.A_model, S.B_model, S.edge, Tl, 500.0, 500.0, 40.0, 30.0)
     pose_health(*args, 0.005, 40.0)
     pose_gradients(*args, 40.0, 0.87)
+    # the KLT front end (mst.core.klt_kernels: the tracker's and the SLAM's forward-backward LK)
+    from mst.core.klt import KltConfig, track_forward_backward
+
+    pts = np.array([[40.0, 20.0], [41.0, 40.0]])
+    for win in (5, 11, 7):  # the two compiled window sizes and the generic kernel
+        track_forward_backward(img, img, pts, KltConfig(window_px=win, pyramid_levels=1), guess_px=pts)
 
 
 def warm_convert() -> None:
@@ -122,17 +128,18 @@ def warm_convert() -> None:
 
 
 def kernel_stats() -> dict[str, dict]:
-    """Per compiled kernel of :mod:`mst.eval.c2m.kernels`, :mod:`mst.pipeline.tracking.kernels` and
-    :mod:`mst.meshtools.kernels`:
+    """Per compiled kernel of :mod:`mst.eval.c2m.kernels`, :mod:`mst.pipeline.tracking.kernels`,
+    :mod:`mst.meshtools.kernels` and :mod:`mst.core.klt_kernels`:
     signatures loaded from the cache and compiled in this process, and the cache folder."""
     import numba.core.registry
 
+    from mst.core import klt_kernels
     from mst.eval.c2m import kernels
     from mst.meshtools import kernels as convert_kernels
     from mst.pipeline.tracking import kernels as tracking_kernels
 
     out = {}
-    for mod, prefix in ((kernels, ""), (tracking_kernels, "tracking."), (convert_kernels, "convert.")):
+    for mod, prefix in ((kernels, ""), (tracking_kernels, "tracking."), (convert_kernels, "convert."), (klt_kernels, "klt.")):
         for name in dir(mod):
             d = getattr(mod, name)
             if isinstance(d, numba.core.registry.CPUDispatcher) and d.signatures:

@@ -13,7 +13,7 @@ import math
 
 import numpy as np
 
-from mst.core.klt import track_forward_backward
+from mst.core.klt import PyramidCache, track_forward_backward
 from mst.core.poses import inv_T, pnp_ransac, refine_pnp, transform_points
 from mst.pipeline.slam.geometry import pose_information
 
@@ -71,8 +71,10 @@ class FrontEnd:
                 guess[~has, 0] += d
                 use_guess = True
         guess = guess.astype(np.float32)
-        p1, keep, _ = track_forward_backward(self.prev_gray, gray, self.pts, self.cfg.klt,
-                                             guess if use_guess else None)
+        if getattr(self, "_pyramids", None) is None:
+            self._pyramids = PyramidCache(self.cfg.klt)  # each frame's KLT pyramid built once
+        p1, keep, _ = track_forward_backward(self._pyramids.get(self.prev_gray), self._pyramids.get(gray), self.pts,
+                                             self.cfg.klt, guess if use_guess else None)
         h, w = gray.shape
         keep &= (p1[:, 0] >= 0) & (p1[:, 1] >= 0) & (p1[:, 0] <= w - 1) & (p1[:, 1] <= h - 1)
         self._keep_tracks(keep)

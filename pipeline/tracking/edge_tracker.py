@@ -26,6 +26,10 @@ from mst.pipeline.tracking.config import TrackConfig, lod_thresholds, scene_near
 from mst.pipeline.tracking.health import ORIENT_TOL_DEG, PoseEvidence, image_noise_sigma
 from mst.pipeline.tracking.moving_edges import _image
 
+#: fewer KLT points than this in a fit: no ``klt_agree`` for the health score (one cluster of the
+#: monitor's noise model, :class:`mst.pipeline.tracking.health.HealthMonitor`)
+KLT_SIGNAL_MIN = 10
+
 
 @dataclass
 class FrameResult:
@@ -97,6 +101,7 @@ class EdgeTracker:
         self.klt_pts: np.ndarray | None = None  # (M,2) px in prev frame
         self.klt_X: np.ndarray | None = None  # (M,3) model frame
         self.prev_gray: np.ndarray | None = None
+        self._pyramids = None  # the KLT pyramids of the last two frames (core.klt.PyramidCache)
         self._klt_next: tuple[np.ndarray, np.ndarray] | None = None  # the last fit's KLT inliers (model points, px)
         self._klt_age = 0  # frames since the KLT corners were detected
         self._klt_n0 = 0  # corners at the last detection
@@ -240,8 +245,13 @@ class EdgeTracker:
 
         if self.klt_pts is None or len(self.klt_pts) < 4 or self.prev_gray is None:
             return None
+        pyr = self._pyramids
+        if pyr is None:
+            from mst.core.klt import PyramidCache
+
+            pyr = self._pyramids = PyramidCache(self.klt_cfg)  # each frame's pyramid built once
         # forward-backward check: drops unstable tracks (noise, occlusion boundaries)
-        p1, ok, _ = track_forward_backward(self.prev_gray, gray, self.klt_pts, self.klt_cfg)
+        p1, ok, _ = track_forward_backward(pyr.get(self.prev_gray), pyr.get(gray), self.klt_pts, self.klt_cfg)
         if ok.sum() < 4:
             return None
         return self.klt_X[ok], p1[ok].astype(np.float64)
@@ -375,7 +385,10 @@ class EdgeTracker:
         if self.health_score:
             out.evidence = self.evidence(img, T, S)  # the last pass's samples, re-projected at T
         if klt is not None and res.klt_inlier is not None:
-            out.klt_agree, out.n_klt = float(np.mean(res.klt_inlier)), int(len(res.klt_inlier))
+            out.n_klt = int(len(res.klt_inlier))
+            # the health monitor counts KLT points in clusters of 10 (they move together): fewer
+            # than one cluster is no agreement signal (one of 4 points flipping moved the score by 0.6)
+            out.klt_agree = float(np.mean(res.klt_inlier)) if out.n_klt >= KLT_SIGNAL_MIN else None
         return out
 
     def _absolute_health(self, img, S, T, res, recover: bool):
