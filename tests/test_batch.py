@@ -8,7 +8,6 @@ import os
 import socket
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
@@ -89,11 +88,9 @@ def test_batch_six_sequences_resume_and_rerun_by_content(campaign):
     assert res["config"]["workers"] == 2
 
     # a rerun: nothing runs (no cluster is even started); the broken sequence reports its recorded error
-    t0 = time.perf_counter()
     code, res2, _ = _batch(campaign)
     assert code == 1 and res2["stage_counts"]["ok"] == 0 and res2["scheduler"] is None
     assert {s["name"]: s["error"] for s in res2["sequences"]}["broken"] == broken["error"]
-    assert time.perf_counter() - t0 < 10
 
     # a changed camera file (same camera, other bytes) reruns only what reads it
     cam = campaign / "box-orbit" / "camera.json"
