@@ -35,6 +35,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from mst.pipeline.tracking.kernels import _solve6  # x = A^-1 b, 6x6, the VVS solve's fixed order
+
 #: samples per cluster along a model edge: runs of this many consecutive samples (32 px at the default
 #: 4 px sample step). Measured autocorrelation of the VVS residuals along an edge at lags 1 / 2 / 4 / 8 /
 #: 16 samples: demo UAV 0.24 / 0.08 / 0.06 / 0.04 / -0.01, Rotterdam FPV 0.16 / -0.01 / -0.11 / 0.08 /
@@ -59,38 +61,6 @@ SERIES_LEVERAGE = 0.5
 #: pessimistic (err / sigma 0.45 against 0.67), and the error budget refused every correct pose after the
 #: first frame; with 20 clusters or more the CR2 term is used (demo UAV, FPV, 250 m, teabox: 20-600)
 MIN_CLUSTERS = 20
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def _gauss6(A, b, x):
-    """``x = A^-1 b`` (6x6, partial pivoting, fixed order); False on an exact zero pivot."""
-    M = np.empty((6, 7))
-    for i in range(6):
-        for j in range(6):
-            M[i, j] = A[i, j]
-        M[i, 6] = b[i]
-    for k in range(6):
-        p = k
-        for i in range(k + 1, 6):
-            if abs(M[i, k]) > abs(M[p, k]):
-                p = i
-        if M[p, k] == 0.0:
-            return False
-        if p != k:
-            for j in range(7):
-                tmp = M[k, j]
-                M[k, j] = M[p, j]
-                M[p, j] = tmp
-        for i in range(k + 1, 6):
-            f = M[i, k] / M[k, k]
-            for j in range(k, 7):
-                M[i, j] -= f * M[k, j]
-    for i in range(5, -1, -1):
-        s = M[i, 6]
-        for j in range(i + 1, 6):
-            s -= M[i, j] * x[j]
-        x[i] = s / M[i, i]
-    return True
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -200,7 +170,7 @@ def cluster_cov_kernel(X, e, nE, cl, nC, AB, Xk, uk, T, fx, fy, cx, cy, w, r, wk
         for j in range(6):
             for i in range(6):
                 col[i] = Hk[i, j]
-            if not _gauss6(He, col, xc):
+            if not _solve6(He, col, xc):
                 solved = False
                 break
             rho += xc[j]
@@ -246,7 +216,7 @@ def cluster_cov_kernel(X, e, nE, cl, nC, AB, Xk, uk, T, fx, fy, cx, cy, w, r, wk
         if cr2:
             # D = L^-T U diag((1 - l)^-1/2) U^T L^-1 s_g with L^-1 H_g L^-T = U diag(l) U^T
             _lower_solve(L, Hg[g], Y)  # Y = L^-1 H_g
-            _lower_solve_t(L, Y, M)  # M = L^-1 Y^T = L^-1 H_g L^-T
+            _lower_solve(L, Y.T, M)  # M = L^-1 Y^T = L^-1 H_g L^-T (a view, no copy)
             tr = 0.0
             for p in range(6):
                 tr += M[p, p]
@@ -303,7 +273,7 @@ def cluster_cov_kernel(X, e, nE, cl, nC, AB, Xk, uk, T, fx, fy, cx, cy, w, r, wk
             for p in range(6):
                 for c in range(6):
                     A[p, c] = H[p, c] - Hg[g, p, c] + glam * gn[p] * gn[c]
-            if not _gauss6(A, S[g], D):
+            if not _solve6(A, S[g], D):
                 return m, False
         for p in range(6):
             for c in range(p, 6):
@@ -372,17 +342,6 @@ def _lower_solve(L, B, out):
     for c in range(6):
         for i in range(6):
             s = B[i, c]
-            for k in range(i):
-                s -= L[i, k] * out[k, c]
-            out[i, c] = s / L[i, i]
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def _lower_solve_t(L, B, out):
-    """``out = L^-1 B^T`` (:func:`_lower_solve` of the transpose, without a copy)."""
-    for c in range(6):
-        for i in range(6):
-            s = B[c, i]
             for k in range(i):
                 s -= L[i, k] * out[k, c]
             out[i, c] = s / L[i, i]
