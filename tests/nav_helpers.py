@@ -37,3 +37,28 @@ def noisy_vision(t: np.ndarray, T: np.ndarray, seed: int = 1, gap: tuple[float, 
     if gap is not None:
         keep[(t >= gap[0]) & (t < gap[1])] = False
     return t[keep], Tv[keep], np.tile(C, (int(keep.sum()), 1, 1)), keep, e
+
+
+#: the georeference of the tracked nav tests: model -> world, a 30 deg turn about z and an offset (m)
+M2W = np.array([[np.cos(np.radians(30)), -np.sin(np.radians(30)), 0, 100.0],
+                [np.sin(np.radians(30)), np.cos(np.radians(30)), 0, -50.0], [0, 0, 1, 10.0], [0, 0, 0, 1.0]])
+
+
+def tracked_sequence(tmp_path_factory, tag: str, scenario: str, fps: float, track_cfg, **synth):
+    """``mst synth <scenario>`` of the bundled sample model (320x240, 4x AA, 512 px texture, with depth,
+    ``synth`` the other SynthConfig fields) tracked by ``run_track`` with ``track_cfg`` at ``fps``:
+    the sequence folder (``traj.txt`` in it). Skips when the sample model is missing."""
+    import pytest
+
+    from mst.eval.bench.slam import SAMPLE_MODEL
+    from mst.pipeline.synth import SynthConfig, synthesize
+    from mst.pipeline.tracking import run_track
+
+    if not SAMPLE_MODEL.exists():
+        pytest.skip("samples/building_tin.obj missing")
+    out = tmp_path_factory.mktemp(tag) / scenario
+    synthesize(scenario, SAMPLE_MODEL, out, SynthConfig(width=320, height=240, fps=fps, aa_samples=4,
+                                                        texture_size=512, **synth))
+    run_track(out / "rgb", out / "model.obj", out / "camera.json", out / "cMo" / "000000.txt", out / "traj.txt",
+              track_cfg, depth_dir=out / "depth", fps=fps)
+    return out

@@ -15,25 +15,16 @@ import json
 
 import numpy as np
 import pytest
-
-from mst.eval.bench.slam import SAMPLE_MODEL
+from nav_helpers import tracked_sequence
 
 FPS = 2.0
 
 
 @pytest.fixture(scope="module")
 def tracked(tmp_path_factory):
-    from mst.pipeline.synth import SynthConfig, synthesize
-    from mst.pipeline.tracking import TrackConfig, run_track
+    from mst.pipeline.tracking import TrackConfig
 
-    if not SAMPLE_MODEL.exists():
-        pytest.skip("samples/building_tin.obj missing")
-    out = tmp_path_factory.mktemp("navtrack") / "orbit"
-    synthesize("orbit", SAMPLE_MODEL, out, SynthConfig(width=320, height=240, frames=40, fps=FPS, aa_samples=4,
-                                                        texture_size=512))
-    run_track(out / "rgb", out / "model.obj", out / "camera.json", out / "cMo" / "000000.txt", out / "traj.txt",
-              TrackConfig(aid="rgbd"), depth_dir=out / "depth", fps=FPS)
-    return out
+    return tracked_sequence(tmp_path_factory, "navtrack", "orbit", FPS, TrackConfig(aid="rgbd"), frames=40)
 
 
 def test_nav_fuse_reads_mst_track_output_and_keeps_its_accuracy(tracked, tmp_path, mst):

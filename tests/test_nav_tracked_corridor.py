@@ -22,12 +22,9 @@ import shutil
 
 import numpy as np
 import pytest
-
-from mst.eval.bench.slam import SAMPLE_MODEL
+from nav_helpers import M2W, tracked_sequence
 
 FPS = 6.0
-M2W = np.array([[np.cos(np.radians(30)), -np.sin(np.radians(30)), 0, 100.0],
-                [np.sin(np.radians(30)), np.cos(np.radians(30)), 0, -50.0], [0, 0, 1, 10.0], [0, 0, 0, 1.0]])
 
 
 def _rms(x):
@@ -37,20 +34,13 @@ def _rms(x):
 @pytest.fixture(scope="module")
 def tracked_corridor(tmp_path_factory):
     from mst.pipeline.slam.config import SlamConfig
-    from mst.pipeline.synth import SynthConfig, synthesize
-    from mst.pipeline.tracking import TrackConfig, run_track
+    from mst.pipeline.tracking import TrackConfig
 
-    if not SAMPLE_MODEL.exists():
-        pytest.skip("samples/building_tin.obj missing")
-    out = tmp_path_factory.mktemp("navcorr") / "corridor"
-    synthesize("corridor", SAMPLE_MODEL, out, SynthConfig(width=320, height=240, frames=150, fps=FPS, aa_samples=4,
-                                                          texture_size=512))
     # the error budget (1 %) refuses 149 of these 150 poses at 320x240 (2 sigma 2-5 %: this vision is
     # off by up to 1 m at ~12 m), which leaves the fusion nothing but GPS; widened to 10 %, as for
     # `mst refine` (tests/test_refine.py), the track keeps its biased poses for the fusion to weigh
-    run_track(out / "rgb", out / "model.obj", out / "camera.json", out / "cMo" / "000000.txt", out / "traj.txt",
-              TrackConfig(slam=SlamConfig(drift_budget_rel=0.10)), depth_dir=out / "depth", fps=FPS)
-    return out
+    return tracked_sequence(tmp_path_factory, "navcorr", "corridor", FPS,
+                            TrackConfig(slam=SlamConfig(drift_budget_rel=0.10)), frames=150)
 
 
 def _valid_cov_only(src, dst):

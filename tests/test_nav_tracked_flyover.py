@@ -25,29 +25,19 @@ import shutil
 
 import numpy as np
 import pytest
-
-from mst.eval.bench.slam import SAMPLE_MODEL
+from nav_helpers import M2W, tracked_sequence
 
 FPS = 2.0
 SEEDS = (0, 1, 2, 3)
 GPS_SIGMA_H_M = 3.0
-M2W = np.array([[np.cos(np.radians(30)), -np.sin(np.radians(30)), 0, 100.0],
-                [np.sin(np.radians(30)), np.cos(np.radians(30)), 0, -50.0], [0, 0, 1, 10.0], [0, 0, 0, 1.0]])
 
 
 @pytest.fixture(scope="session")
 def tracked_flyover(tmp_path_factory):
-    from mst.pipeline.synth import SynthConfig, synthesize
-    from mst.pipeline.tracking import TrackConfig, run_track
+    from mst.pipeline.tracking import TrackConfig
 
-    if not SAMPLE_MODEL.exists():
-        pytest.skip("samples/building_tin.obj missing")
-    out = tmp_path_factory.mktemp("navfly") / "flyover"
-    synthesize("flyover", SAMPLE_MODEL, out, SynthConfig(width=320, height=240, frames=60, fps=FPS, speed=0.8,
-                                                          distance=6.0, aa_samples=4, texture_size=512))
-    run_track(out / "rgb", out / "model.obj", out / "camera.json", out / "cMo" / "000000.txt", out / "traj.txt",
-              TrackConfig(), depth_dir=out / "depth", fps=FPS)
-    return out
+    return tracked_sequence(tmp_path_factory, "navfly", "flyover", FPS, TrackConfig(), frames=60, speed=0.8,
+                            distance=6.0)
 
 
 def _rms(x):
