@@ -301,3 +301,17 @@ def test_face_visibility_kernel_matches_numpy():
             np.testing.assert_array_equal(a, b)
             prev, n_vis = a, n_vis + int(a.sum())
     assert n_vis > 100
+
+
+def test_vvs_median_selection_is_numpy_median():
+    """The VVS kernel's median (quickselect, issue #14) is numpy's median value exactly: odd and even
+    lengths, ties, signed zeros, one element; a NaN gives the sort's answer (NaN ordered last)."""
+    from mst.pipeline.tracking.kernels import _median
+
+    rng = np.random.default_rng(5)
+    for n in (1, 2, 3, 4, 7, 8, 64, 431, 600):
+        for a in (rng.normal(0, 1, n), np.round(rng.normal(0, 2, n)), np.zeros(n), -np.abs(rng.normal(0, 1, n))):
+            assert _median(a) == np.median(a), (n, a[:5])
+    a = rng.normal(0, 1, 9)
+    a[3] = np.nan
+    assert _median(a) == np.sort(a)[4]

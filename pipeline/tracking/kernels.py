@@ -228,16 +228,57 @@ def vvs_residuals(Xc, P, nE, e, cu, cv, fx, fy, cx, cy, r_all, nx, ny, x, y, iz)
             r_all[i, c] = (u - cu[i, c]) * a + (v - cv[i, c]) * b
 
 
-@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+@njit(cache=True, nogil=True, error_model="numpy")
+def _select(s, h):
+    """Rearrange ``s`` in place so that ``s[h]`` is its ``h``-th smallest value, ``s[:h]`` no larger
+    and ``s[h + 1:]`` no smaller (Hoare's quickselect, middle pivot); returns ``s[h]``. No NaN in ``s``."""
+    lo, hi = 0, s.shape[0] - 1
+    while lo < hi:
+        piv = s[(lo + hi) // 2]
+        i, j = lo, hi
+        while i <= j:
+            while s[i] < piv:
+                i += 1
+            while s[j] > piv:
+                j -= 1
+            if i <= j:
+                tmp = s[i]
+                s[i] = s[j]
+                s[j] = tmp
+                i += 1
+                j -= 1
+        if h <= j:
+            hi = j
+        elif h >= i:
+            lo = i
+        else:
+            break
+    return s[h]
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
 def _median(a):
     """The median of ``a`` (the middle value, or the mean of the two middle values): a selection, so
-    exactly :func:`mst.pipeline.tracking.vvs._median`'s value."""
+    exactly :func:`mst.pipeline.tracking.vvs._median`'s value. Quickselect on a copy (issue #14: a
+    full sort twice per VVS iteration was a fifth of the solve), the sort when ``a`` holds a NaN (its
+    order statistics put NaN last)."""
     n = a.shape[0]
-    s = np.sort(a)
     h = n // 2
+    s = a.copy()
+    for i in range(n):
+        if s[i] != s[i]:
+            s = np.sort(a)
+            if n % 2 == 0 and n > 1:
+                return 0.5 * (s[h - 1] + s[h])
+            return s[h]
+    m = _select(s, h)
     if n % 2 == 0 and n > 1:
-        return 0.5 * (s[h - 1] + s[h])
-    return s[h]
+        lo = s[0]  # the (h - 1)-th smallest: the largest of s[:h]
+        for i in range(1, h):
+            if s[i] > lo:
+                lo = s[i]
+        return 0.5 * (lo + m)
+    return m
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")  # called from vvs_solve only
@@ -421,6 +462,27 @@ def _tukey_into(r, min_scale, tukey_c, w):
     return sigma
 
 
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")  # called from vvs_solve only
+def _normal_equations(J, wJ, w, r, H, g):
+    """``H = J^T wJ`` (6, 6), ``g = wJ^T r`` (6,) in place; returns ``cost = sum w r^2``. One pass over
+    the samples with the 36 + 6 + 1 sums as independent accumulators, each summed in sample order
+    (the values of one loop per entry to the bit, without its latency-bound chains: issue #14)."""
+    n = r.shape[0]
+    acc = np.zeros(43)
+    for i in range(n):
+        for p in range(6):
+            jp = J[i, p]
+            for q in range(6):
+                acc[6 * p + q] += jp * wJ[i, q]
+            acc[36 + p] += wJ[i, p] * r[i]
+        acc[42] += w[i] * r[i] * r[i]
+    for p in range(6):
+        for q in range(6):
+            H[p, q] = acc[6 * p + q]
+        g[p] = acc[36 + p]
+    return acc[42]
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
 def vvs_solve(X, e, AB, nE, cu, cv, Xk, uk, T0, fx, fy, cx, cy, iters, lm_mu, min_mad, tukey_c, klt_weight, stop_px,
               spread, spread_k, T_out, H_out, w_out, r_out, wt_out, wk_out, klt_info_cap=0.0):
@@ -529,19 +591,7 @@ def vvs_solve(X, e, AB, nE, cu, cv, Xk, uk, T0, fx, fy, cx, cy, iters, lm_mu, mi
         # linearise (vvs_linearise), then the KLT points' Tukey weights
         sigma = vvs_linearise(r_all, ch, r, w, wt, min_mad, tukey_c, e, nE, spread, spread_k, nx, ny, x, y, iz, fx,
                               fy, J, wJ)
-        for p in range(6):  # H = J^T wJ, g = wJ^T r
-            for q in range(6):
-                s = 0.0
-                for i in range(n):
-                    s += J[i, p] * wJ[i, q]
-                H[p, q] = s
-            s = 0.0
-            for i in range(n):
-                s += wJ[i, p] * r[i]
-            g[p] = s
-        cost = 0.0
-        for i in range(n):
-            cost += w[i] * r[i] * r[i]
+        cost = _normal_equations(J, wJ, w, r, H, g)  # H = J^T wJ, g = wJ^T r, cost = sum w r^2
         sc = 1.0  # the KLT block's information cap
         if nk:
             _tukey_into(rk, min_mad, tukey_c, wk)
