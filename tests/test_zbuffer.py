@@ -110,3 +110,37 @@ def test_frustum_cull_changes_no_sample(courtyard, azimuth_deg):
     assert len(S0) > 100 and S0.stats["behind"] > 0
     np.testing.assert_array_equal(S1.uv, S0.uv)
     np.testing.assert_array_equal(S1.X_model, S0.X_model)
+
+
+def test_reused_buffer_is_the_rendered_one(courtyard):
+    """The per-model buffer cache (issue #14) returns a buffer only for the very inputs it was
+    rendered for: the same bits as a fresh (uncached) rendering, read-only; a pose moved by 1e-12 m,
+    another face set, scale or near plane renders anew; the erosion is reused with its buffer."""
+    import cv2
+
+    from mst.core.poses import inv_T, look_at
+    from mst.meshtools.formats import load_model
+    from mst.pipeline.tracking.depth_buffer import _render_buffer, eroded_buffer
+    from mst.pipeline.tracking.visibility import ModelGeometry, face_visibility, inverse_depth_buffer
+
+    geom = ModelGeometry.from_model(load_model(courtyard))
+    c = geom.vertices.mean(axis=0)
+    T = inv_T(look_at(c + np.array([30.0, 12.0, 18.0]), c))
+    K = np.array([[262.5, 0, 159.5], [0, 262.5, 119.5], [0, 0, 1.0]])
+    fv = face_visibility(geom, T, None, 89.0, 89.0)
+    a, _ = inverse_depth_buffer(geom, T, K, 320, 240, fv, 0.1, 0.5)
+    b, _ = inverse_depth_buffer(geom, T, K, 320, 240, fv.copy(), 0.1, 0.5)
+    assert b is a and not a.flags.writeable
+    assert np.array_equal(a, _render_buffer(geom, T, K, 320, 240, fv, 0.1, 0.5, None, False))
+    T2 = T.copy()
+    T2[0, 3] += 1e-12
+    fv2 = fv.copy()
+    fv2[np.flatnonzero(fv)[0]] = False
+    for args in ((T2, fv, 0.1, 0.5), (T, fv2, 0.1, 0.5), (T, fv, 0.1, 0.25), (T, fv, 0.2, 0.5)):
+        Ti, fi, near, sc = args
+        d, _ = inverse_depth_buffer(geom, Ti, K, 320, 240, fi, near, sc)
+        assert d is not a
+        assert np.array_equal(d, _render_buffer(geom, Ti, K, 320, 240, fi, near, sc, None, False))
+    buf, nb, _ = eroded_buffer(geom, T, K, 320, 240, fv, 0.1, 0.5)
+    assert np.array_equal(nb, cv2.erode(buf, np.ones((3, 3), np.uint8)))
+    assert eroded_buffer(geom, T, K, 320, 240, fv, 0.1, 0.5)[1] is nb

@@ -63,7 +63,82 @@ def inverse_depth_buffer(geom: ModelGeometry, T_cam_model: np.ndarray, K: np.nda
     formulation ``_numpy_reference`` reads them; the set-up kernel
     :func:`mst.pipeline.tracking.kernels.zbuffer_faces` moves the few vertices it needs itself, to
     the same values).
+
+    The last :data:`CACHE_SIZE` buffers of a model are kept (read-only) and returned again for the
+    same inputs, to the bit (issue #14: a frame's evidence renders the final pose's buffer, which the
+    next frame's hidden-line pass needs when it starts from that pose).
     """
+    if not _numpy_reference:
+        hit = _cached_buffer(geom, T_cam_model, K, width, height, faces, near, scale)
+        if hit is not None:
+            return hit.buf, scale
+    buf = _render_buffer(geom, T_cam_model, K, width, height, faces, near, scale, Xc_all, _numpy_reference)
+    if not _numpy_reference:
+        _remember(geom, T_cam_model, K, width, height, faces, near, scale, buf)
+    return buf, scale
+
+
+class _Buffer:
+    """One rendered buffer and its key (the pose, intrinsics, image size, faces, near plane and scale
+    it was rendered for); ``eroded``: its 3x3 erosion once computed (:func:`eroded_buffer`)."""
+
+    __slots__ = ("key", "faces", "buf", "eroded")
+
+    def __init__(self, key: bytes, faces: np.ndarray, buf: np.ndarray):
+        self.key, self.faces, self.buf, self.eroded = key, faces, buf, None
+
+
+#: rendered buffers kept per model (the last ones): the evidence of a frame's final pose renders the
+#: buffer that the next frame's hidden-line pass needs when it starts from that pose (issue #14)
+CACHE_SIZE = 2
+
+
+def _key(T_cam_model, K, width, height, near, scale) -> bytes:
+    return b"".join((np.ascontiguousarray(T_cam_model, np.float64).tobytes(), np.ascontiguousarray(K, np.float64).tobytes(),
+                     np.array([width, height], np.int64).tobytes(), np.array([near, scale], np.float64).tobytes()))
+
+
+def _cached_buffer(geom, T_cam_model, K, width, height, faces, near, scale) -> _Buffer | None:
+    """The buffer rendered for exactly these inputs (every bit of the pose, intrinsics, near plane
+    and scale, the same face set), or None: a reused buffer is the buffer this call would render."""
+    cache = geom.__dict__.get("_zbuffer_cache")
+    if not cache:
+        return None
+    key = _key(T_cam_model, K, width, height, near, scale)
+    f = np.asarray(faces, bool)
+    for e in cache:
+        if e.key == key and e.faces.shape == f.shape and np.array_equal(e.faces, f):
+            return e
+    return None
+
+
+def _remember(geom, T_cam_model, K, width, height, faces, near, scale, buf) -> None:
+    buf.flags.writeable = False  # shared by every caller that asks for the same buffer
+    cache = geom.__dict__.setdefault("_zbuffer_cache", [])
+    cache.insert(0, _Buffer(_key(T_cam_model, K, width, height, near, scale), np.array(faces, bool), buf))
+    del cache[CACHE_SIZE:]
+
+
+def eroded_buffer(geom: ModelGeometry, T_cam_model: np.ndarray, K: np.ndarray, width: int, height: int,
+                  faces: np.ndarray, near: float, scale: float = 0.5) -> tuple[np.ndarray, np.ndarray, float]:
+    """``(buf, far_nb, scale)``: :func:`inverse_depth_buffer` and its 3x3 erosion (the farthest
+    surface in each pixel's 3x3 neighbourhood, the hidden-line test's), both reused when the same
+    buffer was rendered before."""
+    import cv2
+
+    buf, _ = inverse_depth_buffer(geom, T_cam_model, K, width, height, faces, near, scale)
+    e = _cached_buffer(geom, T_cam_model, K, width, height, faces, near, scale)
+    if e is not None and e.eroded is not None:
+        return buf, e.eroded, scale
+    far_nb = cv2.erode(buf, np.ones((3, 3), np.uint8))
+    if e is not None:
+        far_nb.flags.writeable = False
+        e.eroded = far_nb
+    return buf, far_nb, scale
+
+
+def _render_buffer(geom, T_cam_model, K, width, height, faces, near, scale, Xc_all, _numpy_reference) -> np.ndarray:
+    """The rendering of :func:`inverse_depth_buffer` (its docstring), uncached."""
     import cv2
 
     from mst.pipeline.zbuffer_kernels import fill_faces
@@ -78,7 +153,7 @@ def inverse_depth_buffer(geom: ModelGeometry, T_cam_model: np.ndarray, K: np.nda
     R, t = T_cam_model[:3, :3], T_cam_model[:3, 3]
     sel = np.flatnonzero(faces)
     if not len(sel):
-        return buf, scale
+        return buf
     # plane of each selected face in the camera frame: 1/z = (n_c . Kinv [u v 1]) / d
     n_c = _mat3(geom.face_normals[sel], R)
     p_c = _mat3(geom.face_point[sel], R, t)
@@ -148,4 +223,4 @@ def inverse_depth_buffer(geom: ModelGeometry, T_cam_model: np.ndarray, K: np.nda
         roi = buf[ya:yb + 1, xa:xb + 1]
         upd = (m > 0) & (iz > roi)
         roi[upd] = iz[upd]
-    return buf, scale
+    return buf

@@ -36,7 +36,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from mst.pipeline.tracking.depth_buffer import _loops_of, _mat3, inverse_depth_buffer
+from mst.pipeline.tracking.depth_buffer import _loops_of, _mat3, eroded_buffer, inverse_depth_buffer  # noqa: F401 (re-exported)
 from mst.pipeline.tracking.edge_joints import flat_t_junctions
 from mst.pipeline.tracking.spatial_index import INDEX_MIN_FACES, FaceIndex, csr_gather, frustum_planes
 
@@ -460,10 +460,9 @@ def visible_samples(geom: ModelGeometry, T_cam_model: np.ndarray, K: np.ndarray,
     stats["outside"] = int(counts[3]) + culled.get("outside", 0)
     stats["short"] = int(counts[4])
     if hidden_lines and not geom.convex and len(uv):
-        import cv2
-
-        buf, sc = inverse_depth_buffer(geom, T_cam_model, K, width, height, fv, near, zbuffer_scale, Xv)
-        far_nb = cv2.erode(buf, np.ones((3, 3), np.uint8))  # farthest surface in each 3x3 neighbourhood
+        # the buffer and the farthest surface in each 3x3 neighbourhood (reused when the same pose and
+        # faces were rendered before: the previous frame's evidence at the pose this frame starts from)
+        buf, far_nb, sc = eroded_buffer(geom, T_cam_model, K, width, height, fv, near, zbuffer_scale)
         ix = np.clip(np.round((uv[:, 0] + 0.5) * sc - 0.5).astype(np.int64), 0, buf.shape[1] - 1)
         iy = np.clip(np.round((uv[:, 1] + 0.5) * sc - 0.5).astype(np.int64), 0, buf.shape[0] - 1)
         vis = iz >= far_nb[iy, ix] * (1.0 - 2e-3) - 1e-9
