@@ -103,6 +103,14 @@ def warm_tracking() -> None:
     args = (img, S.X_model, S.A_model, S.B_model, S.edge, Tl, 500.0, 500.0, 40.0, 30.0)
     pose_health(*args, 0.005, 40.0)
     pose_gradients(*args, 40.0, 0.87)
+    from mst.pipeline.tracking.kernels import (
+        surface_values,  # the evidence's surface values (hidden and convex)
+    )
+
+    fv = np.ones(len(geom.faces), np.bool_)
+    for use_buf in (True, False):
+        surface_values(img, S.X_model, S.edge % len(geom.faces), fv, Tl, 500.0, 500.0, 40.0, 30.0, 0.005,
+                       np.zeros((30, 40), np.float32), 0.5, use_buf)
     # the KLT front end (mst.core.klt_kernels: the tracker's and the SLAM's forward-backward LK)
     from mst.core.klt import KltConfig, track_forward_backward
 

@@ -29,6 +29,7 @@ from mst.pipeline.tracking.moving_edges import _image
 #: fewer KLT points than this in a fit: no ``klt_agree`` for the health score (one cluster of the
 #: monitor's noise model, :class:`mst.pipeline.tracking.health.HealthMonitor`)
 KLT_SIGNAL_MIN = 10
+_NO_BUFFER = np.zeros((1, 1), np.float32)  # the surface kernel's buffer argument for a convex model (not read)
 
 
 @dataclass
@@ -303,7 +304,25 @@ class EdgeTracker:
 
     def _surface_values(self, gray, T, face_visible):
         """Indices of the surface points seen at pose T (front faces, inside the image, not hidden)
-        and the image's 3x3 mean gray level there."""
+        and the image's 3x3 mean gray level there (one kernel: :func:`kernels.surface_values`; the
+        numpy formulation is :meth:`_surface_values_numpy`)."""
+        if not len(self.surf_X) or face_visible is None:
+            return np.zeros(0, np.int64), np.zeros(0)
+        from mst.pipeline.tracking.kernels import surface_values
+
+        H, W = gray.shape
+        buf, sc = _NO_BUFFER, 1.0
+        if not self.geom.convex:
+            from mst.pipeline.tracking.visibility import inverse_depth_buffer
+
+            buf, sc = inverse_depth_buffer(self.geom, T, self.K, W, H, face_visible, self.near(T), 0.5)
+        K = self.K
+        return surface_values(_image(gray), self.surf_X, self.surf_face, np.ascontiguousarray(face_visible, np.bool_),
+                              np.ascontiguousarray(T, np.float64), float(K[0, 0]), float(K[1, 1]), float(K[0, 2]),
+                              float(K[1, 2]), float(self.near(T)), buf, float(sc), not self.geom.convex)
+
+    def _surface_values_numpy(self, gray, T, face_visible):
+        """The numpy formulation of :meth:`_surface_values` (the reference of its kernel's test)."""
         if not len(self.surf_X) or face_visible is None:
             return np.zeros(0, np.int64), np.zeros(0)
         H, W = gray.shape

@@ -228,8 +228,8 @@ def vvs_residuals(Xc, P, nE, e, cu, cv, fx, fy, cx, cy, r_all, nx, ny, x, y, iz)
             r_all[i, c] = (u - cu[i, c]) * a + (v - cv[i, c]) * b
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
-def _select(s, h):
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _quickselect(s, h):
     """Rearrange ``s`` in place so that ``s[h]`` is its ``h``-th smallest value, ``s[:h]`` no larger
     and ``s[h + 1:]`` no smaller (Hoare's quickselect, middle pivot); returns ``s[h]``. No NaN in ``s``."""
     lo, hi = 0, s.shape[0] - 1
@@ -256,7 +256,7 @@ def _select(s, h):
     return s[h]
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _median(a):
     """The median of ``a`` (the middle value, or the mean of the two middle values): a selection, so
     exactly :func:`mst.pipeline.tracking.vvs._median`'s value. Quickselect on a copy (issue #14: a
@@ -271,7 +271,7 @@ def _median(a):
             if n % 2 == 0 and n > 1:
                 return 0.5 * (s[h - 1] + s[h])
             return s[h]
-    m = _select(s, h)
+    m = _quickselect(s, h)
     if n % 2 == 0 and n > 1:
         lo = s[0]  # the (h - 1)-th smallest: the largest of s[:h]
         for i in range(1, h):
@@ -1018,3 +1018,44 @@ def face_angles(V, N, loop_vid, loop_start, loop_end, sel, c_model):
                 best = cs
         ang[j] = np.degrees(np.arccos(min(max(best, -1.0), 1.0)))
     return ang
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def surface_values(img, X, face, face_visible, T, fx, fy, cx, cy, near, buf, sc, use_buf):
+    """The surface part of ``EdgeTracker.evidence`` (``_surface_values``) at the pose ``T``: of the
+    surface points ``X (M, 3)`` (model frame) on faces ``face (M,)``, those on a visible face, in
+    front of ``near`` m, whose rounded pixel lies at least 1 px inside the image and (``use_buf``)
+    that are not behind the inverse-depth buffer ``buf`` (scale ``sc``: ``1/z >= 0.99 x`` the
+    buffer's, the product in float32 as numpy's), and their 3x3 mean gray level (float32 sum and
+    division, as numpy's). Returns ``(idx (K,) int64, val (K,) float64)``; the transform in the fixed
+    order of ``transform_points(elementwise=True)``."""
+    H, W = img.shape
+    M = X.shape[0]
+    idx = np.empty(M, np.int64)
+    val = np.empty(M)
+    k = 0
+    f99 = F32(1.0 - 1e-2)
+    bh, bw = buf.shape
+    for j in range(M):
+        if not face_visible[face[j]]:
+            continue
+        x0, x1, x2 = _xform(X, j, T)
+        if not x2 > near:
+            continue
+        ix = np.int64(np.rint(x0 / x2 * fx + cx))
+        iy = np.int64(np.rint(x1 / x2 * fy + cy))
+        if not (ix >= 1 and iy >= 1 and ix < W - 1 and iy < H - 1):
+            continue
+        if use_buf:
+            bx = min(max(np.int64(np.rint((ix + 0.5) * sc - 0.5)), 0), bw - 1)
+            by = min(max(np.int64(np.rint((iy + 0.5) * sc - 0.5)), 0), bh - 1)
+            if not 1.0 / x2 >= np.float64(F32(buf[by, bx]) * f99):
+                continue
+        s = F32(0.0)
+        for dy in range(-1, 2):
+            for dx in range(-1, 2):
+                s += F32(img[iy + dy, ix + dx])
+        idx[k] = j
+        val[k] = np.float64(s / F32(9.0))
+        k += 1
+    return idx[:k], val[:k]
