@@ -141,14 +141,6 @@ def test_the_issues_half_of_the_vision_is_beyond_any_gps_fusion_on_the_corridor(
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="measured 2026-12-02 on the track with the 10 % error budget (the 1 % budget "
-                   "keeps 1 of 150 poses): fused/vision position RMSE 1.19-1.20 on the tracked frames (the bound was "
-                   "1.02), attitude 1.29-1.36 deg vs the vision's 0.64 (2.0-2.1x): the vision reference's motion-noise scale is chosen by the innovation "
-                   "likelihood, which with these covariances (0.05-0.3 m, as large as the +-0.23 m bob, sampled at "
-                   "6 fps: 108 deg of bob per frame) prefers smoothing the bob away (scale 1/16); with the former track's "
-                   "covariances it kept it (1.007), and with these scaled by 1/4 (sigma / 2) it does again (scale 16: "
-                   "1.015x, seed 0): the tracker's covariance, pessimistic for the frame-to-frame error of a slowly "
-                   "varying bias, decides")
 def test_fusion_keeps_the_walking_cameras_bob(fused_corridor):
     for s, r in fused_corridor.items():
         ep, er, hv = r["errs"][True]

@@ -54,6 +54,7 @@ from mst.pipeline.nav.log import NavLog, mount_ypr_deg_from_R
 from mst.pipeline.nav.models import _best_noise_scale, _ca_model, _cv_model, _run_kf
 from mst.pipeline.nav.reference import vision_reference_position as _vision_reference
 from mst.pipeline.nav.reference import vision_reference_rotation as _vision_reference_R
+from mst.pipeline.nav.reference import vision_rotation_noise_scale as _vision_noise_scale_R
 
 
 @dataclass
@@ -94,6 +95,11 @@ class FusionConfig(Config):
                                               "motion noise chosen by the vision's innovation likelihood) plus a "
                                               "smooth correction from the GPS, instead of smoothing the positions "
                                               "themselves (keeps a walking camera's bob that white jerk flattens)")
+    vision_motion_noise: bool = param(True, help="scale the attitude model's angular-acceleration density "
+                                                 "(ang_accel_sigma_dps2 x 1/16 .. x 65536 in steps of 4) to the one of "
+                                                 "highest innovation likelihood of the vision rotations alone: the "
+                                                 "platform's attitude dynamics as the vision sees them, also across "
+                                                 "its gaps (fitted on the whole track, like the calibration)")
     adapt_motion_noise: bool = param(False, help="scale the motion models' white noise (jerk_sigma_mps3 / "
                                                 "accel_sigma_mps2, ang_accel_sigma_dps2: x 1/16 .. x 65536 in steps "
                                                 "of 4) to the one of highest innovation likelihood of the data")
@@ -305,21 +311,32 @@ def _fuse_attitude(al: _Aligned, T_vis, cov_vis, R_wm, R_bc, cfg: FusionConfig):
     x0 = np.zeros(6)
     P0 = np.diag([np.radians(10.0) ** 2] * 3 + [np.radians(10.0) ** 2] * 3)
     scale = 1.0
-    if cfg.adapt_motion_noise or smooth:
+    R_ref = R0
+    if cfg.adapt_motion_noise or cfg.vision_motion_noise or smooth:
         R_ref = smooth_rotations_gn(t_grid, R0, t_meas_r, R_meas, C_r, sig_alpha, cfg.huber_k)
     if cfg.adapt_motion_noise:  # the likelihood of the linearised problem about the smooth solution
         z_r = so3_log(R_meas @ np.swapaxes(_interp_R(t_grid, R_ref, t_meas_r), -1, -2))
         scale = _best_noise_scale(lambda s: _cv_model(dts, s * sig_alpha**2), x0, P0, steps_r, z_r, H_r, C_r)
-        if scale != 1.0:
-            sig_alpha *= np.sqrt(scale)
-            F6, Q6 = _cv_model(dts, sig_alpha**2)
-            if smooth:
-                R_ref = smooth_rotations_gn(t_grid, R0, t_meas_r, R_meas, C_r, sig_alpha, cfg.huber_k)
+    elif cfg.vision_motion_noise:  # the attitude dynamics as the vision alone sees them, linearised
+        # about the vision-only smooth solution (about the fused one, the AHRS noise it follows would
+        # read as motion)
+        R_lin = smooth_rotations_gn(t_grid, R0, t_grid[vidx], T_vis[:, :3, :3], cov_vis[:, 3:, 3:], sig_alpha,
+                                    cfg.huber_k)
+        scale = _vision_noise_scale_R(al, T_vis, cov_vis, R_lin, sig_alpha)
+    if scale != 1.0:
+        sig_alpha *= np.sqrt(scale)
+        F6, Q6 = _cv_model(dts, sig_alpha**2)
+        if smooth:
+            R_ref = smooth_rotations_gn(t_grid, R0, t_meas_r, R_meas, C_r, sig_alpha, cfg.huber_k)
+    keep_shape = False
     if smooth and cfg.vision_reference:
         # as for the position: the reference is the vision's own attitude track (the bob's pitch
-        # kept), the correction about it smooth
-        R_ref = _vision_reference_R(al, T_vis, cov_vis, R_ref if (cfg.adapt_motion_noise or smooth) else R0,
-                                    sig_alpha, cfg.huber_k)
+        # kept) unless smoothing it removes only noise; the correction about it smooth
+        R_ref, keep_shape = _vision_reference_R(al, T_vis, cov_vis, R_ref, sig_alpha, cfg.huber_k)
+        if keep_shape and scale > 1.0:
+            # the reference carries the motion (the vision's, bridged at its density); the
+            # correction about it is the vision's error, a slow bias: no looser than configured
+            F6, Q6 = _cv_model(dts, np.radians(cfg.ang_accel_sigma_dps2) ** 2)
     if smooth:
         # about the smooth batch solution the linear KF + RTS is exact to first order in its (small)
         # correction; it gives the covariances
@@ -336,7 +353,7 @@ def _fuse_attitude(al: _Aligned, T_vis, cov_vis, R_wm, R_bc, cfg: FusionConfig):
                                   cfg.huber_k)
         wr = np.empty_like(w_o)
         wr[order] = w_o
-    return R_ref, Pr, wr, scale
+    return R_ref, Pr, wr, scale, keep_shape
 
 
 def _fuse_position(al: _Aligned, T_vis, cov_vis, R_fused, R_wm, t_wm, R_bc, cfg: FusionConfig):
@@ -375,17 +392,18 @@ def _fuse_position(al: _Aligned, T_vis, cov_vis, R_fused, R_wm, t_wm, R_bc, cfg:
                                   x0, P0, steps_p, z_p, H_p, C_p)
         F, Q = _ca_model(dts, scale * q, q_b) if ca else _cv_model(dts, scale * q, 1, q_b)
     p_ref = None
+    keep_shape = False
     if smooth and cfg.vision_reference:
         # the state becomes the correction p - p_ref (smooth: the motion model's white jerk suits it);
         # p_ref carries the motion the vision sees, a walking camera's 1.8 Hz bob included
-        p_ref = _vision_reference(al, T_vis, cov_vis, cfg)
+        p_ref, keep_shape = _vision_reference(al, T_vis, cov_vis, cfg)
         t_m = np.concatenate([al.t_grid[vidx], al.t_grid[k_a[gi]] + dtau_a[gi]])
         z_p = z_p - np.stack([np.interp(t_m, al.t_grid, p_ref[:, i]) for i in range(3)], 1)
         x0[:3] = 0.0
     xp_, Pp_, wp = _run_kf(F, Q, x0, P0, steps_p, z_p, H_p, C_p, cfg.huber_k, smooth, smooth)
     if p_ref is not None:
         xp_[:, :3] += p_ref
-    return xp_, Pp_, wp, gi, scale
+    return xp_, Pp_, wp, gi, scale, keep_shape
 
 
 def _shifted(nav: NavLog, delta: float, keep: np.ndarray | None = None) -> NavLog:
@@ -433,8 +451,8 @@ def fuse_navigation(t_vis: np.ndarray, T_vis: np.ndarray, cov_vis: np.ndarray | 
             cfg = replace(cfg, lever_arm_m=tuple(float(v) for v in lev))
             T_wm, R_bc, yaw_std, mount_std, w_g, w_a = _calibrate(al, cfg, R_body_cam, T_world_model, nav_name)
     R_wm, t_wm = T_wm[:3, :3], T_wm[:3, 3]
-    R_fused, Pr, wr, scale_r = _fuse_attitude(al, T_vis, cov_vis, R_wm, R_bc, cfg)
-    xp_, Pp_, wp, gi, scale_p = _fuse_position(al, T_vis, cov_vis, R_fused, R_wm, t_wm, R_bc, cfg)
+    R_fused, Pr, wr, scale_r, shape_r = _fuse_attitude(al, T_vis, cov_vis, R_wm, R_bc, cfg)
+    xp_, Pp_, wp, gi, scale_p, shape_p = _fuse_position(al, T_vis, cov_vis, R_fused, R_wm, t_wm, R_bc, cfg)
     lever = np.asarray(cfg.lever_arm_m, float)
     K, vidx, tn, t_grid, has_vis = al.K, al.vidx, al.tn, al.t_grid, al.has_vis
     T_out = np.tile(np.eye(4), (K, 1, 1))
@@ -469,6 +487,7 @@ def fuse_navigation(t_vis: np.ndarray, T_vis: np.ndarray, cov_vis: np.ndarray | 
         "pos_sigma_median_m": float(np.median(np.sqrt(np.trace(cov[:, :3, :3], axis1=1, axis2=2)))),
         "rot_sigma_median_deg": float(np.degrees(np.median(np.sqrt(np.trace(cov[:, 3:, 3:], axis1=1, axis2=2))))),
         "motion_noise_scale_position": scale_p, "motion_noise_scale_attitude": scale_r,
+        "vision_shape_kept_position": shape_p, "vision_shape_kept_attitude": shape_r,
     }
     return FusionResult(t=t_grid, T_model_cam=T_out, cov=cov, has_vision=has_vis, gps_bias_m=xp_[:, -3:].copy(),
                         T_world_model=T_wm, R_body_cam=R_bc, calib=calib, stats=stats)

@@ -86,24 +86,29 @@ def _best_noise_scale_blocks(model, dts, x0_of, P0, step, z, H, R, max_frames: i
     beyond that, ``n_blocks`` evenly spaced contiguous blocks of the grid, each filtered from its own
     diffuse start ``x0_of(z of the block)``, their log-likelihoods summed (a 10-minute log at 30 fps:
     18,000 frames, 11 scales; the motion's character is read from 4 x 750 frames)."""
-    K = len(dts)
-    if K <= max_frames:
-        return _best_noise_scale(lambda s: model(dts, s), x0_of(z), P0, step, z, H, R)
-    L = max_frames // n_blocks
-    starts = np.linspace(0, K - L, n_blocks).astype(np.int64)
-    blocks = []
-    for a in starts:
-        m = (step >= a) & (step < a + L)
-        if m.sum() < 2:
-            continue
-        d = dts[a:a + L].copy()
-        d[0] = 0.0
-        blocks.append((d, step[m] - a, z[m], H[m], R[m]))
-    if not blocks:
-        return _best_noise_scale(lambda s: model(dts, s), x0_of(z), P0, step, z, H, R)
-    ll = [sum(_innovation_loglik(*model(d, s), x0_of(zb), P0, sb, zb, Hb, Rb) for d, sb, zb, Hb, Rb in blocks)
-          for s in MOTION_NOISE_SCALES]
+    ll = noise_scale_loglik_blocks(model, dts, x0_of, P0, step, z, H, R, max_frames, n_blocks)
     return float(MOTION_NOISE_SCALES[int(np.argmax(ll))])
+
+
+def noise_scale_loglik_blocks(model, dts, x0_of, P0, step, z, H, R, max_frames: int = 3000, n_blocks: int = 4
+                              ) -> np.ndarray:
+    """The innovation log-likelihood of each scale of :data:`MOTION_NOISE_SCALES` (11,), on the frames
+    :func:`_best_noise_scale_blocks` reads."""
+    K = len(dts)
+    blocks = []
+    if K > max_frames:
+        L = max_frames // n_blocks
+        for a in np.linspace(0, K - L, n_blocks).astype(np.int64):
+            m = (step >= a) & (step < a + L)
+            if m.sum() < 2:
+                continue
+            d = dts[a:a + L].copy()
+            d[0] = 0.0
+            blocks.append((d, step[m] - a, z[m], H[m], R[m]))
+    if not blocks:
+        blocks = [(dts, step, z, H, R)]
+    return np.array([sum(_innovation_loglik(*model(d, s), x0_of(zb), P0, sb, zb, Hb, Rb) for d, sb, zb, Hb, Rb in blocks)
+                     for s in MOTION_NOISE_SCALES])
 
 
 def _run_kf(F, Q, x0, P0, step, z, H, R, gate_k, smooth, robust_refit):
