@@ -96,6 +96,9 @@ def test_fpv_facade_pass_default_tracks_every_frame(tmp_path):
           f"budget {budget:.3f} m, yaw RMS {yaw:.4f} max {np.abs(d['dyaw']).max():.4f} deg (target 0.1); "
           f"edges only {off['summary']['tracked']}/30 frames, ATE {_rms(off['err']):.3f} m")
     assert ate <= budget, (ate, budget)
+    # the issue's accuracy target itself, against the nearest facade corner (the strict reading of "the
+    # camera-building distance"; 0.076 % measured in session 7, byte-identical across CPUs)
+    assert ate <= 0.001 * dist, (ate, dist)
     # the issue's yaw target: 0.1 deg (the covariance's rotation sigma here is ~0.01-0.02 deg)
     assert yaw <= 0.1, yaw
     # the default is never worse than edges only: as many frames, as accurate on the frames both output

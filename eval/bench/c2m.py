@@ -16,7 +16,8 @@ loading and writing included) in a fresh child process, with the child's peak RS
 * ``c2m_outside_dense_grid`` (in process, issue #14): 3,000 points up to two extents around a
   3,072-triangle box, most outside the dense grid's margin (they go to a binned grid), against
   3,000 points near its surface; CPU time of the distance pass, median of 5 (was 2.3 s through
-  the numpy coarse-to-fine search); target: per point at most 10x the near points' cost.
+  the numpy coarse-to-fine search; 13.8x the near points' cost in session 6, 3.0-3.5x since the binned
+  search stops at a lower bound from the mesh's box); target: per point at most 10x the near points' cost.
 
 Issue #14: where CloudCompare is installed, the three cases above are also run through
 ``CloudCompare -SILENT ... -C2M_DIST`` in the same bench run (:mod:`mst.eval.bench.compare`: whole

@@ -152,6 +152,7 @@ class BinGrid:
         self.h = float(h)
         self.lo = vmin - 2 * h
         self.dims = dims
+        self.box = np.concatenate([vmin, vmax]).astype(np.float64)  # every triangle lies in it
         self.T = triangle_table(idx)
         self.BB = np.ascontiguousarray(self.T[:, 18:])  # (m, 6) triangle boxes
         self.start, self.items = nb.bin_triangles(self.BB, self.lo, 1.0 / self.h, self.dims)
@@ -166,7 +167,7 @@ class BinGrid:
 
         def query(Q):
             return nb.bins_query(Q, self.lo, self.h, self.dims, self.start, self.items, md2, self.far_d2, self.T,
-                                 nb.bucket_order(Q, self.lo, 1.0 / self.h, self.dims, 2))
+                                 nb.bucket_order(Q, self.lo, 1.0 / self.h, self.dims, 2), self.box)
 
         tri, d2, feat, st = row_blocks(nb, "bins_query", P, query)
         out = np.nonzero(st == 1)[0]

@@ -436,7 +436,7 @@ def _axis_gap(p, lo, h, i, r, n):
 
 
 @njit(cache=True, parallel=True)
-def bins_query(P, lo, h, dims, start, items, max_d2, far_d2, T, order):
+def bins_query(P, lo, h, dims, start, items, max_d2, far_d2, T, order, box):
     """Exact nearest triangle of every point by an expanding search over the binned grid.
 
     Shells of cells (Chebyshev radius r = 0, 1, ...) around the point's cell (clamped into the
@@ -444,7 +444,8 @@ def bins_query(P, lo, h, dims, start, items, max_d2, far_d2, T, order):
     yet searched: the closest point of the nearest triangle lies in a cell the triangle is binned in,
     so the answer is exact (float64, ties keep the first found). ``max_d2`` (inf: none) starts the
     search radius: nothing farther is looked at (tri -1, status 3). Points whose distance to the grid
-    box exceeds ``sqrt(far_d2)`` are not evaluated (status 1). Points are visited in ``order``, in blocks
+    box exceeds ``sqrt(far_d2)`` are not evaluated (status 1). ``box`` (6,) the mesh's bounding box (min
+    xyz, max xyz), a lower bound that ends the search early. Points are visited in ``order``, in blocks
     as in :func:`grid_query`. Returns ``(tri, d2, feature, status)``.
     """
     n = len(P)
@@ -476,6 +477,10 @@ def bins_query(P, lo, h, dims, start, items, max_d2, far_d2, T, order):
             if not (ox * ox + oy * oy + oz * oz <= far_d2):  # also catches NaN
                 ss[t] = 1
                 continue
+            # the point's offsets from the mesh's box (every triangle lies in it), for the bound below
+            mx = max(box[0] - px, 0.0, px - box[3])
+            my = max(box[1] - py, 0.0, py - box[4])
+            mz = max(box[2] - pz, 0.0, pz - box[5])
             ix = min(max(int(np.floor((px - lo[0]) * inv_h)), 0), nx - 1)
             iy = min(max(int(np.floor((py - lo[1]) * inv_h)), 0), ny - 1)
             iz = min(max(int(np.floor((pz - lo[2]) * inv_h)), 0), nz - 1)
@@ -512,12 +517,24 @@ def bins_query(P, lo, h, dims, start, items, max_d2, far_d2, T, order):
                                 r2, f = pt_tri(px, py, pz, k, T)
                                 if r2 < best:
                                     best, bt, bf = r2, k, f
-                g = min(_axis_gap(px, lo[0], h, ix, r, nx), _axis_gap(py, lo[1], h, iy, r, ny),
-                        _axis_gap(pz, lo[2], h, iz, r, nz))
-                if g == np.inf:
+                gx = _axis_gap(px, lo[0], h, ix, r, nx)
+                gy = _axis_gap(py, lo[1], h, iy, r, ny)
+                gz = _axis_gap(pz, lo[2], h, iz, r, nz)
+                if gx == np.inf and gy == np.inf and gz == np.inf:
                     break
-                g -= eps
-                if g > 0.0 and g * g >= best:
+                # a triangle not searched yet lies in a cell beyond the shell on some axis a (gap g_a)
+                # and inside the mesh's box (offsets m_b of the point from it on each axis): its
+                # squared distance is at least min_a(max(g_a, m_a)^2 + sum_b!=a m_b^2); for a point
+                # far outside the mesh this ends the search after a few shells, not at the grid's end
+                lb = np.inf
+                if gx < np.inf:
+                    lb = min(lb, max(gx - eps, mx) ** 2 + my * my + mz * mz)
+                if gy < np.inf:
+                    lb = min(lb, max(gy - eps, my) ** 2 + mx * mx + mz * mz)
+                if gz < np.inf:
+                    lb = min(lb, max(gz - eps, mz) ** 2 + mx * mx + my * my)
+                lb *= 1.0 - 1e-12  # rounding of the offsets, on the safe side
+                if lb < np.inf and lb >= best:
                     break
                 r += 1
             if bt < 0:
