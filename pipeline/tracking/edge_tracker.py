@@ -379,12 +379,20 @@ class EdgeTracker:
         passes = 3 if (first or recover) else c.passes
         res = S = S_p = None
         self._fail = "too few visible edge samples"
-        for ps in range(passes):
+        # render-based edges of a curved mesh: up to `extra_passes` more while the last pass still moved the
+        # contour far (a start far from the frame's pose: render_edges.RenderEdgeProvider.unconverged)
+        prov = self.sample_provider
+        extra = 0 if (first or recover or prov is None) else int(getattr(prov, "extra_passes", 0))
+        T_in = T
+        for ps in range(passes + extra):
+            if ps >= passes and not prov.unconverged(S, T_in, T):
+                break
+            T_in = T
             rng = R if ps == 0 else max(3, int(round(R / 2 ** ps)))
             mad = max(c.min_mad_px, rng / 3.0) if (first or recover) and ps < passes - 1 else None
             if (first or recover) and ps > 0:
                 ref_img, ref_T = img, T  # later passes: contrast/polarity reference from this frame at the refined pose
-            res_p, S_p, _, _ = self._edge_pass(img, self.K, T, rng, ref_img, ref_T, klt if ps == passes - 1 else None,
+            res_p, S_p, _, _ = self._edge_pass(img, self.K, T, rng, ref_img, ref_T, klt if ps >= passes - 1 else None,
                                                min_mad_px=mad)
             if res_p is None:
                 break

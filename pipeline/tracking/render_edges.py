@@ -76,6 +76,12 @@ RENDER_SCALE = 0.5
 #: moving-edge mask size of render-based edges, px (see the module doc)
 RENDER_MASK_PX = 3
 POLYGON_SUFFIXES = (".cao", ".wrl", ".vrml")
+#: a curved mesh's frame gets up to this many edge passes beyond the configured ones while the last pass still
+#: moved its contour by more than ``bias_px`` (0.1 px) along the normals at the median sample: a start far from
+#: the frame's pose (fast motion, an aid's prediction 3.7 deg off). Measured at 640x480, 16 frames: converged
+#: second passes move it <= 0.06 px (torus / blob / vase orbit: no extra pass, unchanged), unconverged ones
+#: 0.1-3.3 px; vase fast with the aid 15 -> 16 of 16 frames (0.223 % / 0.159 deg mean), the others unchanged
+EXTRA_PASSES = 2
 #: --edges auto merges a closed polyhedral triangle mesh into planar polygons when they number at most this
 #: share of its triangles (a box TIN: 6 of 4,800; a scan whose "planes" are not planar stays render-based)
 MERGE_MAX_SHARE = 0.1
@@ -258,6 +264,7 @@ class RenderEdgeProvider:
         self.cache = None  # Edgelets of the last render
         self.curved = False  # a curved mesh: its rims' measurements move onto the ramp crossing (filter_matches)
         self.axis = revolution_axis(self.renderer)  # (axis, point) model frame of a body of revolution, or None
+        self.extra_passes = 0  # edge passes the tracker may add while unconverged() (curved meshes: EXTRA_PASSES)
         self.n_renders = 0
         self.render_ms = 0.0  # wall
         self.render_cpu_ms = 0.0  # process CPU time (every thread of the ray caster)
@@ -310,6 +317,21 @@ class RenderEdgeProvider:
         M = np.eye(4)
         M[:3, :3], M[:3, 3] = Rm, p - Rm @ p
         return T @ M
+
+    def unconverged(self, S, T_from: np.ndarray, T_to: np.ndarray) -> bool:
+        """The edge pass from ``T_from`` to ``T_to`` moved the samples ``S`` by more than ``bias_px`` along their
+        normals at the median: its matches were searched around a pose that far from the frame's, search again.
+        (Along the normals only: a body of revolution's turn about its axis slides its contour points unseen.)"""
+        K = self.K
+
+        def proj(T):
+            Xc = S.X_model @ T[:3, :3].T + T[:3, 3]
+            z = np.maximum(Xc[:, 2], 1e-9)
+            return np.stack([K[0, 0] * Xc[:, 0] / z, K[1, 1] * Xc[:, 1] / z], 1)
+
+        if S is None or not len(S.X_model):
+            return False
+        return float(np.median(np.abs(((proj(T_to) - proj(T_from)) * S.normal).sum(1)))) > self.bias_px
 
     def stats(self) -> dict:
         """Render statistics for the run summary: renders, total and mean extraction time (ms)."""
@@ -532,6 +554,7 @@ def attach_render_edges(tracker, model, model_path, mode: str, T0: np.ndarray | 
                                                  border_px=cfg.mask_px // 2 + 1)
     # the second pass samples the contour near the frame's pose; a curved mesh's rims take the narrow mask
     tracker.sample_provider.curved = curved
+    tracker.sample_provider.extra_passes = EXTRA_PASSES if curved else 0
     tracker.cfg = cfg.replace(passes=max(cfg.passes, 2), mask_px=RENDER_MASK_PX if curved else cfg.mask_px)
     log.info(f"render-based edges ({len(F)} triangles, {'curved' if curved else 'polyhedral'}): edgelets "
              f"from CPU renders at 1/{round(1 / tracker.sample_provider.scale)} resolution")
