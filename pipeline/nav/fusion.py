@@ -37,6 +37,8 @@ Estimator, in two stages:
    weights from the smoothed residuals. ``mode="filter"`` returns the causal filter estimates
    (each frame from the measurements up to it; only the constant calibration of stage 1 is fitted on
    the whole log), ``mode="smoother"`` the smoothed ones.
+
+Longer than 500 lines: the smoother and the filter share one model of the states and the vision-shape rule; split by mode they would duplicate it.
 """
 
 from __future__ import annotations

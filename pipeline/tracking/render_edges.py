@@ -48,6 +48,8 @@ modulo it (the budget's ambiguity and first-frame tests).
 :func:`choose_edges` implements ``mst track --edges auto``: polygon edges for polygon formats
 (``.cao``, ``.wrl``) and small planar triangle files (today's behaviour), render-based edges for
 triangle meshes with many faces (> ``MANY_FACES``) or curved parts.
+
+Longer than 500 lines: the render-edge provider, its re-render rule and its extra passes act on one cached render state; split they would pass it around.
 """
 
 from __future__ import annotations
