@@ -314,9 +314,9 @@ def _fuse_attitude(al: _Aligned, T_vis, cov_vis, R_wm, R_bc, cfg: FusionConfig):
     P0 = np.diag([np.radians(10.0) ** 2] * 3 + [np.radians(10.0) ** 2] * 3)
     scale = 1.0
     R_ref = R0
-    if cfg.adapt_motion_noise or cfg.vision_motion_noise or smooth:
-        R_ref = smooth_rotations_gn(t_grid, R0, t_meas_r, R_meas, C_r, sig_alpha, cfg.huber_k)
+    sig_alpha_cfg = sig_alpha
     if cfg.adapt_motion_noise:  # the likelihood of the linearised problem about the smooth solution
+        R_ref = smooth_rotations_gn(t_grid, R0, t_meas_r, R_meas, C_r, sig_alpha, cfg.huber_k)
         z_r = so3_log(R_meas @ np.swapaxes(_interp_R(t_grid, R_ref, t_meas_r), -1, -2))
         scale = _best_noise_scale(lambda s: _cv_model(dts, s * sig_alpha**2), x0, P0, steps_r, z_r, H_r, C_r)
     elif cfg.vision_motion_noise:  # the attitude dynamics as the vision alone sees them, linearised
@@ -328,8 +328,12 @@ def _fuse_attitude(al: _Aligned, T_vis, cov_vis, R_wm, R_bc, cfg: FusionConfig):
     if scale != 1.0:
         sig_alpha *= np.sqrt(scale)
         F6, Q6 = _cv_model(dts, sig_alpha**2)
-        if smooth:
-            R_ref = smooth_rotations_gn(t_grid, R0, t_meas_r, R_meas, C_r, sig_alpha, cfg.huber_k)
+    # the smooth fused solution: at the chosen density for the smoother; the filter's linearisation
+    # point at the configured one (computed once: the adapted likelihood above already has it)
+    if smooth and scale != 1.0:
+        R_ref = smooth_rotations_gn(t_grid, R0, t_meas_r, R_meas, C_r, sig_alpha, cfg.huber_k)
+    elif not cfg.adapt_motion_noise and (cfg.vision_motion_noise or smooth):
+        R_ref = smooth_rotations_gn(t_grid, R0, t_meas_r, R_meas, C_r, sig_alpha_cfg, cfg.huber_k)
     keep_shape = False
     if smooth and cfg.vision_reference:
         # as for the position: the reference is the vision's own attitude track (the bob's pitch
@@ -338,7 +342,7 @@ def _fuse_attitude(al: _Aligned, T_vis, cov_vis, R_wm, R_bc, cfg: FusionConfig):
         if keep_shape and scale > 1.0:
             # the reference carries the motion (the vision's, bridged at its density); the
             # correction about it is the vision's error, a slow bias: no looser than configured
-            F6, Q6 = _cv_model(dts, np.radians(cfg.ang_accel_sigma_dps2) ** 2)
+            F6, Q6 = _cv_model(dts, sig_alpha_cfg**2)
     if smooth:
         # about the smooth batch solution the linear KF + RTS is exact to first order in its (small)
         # correction; it gives the covariances
