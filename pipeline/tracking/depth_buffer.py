@@ -68,14 +68,9 @@ def inverse_depth_buffer(geom: ModelGeometry, T_cam_model: np.ndarray, K: np.nda
     same inputs, to the bit (issue #14: a frame's evidence renders the final pose's buffer, which the
     next frame's hidden-line pass needs when it starts from that pose).
     """
-    if not _numpy_reference:
-        hit = _cached_buffer(geom, T_cam_model, K, width, height, faces, near, scale)
-        if hit is not None:
-            return hit.buf, scale
-    buf = _render_buffer(geom, T_cam_model, K, width, height, faces, near, scale, Xc_all, _numpy_reference)
-    if not _numpy_reference:
-        _remember(geom, T_cam_model, K, width, height, faces, near, scale, buf)
-    return buf, scale
+    if _numpy_reference:
+        return _render_buffer(geom, T_cam_model, K, width, height, faces, near, scale, Xc_all, True), scale
+    return _buffer_entry(geom, T_cam_model, K, width, height, faces, near, scale).buf, scale
 
 
 class _Buffer:
@@ -98,25 +93,22 @@ def _key(T_cam_model, K, width, height, near, scale) -> bytes:
                      np.array([width, height], np.int64).tobytes(), np.array([near, scale], np.float64).tobytes()))
 
 
-def _cached_buffer(geom, T_cam_model, K, width, height, faces, near, scale) -> _Buffer | None:
-    """The buffer rendered for exactly these inputs (every bit of the pose, intrinsics, near plane
-    and scale, the same face set), or None: a reused buffer is the buffer this call would render."""
-    cache = geom.__dict__.get("_zbuffer_cache")
-    if not cache:
-        return None
+def _buffer_entry(geom, T_cam_model, K, width, height, faces, near, scale) -> _Buffer:
+    """The cache entry of the buffer for exactly these inputs (every bit of the pose, intrinsics,
+    near plane and scale, the same face set): the kept one, else rendered now and kept (read-only,
+    the last :data:`CACHE_SIZE` per model)."""
     key = _key(T_cam_model, K, width, height, near, scale)
     f = np.asarray(faces, bool)
+    cache = geom.__dict__.setdefault("_zbuffer_cache", [])
     for e in cache:
         if e.key == key and e.faces.shape == f.shape and np.array_equal(e.faces, f):
             return e
-    return None
-
-
-def _remember(geom, T_cam_model, K, width, height, faces, near, scale, buf) -> None:
+    buf = _render_buffer(geom, T_cam_model, K, width, height, faces, near, scale, None, False)
     buf.flags.writeable = False  # shared by every caller that asks for the same buffer
-    cache = geom.__dict__.setdefault("_zbuffer_cache", [])
-    cache.insert(0, _Buffer(_key(T_cam_model, K, width, height, near, scale), np.array(faces, bool), buf))
+    e = _Buffer(key, f.copy(), buf)
+    cache.insert(0, e)
     del cache[CACHE_SIZE:]
+    return e
 
 
 def eroded_buffer(geom: ModelGeometry, T_cam_model: np.ndarray, K: np.ndarray, width: int, height: int,
@@ -126,15 +118,11 @@ def eroded_buffer(geom: ModelGeometry, T_cam_model: np.ndarray, K: np.ndarray, w
     buffer was rendered before."""
     import cv2
 
-    buf, _ = inverse_depth_buffer(geom, T_cam_model, K, width, height, faces, near, scale)
-    e = _cached_buffer(geom, T_cam_model, K, width, height, faces, near, scale)
-    if e is not None and e.eroded is not None:
-        return buf, e.eroded, scale
-    far_nb = cv2.erode(buf, np.ones((3, 3), np.uint8))
-    if e is not None:
-        far_nb.flags.writeable = False
-        e.eroded = far_nb
-    return buf, far_nb, scale
+    e = _buffer_entry(geom, T_cam_model, K, width, height, faces, near, scale)
+    if e.eroded is None:
+        e.eroded = cv2.erode(e.buf, np.ones((3, 3), np.uint8))
+        e.eroded.flags.writeable = False
+    return e.buf, e.eroded, scale
 
 
 def _render_buffer(geom, T_cam_model, K, width, height, faces, near, scale, Xc_all, _numpy_reference) -> np.ndarray:
