@@ -135,6 +135,32 @@ def warm_convert() -> None:
     tin_to_polygons(V, F)
 
 
+def warm_nav_and_autoinit() -> None:
+    """Run ``mst nav fuse``'s filter/smoother kernels (:mod:`mst.pipeline.nav.kernels`, both modes, a
+    vision gap) and ``mst init --from-nav``'s search kernels (:mod:`mst.pipeline.autoinit_kernels`)
+    once, so that their first command (or test) loads them from the cache instead of compiling."""
+    from mst.core.camera import Camera
+    from mst.core.poses import inv_T, look_at
+    from mst.meshtools.generate import l_shape_model
+    from mst.pipeline.autoinit import auto_init
+    from mst.pipeline.nav.fusion import FusionConfig, fuse_navigation
+    from mst.pipeline.nav.log import NavSimConfig, simulate_nav
+
+    t = np.arange(0.0, 20.0, 0.5)
+    T = np.stack([look_at(np.array([30.0 * np.cos(0.1 * a), 30.0 * np.sin(0.1 * a), 20.0]), np.zeros(3)) for a in t])
+    keep = (t < 8.0) | (t >= 12.0)
+    C = np.tile(np.diag([0.05**2] * 3 + [np.radians(0.2) ** 2] * 3), (int(keep.sum()), 1, 1))
+    nav = simulate_nav(t, T, NavSimConfig(seed=0)).nav
+    for mode in ("smoother", "filter"):
+        fuse_navigation(t[keep], T[keep], C, nav, FusionConfig(mode=mode))
+    cam = Camera(150.0, 150.0, 79.5, 59.5, 160, 120)
+    gray = np.zeros((120, 160), np.uint8)
+    gray[30:90, 50:110] = 200
+    m = l_shape_model()
+    T_mc = look_at(np.array([0.0, -12.0, 6.0]), np.asarray(m.vertices, float).mean(0))
+    auto_init(gray, m, cam, inv_T(T_mc))  # a refusal in this blank image is a result too
+
+
 def kernel_stats() -> dict[str, dict]:
     """Per compiled kernel of :mod:`mst.eval.c2m.kernels`, :mod:`mst.pipeline.tracking.kernels`,
     :mod:`mst.meshtools.kernels` and :mod:`mst.core.klt_kernels`:
@@ -195,6 +221,7 @@ def main(argv: list[str] | None = None) -> int:
     warm_c2m()
     warm_tracking()
     warm_convert()
+    warm_nav_and_autoinit()
     stats = kernel_stats()
     dt = time.perf_counter() - t0
     built = {} if a.no_aot else build_aot(a.force_aot)
