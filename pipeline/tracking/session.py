@@ -21,6 +21,8 @@ import numpy as np
 from mst.core.poses import inv_T, matmul_exact
 from mst.pipeline.tracking.budget import (
     RETURN_FRACTION,
+    RETURN_STEADY_FRAMES,
+    RETURN_STEADY_VIEW,
     ModelDistance,
     PoseBudget,
     Refusals,
@@ -128,6 +130,7 @@ class TrackingPolicy:
         self.budget = budget  #: the error budget of an output pose (None: not checked)
         self.distance_m = None  #: ``distance_m(T_cam_model) -> m`` to the model (set by the session)
         self.refusals = Refusals()  #: the error budget's state: refused frames, the model-pose pair
+        self.n_prev: int | None = None  #: the last frame's visible edge samples (the return's steady view)
 
     # -------------------------------------------------------------- before the edge tracker
     def start_pose(self, T_pred: np.ndarray | None, aided: bool, shift_px) -> np.ndarray:
@@ -186,8 +189,18 @@ class TrackingPolicy:
         without a budget or a model distance): :func:`mst.pipeline.tracking.budget.beyond_budget`."""
         if self.budget is None or self.distance_m is None:
             return ""
-        fraction = RETURN_FRACTION if self.refusals.after_uncertain else 1.0
-        return beyond_budget(self.budget, fr.cov, fr.T_cam_model, self.distance_m, fraction)
+        r = self.refusals
+        if not r.after_uncertain:
+            return beyond_budget(self.budget, fr.cov, fr.T_cam_model, self.distance_m)
+        # after an uncertain frame: within RETURN_FRACTION of the budget, or within the budget in a
+        # steady view (RETURN_STEADY_VIEW) for RETURN_STEADY_FRAMES frames in a row (this one the last)
+        why = beyond_budget(self.budget, fr.cov, fr.T_cam_model, self.distance_m, RETURN_FRACTION)
+        n0 = self.n_prev
+        steady = n0 is not None and n0 > 0 and abs(fr.n_samples - n0) <= RETURN_STEADY_VIEW * n0
+        r.within = bool(why) and steady and not beyond_budget(self.budget, fr.cov, fr.T_cam_model, self.distance_m)
+        if r.within and r.steady + 1 >= RETURN_STEADY_FRAMES:
+            return ""
+        return why
 
     def map_pose_refuted(self, ev) -> str:
         """Why the image refutes a map (``slam``) pose, from its evidence ``ev`` at that pose ('' when
@@ -249,6 +262,7 @@ class TrackingPolicy:
         if self.first:
             self.first_reason = fr.reason
         self.first = False
+        self.n_prev = int(fr.n_samples)
 
 
 def _shift_px(tracker: EdgeTracker, T_a: np.ndarray, T_b: np.ndarray) -> float:
