@@ -91,7 +91,7 @@ RETURN_FRACTION = 0.5
 #: tests/test_track_uav.py)
 RETURN_STEADY_FRAMES = 3
 
-#: the view holds still: the frame's visible edge samples within this fraction of the previous
+#: the view holds still: the frame's visible edge samples (before the ``max_samples`` cap) within this fraction of the previous
 #: frame's. Where the model enters or leaves the view the bound is optimistic (above): the demo's UAV
 #: return after the turn grew 15 / 10 / 6 / 3 % a frame (frames 162-165, 2 sigma 0.9-0.7 % while
 #: 164 was 0.88 % off, 2.5 sigma), the 250 m band's turn 2-10 % (frame 73, 2 sigma 0.9 %, 0.99 % off);

@@ -130,7 +130,7 @@ class TrackingPolicy:
         self.budget = budget  #: the error budget of an output pose (None: not checked)
         self.distance_m = None  #: ``distance_m(T_cam_model) -> m`` to the model (set by the session)
         self.refusals = Refusals()  #: the error budget's state: refused frames, the model-pose pair
-        self.n_prev: int | None = None  #: the last frame's visible edge samples (the return's steady view)
+        self.n_prev: int | None = None  #: the last frame's visible edge samples, uncapped (the return's steady view)
 
     # -------------------------------------------------------------- before the edge tracker
     def start_pose(self, T_pred: np.ndarray | None, aided: bool, shift_px) -> np.ndarray:
@@ -196,7 +196,8 @@ class TrackingPolicy:
         # steady view (RETURN_STEADY_VIEW) for RETURN_STEADY_FRAMES frames in a row (this one the last)
         why = beyond_budget(self.budget, fr.cov, fr.T_cam_model, self.distance_m, RETURN_FRACTION)
         n0 = self.n_prev
-        steady = n0 is not None and n0 > 0 and abs(fr.n_samples - n0) <= RETURN_STEADY_VIEW * n0
+        n = _view_samples(fr)
+        steady = n0 is not None and n0 > 0 and abs(n - n0) <= RETURN_STEADY_VIEW * n0
         r.within = bool(why) and steady and not beyond_budget(self.budget, fr.cov, fr.T_cam_model, self.distance_m)
         if r.within and r.steady + 1 >= RETURN_STEADY_FRAMES:
             return ""
@@ -262,7 +263,12 @@ class TrackingPolicy:
         if self.first:
             self.first_reason = fr.reason
         self.first = False
-        self.n_prev = int(fr.n_samples)
+        self.n_prev = _view_samples(fr)
+
+
+def _view_samples(fr: FrameResult) -> int:
+    """The frame's visible edge samples before the ``max_samples`` cap (the capped count where unknown)."""
+    return int(fr.n_visible if fr.n_visible >= 0 else fr.n_samples)
 
 
 def _shift_px(tracker: EdgeTracker, T_a: np.ndarray, T_b: np.ndarray) -> float:
