@@ -176,6 +176,12 @@ def is_refusal(reason: str | None) -> bool:
     return (reason or "").startswith((REASON_UNCERTAIN, REASON_AMBIGUOUS))
 
 
+def _view_samples(fr) -> int:
+    """A frame's visible edge samples before the ``max_samples`` cap (the capped count where unknown)."""
+    n = int(getattr(fr, "n_visible", -1))
+    return n if n >= 0 else int(fr.n_samples)
+
+
 class Refusals:
     """The error budget's state over a sequence: the frames it refused (``budget_frames``: uncertain,
     ``ambiguous_frames``), whether the last frame was refused (``after``), and the last two frames'
@@ -189,8 +195,28 @@ class Refusals:
         #: frames in a row refused by the return fraction alone (within the full budget, a steady
         #: view: RETURN_STEADY_FRAMES), up to the last
         self.steady = 0
-        self.within = False  #: the frame being judged counts towards ``steady`` (set by the policy)
+        self.within = False  #: the frame being judged counts towards ``steady`` (set by :meth:`judge`)
+        self.n_prev: int | None = None  #: the last frame's visible edge samples, uncapped (:meth:`seen`)
         self.model_pair: list[np.ndarray] = []
+
+    def judge(self, b: PoseBudget, fr, distance_m) -> str:
+        """Why the edge pose ``fr`` is beyond the budget ``b`` (:func:`beyond_budget`; '' when it is not).
+        After an uncertain frame it must lie within ``RETURN_FRACTION`` of it, or within the budget in
+        a steady view (``RETURN_STEADY_VIEW``) for ``RETURN_STEADY_FRAMES`` frames in a row, this one
+        the last."""
+        if not self.after_uncertain:
+            return beyond_budget(b, fr.cov, fr.T_cam_model, distance_m)
+        why = beyond_budget(b, fr.cov, fr.T_cam_model, distance_m, RETURN_FRACTION)
+        n0, n = self.n_prev, _view_samples(fr)
+        steady = n0 is not None and n0 > 0 and abs(n - n0) <= RETURN_STEADY_VIEW * n0
+        self.within = bool(why) and steady and not beyond_budget(b, fr.cov, fr.T_cam_model, distance_m)
+        if self.within and self.steady + 1 >= RETURN_STEADY_FRAMES:
+            return ""
+        return why
+
+    def seen(self, fr) -> None:
+        """Every frame's edge result, whatever its output: its view size for the next frame's steady test."""
+        self.n_prev = _view_samples(fr)
 
     def output(self, status: str, T_out: np.ndarray | None) -> None:
         """A frame's output (not refused): two consecutive model (or relocalised) poses give the

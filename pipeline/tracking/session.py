@@ -20,14 +20,10 @@ import numpy as np
 
 from mst.core.poses import inv_T, matmul_exact
 from mst.pipeline.tracking.budget import (
-    RETURN_FRACTION,
-    RETURN_STEADY_FRAMES,
-    RETURN_STEADY_VIEW,
     ModelDistance,
     PoseBudget,
     Refusals,
     ambiguity,
-    beyond_budget,
     is_refusal,
 )
 from mst.pipeline.tracking.edge_tracker import EdgeTracker, FrameResult
@@ -130,7 +126,6 @@ class TrackingPolicy:
         self.budget = budget  #: the error budget of an output pose (None: not checked)
         self.distance_m = None  #: ``distance_m(T_cam_model) -> m`` to the model (set by the session)
         self.refusals = Refusals()  #: the error budget's state: refused frames, the model-pose pair
-        self.n_prev: int | None = None  #: the last frame's visible edge samples, uncapped (the return's steady view)
 
     # -------------------------------------------------------------- before the edge tracker
     def start_pose(self, T_pred: np.ndarray | None, aided: bool, shift_px) -> np.ndarray:
@@ -186,22 +181,11 @@ class TrackingPolicy:
 
     def beyond_budget(self, fr: FrameResult) -> str:
         """Why an edge pose's own uncertainty exceeds the error budget ('' when it does not, or
-        without a budget or a model distance): :func:`mst.pipeline.tracking.budget.beyond_budget`."""
+        without a budget or a model distance): :func:`mst.pipeline.tracking.budget.beyond_budget`, after
+        an uncertain frame with the return rule of :meth:`~mst.pipeline.tracking.budget.Refusals.judge`."""
         if self.budget is None or self.distance_m is None:
             return ""
-        r = self.refusals
-        if not r.after_uncertain:
-            return beyond_budget(self.budget, fr.cov, fr.T_cam_model, self.distance_m)
-        # after an uncertain frame: within RETURN_FRACTION of the budget, or within the budget in a
-        # steady view (RETURN_STEADY_VIEW) for RETURN_STEADY_FRAMES frames in a row (this one the last)
-        why = beyond_budget(self.budget, fr.cov, fr.T_cam_model, self.distance_m, RETURN_FRACTION)
-        n0 = self.n_prev
-        n = _view_samples(fr)
-        steady = n0 is not None and n0 > 0 and abs(n - n0) <= RETURN_STEADY_VIEW * n0
-        r.within = bool(why) and steady and not beyond_budget(self.budget, fr.cov, fr.T_cam_model, self.distance_m)
-        if r.within and r.steady + 1 >= RETURN_STEADY_FRAMES:
-            return ""
-        return why
+        return self.refusals.judge(self.budget, fr, self.distance_m)
 
     def map_pose_refuted(self, ev) -> str:
         """Why the image refutes a map (``slam``) pose, from its evidence ``ev`` at that pose ('' when
@@ -263,12 +247,7 @@ class TrackingPolicy:
         if self.first:
             self.first_reason = fr.reason
         self.first = False
-        self.n_prev = _view_samples(fr)
-
-
-def _view_samples(fr: FrameResult) -> int:
-    """The frame's visible edge samples before the ``max_samples`` cap (the capped count where unknown)."""
-    return int(fr.n_visible if fr.n_visible >= 0 else fr.n_samples)
+        self.refusals.seen(fr)
 
 
 def _shift_px(tracker: EdgeTracker, T_a: np.ndarray, T_b: np.ndarray) -> float:
