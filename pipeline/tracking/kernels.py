@@ -485,7 +485,7 @@ def _normal_equations(J, wJ, w, r, H, g):
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def vvs_solve(X, e, AB, nE, cu, cv, Xk, uk, T0, fx, fy, cx, cy, iters, lm_mu, min_mad, tukey_c, klt_weight, stop_px,
-              spread, spread_k, T_out, H_out, w_out, r_out, wt_out, wk_out, klt_info_cap=0.0):
+              stop_mu, spread, spread_k, T_out, H_out, w_out, r_out, wt_out, wk_out, klt_info_cap=0.0):
     """The whole robust VVS of :func:`mst.pipeline.tracking.vvs.solve_pose` in one call (the loop of
     :func:`~mst.pipeline.tracking.vvs.solve_pose_numpy`: residuals, candidate choice, Tukey and
     edge-spread weights, the Levenberg-Marquardt step with undo, the stopping test), every sum and
@@ -496,7 +496,8 @@ def vvs_solve(X, e, AB, nE, cu, cv, Xk, uk, T0, fx, fy, cx, cy, iters, lm_mu, mi
     the last information matrix, ``w_out``, ``r_out``, ``wt_out`` the last edge weights, residuals,
     Tukey weights, ``wk_out (2 nk)`` the KLT weights (Tukey x ``klt_weight``, before the cap).
     ``klt_info_cap`` > 0: the KLT block's information is scaled down to at most this x the edge
-    samples' (``tr(H_e^-1 H_k) / 6``, :func:`~mst.pipeline.tracking.vvs.klt_info_scale`). Returns
+    samples' (``tr(H_e^-1 H_k) / 6``, :func:`~mst.pipeline.tracking.vvs.klt_info_scale`). The step test
+    (``stop_px``) applies once the damping has relaxed to ``stop_mu`` (:data:`~mst.pipeline.tracking.vvs.STOP_MU`). Returns
     ``(iterations, sigma, status)`` with status 0 = a pose, 1 = diverged (a damped retry could not be
     solved: no pose)."""
     n = X.shape[0]
@@ -650,7 +651,7 @@ def vvs_solve(X, e, AB, nE, cu, cv, Xk, uk, T0, fx, fy, cx, cy, iters, lm_mu, mi
         step_px = fmax * (a0 * iz_max + a1 * (1.0 + xy_max))
         _se3_exp_left(xi, T, Tn)
         T[:, :] = Tn
-        if step_px < stop_px:
+        if step_px < stop_px and mu <= stop_mu:
             completed = False
             break
     if completed and have_prev:
