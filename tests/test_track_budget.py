@@ -184,3 +184,47 @@ def test_after_an_uncertain_frame_output_resumes_within_half_the_budget():
     assert [r.status for r in recs] == ["model"] * 3 + ["lost", "lost"] + ["model"] * 2
     assert recs[3].reason.startswith(REASON_UNCERTAIN) and "after a refusal" in recs[4].reason
     assert s.policy.refusals.budget_frames == [3, 4]
+
+
+def test_after_an_uncertain_frame_output_resumes_after_a_steady_stretch_within_the_budget():
+    # a bound that stays between half and all of the budget (2 sigma 0.8 m of the 1 m budget): the
+    # first RETURN_STEADY_FRAMES - 1 frames after the refusal are refused by the hysteresis, then the
+    # stretch is output; a frame beyond the budget inside the stretch starts the count again (the
+    # Rotterdam 250 m survey band: 2 sigma 0.6-1.0 % for 27 frames after one at 1.0 %, all refused
+    # while output waited for 0.5 %)
+    from mst.pipeline.tracking.budget import RETURN_FRACTION, RETURN_STEADY_FRAMES
+
+    assert RETURN_STEADY_FRAMES == 3 and RETURN_FRACTION * 1.0 < 2 * 0.4 <= 1.0 < 2 * 0.6
+    sig = {2: 0.6, 3: 0.4, 4: 0.4, 5: 0.4, 6: 0.4, 7: 0.6, 8: 0.4, 9: 0.4, 10: 0.4}
+
+    class Sigmas(_Tracker):
+        def track(self, gray, T_init, recover=False, first=False):
+            return _fr(self.truth(self.k), sigma_m=sig.get(self.k, 0.2))
+
+    s, recs = _run(Sigmas(lambda k: _T(0.1 * k)), 11)
+    st = [r.status for r in recs]
+    assert st == ["model"] * 2 + ["lost"] * 3 + ["model"] * 2 + ["lost"] * 3 + ["model"], st
+    assert all("after a refusal" in recs[k].reason for k in (3, 4, 8, 9))
+    assert s.policy.refusals.budget_frames == [2, 3, 4, 7, 8, 9]
+
+
+def test_no_steady_return_while_the_model_enters_the_view():
+    # the same bounds, the visible samples growing 10 % a frame after the refusal (the model coming
+    # back into the view, where the bound is optimistic: the demo's UAV return): refused until the
+    # view holds still for RETURN_STEADY_FRAMES frames
+    from mst.pipeline.tracking.budget import RETURN_STEADY_VIEW
+
+    n = {k: int(200 * 1.1 ** max(0, min(k, 6) - 2)) for k in range(12)}  # grows from frame 3 to 6, then holds
+    assert all(abs(n[k] - n[k - 1]) > RETURN_STEADY_VIEW * n[k - 1] for k in range(3, 7))
+    sig = {2: 0.6}
+
+    class Growing(_Tracker):
+        def track(self, gray, T_init, recover=False, first=False):
+            fr = _fr(self.truth(self.k), sigma_m=sig.get(self.k, 0.4))
+            fr.n_samples = n[self.k]
+            return fr
+
+    s, recs = _run(Growing(lambda k: _T(0.1 * k)), 12)
+    st = [r.status for r in recs]
+    # frames 3-6 grow (refused), 7-8 hold (refused, counted), 9 the third steady frame: output
+    assert st == ["model"] * 2 + ["lost"] * 7 + ["model"] * 3, st

@@ -110,15 +110,15 @@ def test_fpv_facade_pass_default_tracks_every_frame(tmp_path):
 
 
 # ---------------------------------------------------------------------------- survey bands
-_BAND_250_XFAIL = pytest.mark.xfail(strict=True, reason=(
-    "session 6: the 1.3 %-off model poses of session 5 (2 sigma claimed < 1 %) are gone with the "
-    "cluster-robust edge covariance (err / sigma 1.61 -> 1.21 over the pass; whole-run max error 2.39 m, "
-    "0.8 % of the nearest-vertex distance); the band now fails the re-acquisition check instead: after "
-    "the turn 20 of the last 48 frames are model (needs 24), the others refused as uncertain (2 sigma "
-    "beyond 1 %, or beyond half of it after a refusal): open, #11/#12 (more edges in view at 300 m)"))
-
-
-@pytest.fixture(scope="module", params=[40, 120, pytest.param(250, marks=_BAND_250_XFAIL)], ids=["40m", "120m", "250m"])
+# the 250 m band (session 8): after the turn the edge poses' honest 2 sigma bound stays at 0.6-1.0 %
+# of the distance (err / sigma 0.99 at the true poses, 1.16 over the pass: the image of one small
+# block gives no more; more samples, LOD off or a 2 px step, left it at 0.76-0.87 %); before the
+# error budget's steady return (budget.RETURN_STEADY_FRAMES) one frame at 1.0 % refused the
+# following 27 (output waited for 0.5 %) and only 20 of the last 48 frames were model (needs 24);
+# now 39 of 48, 126 model poses (main: 100), worst model pose 0.86 % of the nearest-vertex distance,
+# whole-run ATE 1.10 m (0.36 % of 307 m: the issue's 0.1 % is below what the image pins per frame;
+# edges only 0.91 m on 84 poses; measured after the merge of the VVS step test)
+@pytest.fixture(scope="module", params=[40, 120, 250], ids=["40m", "120m", "250m"])
 def survey(request, shared_data, tmp_path_factory):
     h = request.param
     d = tmp_path_factory.mktemp(f"uav{h}")

@@ -55,6 +55,7 @@ class FrameResult:
     n_klt: int = 0
     score: float = float("nan")           #: calibrated health score (HealthMonitor), 1 typical, <= 0 rejected
     features: dict | None = None          #: the health monitor's signal values of this frame
+    n_visible: int = -1                   #: visible edge samples before the ``max_samples`` cap (-1: n_samples)
 
 
 def _surface_points(model, n_points: int = 400, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
@@ -409,6 +410,7 @@ class EdgeTracker:
         cov = res.cov if prov is None else prov.gauge_cov(T, res.W, res.cov, res.rms_px, res.jk_inputs)
         out = FrameResult(T, healthy, n_s, n_in, res.rms_px, proj_err, res.W, cov, uv, res.inlier,
                           S.edge_uv[np.unique(S.edge)], np.zeros((0, 2)) if klt is None else klt[1], reason, support)
+        out.n_visible = int((getattr(S, "stats", None) or {}).get("visible", n_s))
         if self.health_score:
             out.evidence = self.evidence(img, T, S)  # the last pass's samples, re-projected at T
         if klt is not None and res.klt_inlier is not None:

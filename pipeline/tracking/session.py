@@ -20,12 +20,10 @@ import numpy as np
 
 from mst.core.poses import inv_T, matmul_exact
 from mst.pipeline.tracking.budget import (
-    RETURN_FRACTION,
     ModelDistance,
     PoseBudget,
     Refusals,
     ambiguity,
-    beyond_budget,
     is_refusal,
 )
 from mst.pipeline.tracking.edge_tracker import EdgeTracker, FrameResult
@@ -183,11 +181,11 @@ class TrackingPolicy:
 
     def beyond_budget(self, fr: FrameResult) -> str:
         """Why an edge pose's own uncertainty exceeds the error budget ('' when it does not, or
-        without a budget or a model distance): :func:`mst.pipeline.tracking.budget.beyond_budget`."""
+        without a budget or a model distance): :func:`mst.pipeline.tracking.budget.beyond_budget`, after
+        an uncertain frame with the return rule of :meth:`~mst.pipeline.tracking.budget.Refusals.judge`."""
         if self.budget is None or self.distance_m is None:
             return ""
-        fraction = RETURN_FRACTION if self.refusals.after_uncertain else 1.0
-        return beyond_budget(self.budget, fr.cov, fr.T_cam_model, self.distance_m, fraction)
+        return self.refusals.judge(self.budget, fr, self.distance_m)
 
     def map_pose_refuted(self, ev) -> str:
         """Why the image refutes a map (``slam``) pose, from its evidence ``ev`` at that pose ('' when
@@ -249,6 +247,7 @@ class TrackingPolicy:
         if self.first:
             self.first_reason = fr.reason
         self.first = False
+        self.refusals.seen(fr)
 
 
 def _shift_px(tracker: EdgeTracker, T_a: np.ndarray, T_b: np.ndarray) -> float:

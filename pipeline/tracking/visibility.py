@@ -468,6 +468,7 @@ def visible_samples(geom: ModelGeometry, T_cam_model: np.ndarray, K: np.ndarray,
         vis = iz >= far_nb[iy, ix] * (1.0 - 2e-3) - 1e-9
         stats["hidden"] = int((~vis).sum())
         uv, nrm, Xc, edge_id = uv[vis], nrm[vis], Xc[vis], edge_id[vis]
+    stats["visible"] = int(len(uv))  # before the cap: how much of the model the view holds
     if max_samples and len(uv) > max_samples:
         sel = np.linspace(0, len(uv) - 1, max_samples).round().astype(np.int64)
         uv, nrm, Xc, edge_id = uv[sel], nrm[sel], Xc[sel], edge_id[sel]
