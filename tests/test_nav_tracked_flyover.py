@@ -189,7 +189,12 @@ def test_the_issues_half_of_the_vision_is_beyond_any_gps_fusion(tracked_flyover)
     q = FusionConfig().jerk_sigma_mps3 * np.sqrt(MOTION_NOISE_SCALES.min())
     b_gps = tracked_fusion_bound(k, e, FPS, 10.0)
     b_ca = tracked_fusion_bound(k, e, FPS, 10.0, jerk_psd=q)
-    assert b_ca <= b_gps <= ev * 1.001  # more information never hurts the oracle
+    # more information never hurts the oracle: against the vision alone on the same grids (short holes
+    # filled linearly, each run weighted by its poses: the bound with no GPS information), not against
+    # the poses' own RMS ``ev`` (session 8's track: grid 0.0407 m against 0.0404 m on the poses)
+    b_vis = tracked_fusion_bound(k, e, FPS, 10.0, sigma_m=(1e12, 1e12, 1e12), walk_m_per_sqrt_s=0.0)
+    assert b_ca <= b_gps <= b_vis * (1 + 1e-9), (b_ca, b_gps, b_vis)
+    assert abs(b_vis - ev) <= 0.05 * ev  # the filled grid is the track (a few 1-3 frame holes)
     assert b_ca >= (0.5 + 0.2) * ev, (b_gps / ev, b_ca / ev)
     # the same RMS as white noise: the motion prior alone would smooth half of it away (0.54x)
     w = np.random.default_rng(0).normal(size=e.shape) * ev / np.sqrt(3)
