@@ -67,6 +67,48 @@ def test_moving_edge_search_matches_numpy(dtype):
                                            atol=1e-6 * max(1.0, float(np.abs(b.conv).max())))
 
 
+def test_moving_edge_convolution_shortcuts_are_bit_exact():
+    # me_convolve skips the masks' zero weights on 8-bit images and copies the convolution of a
+    # position that reads the previous position's pixel: the same bits as the plain sum (four
+    # float64 partial sums, pixel s of the mask into sum s % 4, rounded once to float32), written
+    # out here per convolution; the float32 image (no skipping) gives the same bits too
+    img, uv, normal, midx, _ = _scene()
+    masks, moff = me.make_masks(5, 180)
+    ks = np.arange(-8, 9, dtype=np.float64)
+    conv8, keff8 = me._convolve(img, uv, normal, ks, midx, masks, moff)
+    conv32, keff32 = me._convolve(img.astype(np.float32), uv, normal, ks, midx, masks, moff)
+    assert conv8.tobytes() == conv32.tobytes() and keff8.tobytes() == keff32.tobytes()
+    H, W = img.shape
+    dup = 0
+    for i in range(0, len(uv), 7):
+        last = None
+        for m, k in enumerate(ks):
+            ix = min(max(np.rint(uv[i, 0] + k * normal[i, 0]), 2), W - 3)
+            iy = min(max(np.rint(uv[i, 1] + k * normal[i, 1]), 2), H - 3)
+            dup += last == (ix, iy)
+            last = (ix, iy)
+            a = [0.0, 0.0, 0.0, 0.0]
+            for s, (dx, dy) in enumerate(moff):
+                a[s % 4] += float(img[int(iy) + dy, int(ix) + dx]) * float(masks[midx[i], s])
+            assert np.float32((a[0] + a[1]) + (a[2] + a[3])) == conv8[i, m]
+            assert (ix - uv[i, 0]) * normal[i, 0] + (iy - uv[i, 1]) * normal[i, 1] == keff8[i, m]
+    assert dup >= 20  # the copied positions were exercised
+
+
+def test_edge_chunks_kernel_is_the_numpy_clustering():
+    from mst.pipeline.tracking.covariance import edge_chunks, edge_chunks_numpy
+
+    rng = np.random.default_rng(5)
+    for n, n_edges, chunk in ((0, 1, 8), (1, 1, 8), (500, 40, 8), (300, 3, 1), (200, 90, 5), (64, 2, 100)):
+        e = rng.integers(0, n_edges, n)
+        e[: n // 2].sort()  # runs of one edge, and interleaved ids
+        cl, nc = edge_chunks(e, chunk)
+        cl_np, nc_np = edge_chunks_numpy(e, chunk)
+        assert nc == nc_np and cl.dtype == cl_np.dtype and np.array_equal(cl, cl_np)
+    e = np.array([3, -1, 3, -1])  # negative ids: the numpy formulation
+    assert np.array_equal(edge_chunks(e, 1)[0], edge_chunks_numpy(e, 1)[0])
+
+
 def test_moving_edge_search_of_no_samples():
     img = np.zeros((50, 60), np.uint8)
     z = np.zeros((0, 2))

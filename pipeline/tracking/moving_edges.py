@@ -117,8 +117,9 @@ def _convolve(img: np.ndarray, uv: np.ndarray, normal: np.ndarray, ks: np.ndarra
     N, M = len(uv), len(ks)
     conv = np.empty((N, M), np.float32)
     k_eff = np.empty((N, M))
-    me_convolve(_image(img), np.ascontiguousarray(uv, np.float64), np.ascontiguousarray(normal, np.float64), ks, moff,
-                masks, np.ascontiguousarray(mask_idx, np.int64), conv, k_eff)
+    im = _image(img)
+    me_convolve(im, np.ascontiguousarray(uv, np.float64), np.ascontiguousarray(normal, np.float64), ks, moff,
+                masks, np.ascontiguousarray(mask_idx, np.int64), conv, k_eff, im.dtype == np.uint8)
     return conv, k_eff
 
 
