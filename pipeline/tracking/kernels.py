@@ -1086,3 +1086,27 @@ def surface_values(img, X, face, face_visible, T, fx, fy, cx, cy, near, buf, sc,
         val[k] = np.float64(s / F32(9.0))
         k += 1
     return idx[:k], val[:k]
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def samples_unhidden(buf, uv, iz, sc):
+    """The hidden-line test of :func:`~mst.pipeline.tracking.visibility.visible_samples` at the samples
+    ``uv (N, 2)`` px (inverse depths ``iz (N,)`` 1/m): (N,) bool, True where the sample is not behind the
+    farthest surface of its buffer pixel's 3x3 neighbourhood (``buf (h, w)`` float32 inverse depths at
+    ``sc`` x the image's pixels; the neighbours inside the buffer, as ``cv2.erode``'s default border).
+    The erosion read at the N samples instead of computed over the whole buffer (issue #14: a
+    320x240 ``cv2.erode`` was ~0.2 ms a frame); float32 margin arithmetic as numpy's ``far_nb * (1.0 -
+    2e-3) - 1e-9`` on the float32 erosion: the same bits."""
+    bh, bw = buf.shape
+    f = F32(1.0 - 2e-3)
+    eps = F32(1e-9)
+    out = np.empty(uv.shape[0], np.bool_)
+    for i in range(uv.shape[0]):
+        ix = min(max(np.int64(np.rint((uv[i, 0] + 0.5) * sc - 0.5)), 0), bw - 1)
+        iy = min(max(np.int64(np.rint((uv[i, 1] + 0.5) * sc - 0.5)), 0), bh - 1)
+        m = buf[iy, ix]
+        for y in range(max(iy - 1, 0), min(iy + 2, bh)):
+            for x in range(max(ix - 1, 0), min(ix + 2, bw)):
+                m = min(m, buf[y, x])
+        out[i] = iz[i] >= np.float64(m * f - eps)
+    return out
