@@ -109,6 +109,20 @@ def test_edge_chunks_kernel_is_the_numpy_clustering():
     assert np.array_equal(edge_chunks(e, 1)[0], edge_chunks_numpy(e, 1)[0])
 
 
+def test_canonical_normals_kernel_is_the_numpy_formulation():
+    rng = np.random.default_rng(2)
+    ang = np.concatenate([rng.uniform(-np.pi, np.pi, 2000), np.arange(-4, 5) * np.pi / 4])
+    nrm = np.c_[np.cos(ang), np.sin(ang)]
+    nrm = np.concatenate([nrm, [[-1.0, 0.0], [-1.0, -0.0], [0.0, -1.0], [1.0, -0.0], [0.0, 0.0]]])
+    for n_masks in (180, 7, 1):
+        a, ia = me.canonical_normals(nrm, n_masks)
+        b, ib = me.canonical_normals_numpy(nrm, n_masks)
+        assert a.tobytes() == b.tobytes() and ia.tobytes() == ib.tobytes()
+    bad = np.array([[np.nan, 1.0], [1.0, 0.0]])  # a non-finite angle: numpy's formulation
+    with np.errstate(invalid="ignore"):  # numpy's cast of the NaN angle
+        assert me.canonical_normals(bad, 180)[1][1] == me.canonical_normals_numpy(bad, 180)[1][1]
+
+
 def test_moving_edge_search_of_no_samples():
     img = np.zeros((50, 60), np.uint8)
     z = np.zeros((0, 2))

@@ -125,6 +125,22 @@ def eroded_buffer(geom: ModelGeometry, T_cam_model: np.ndarray, K: np.ndarray, w
     return e.buf, e.eroded, scale
 
 
+#: ``numpy.linalg.inv`` of the buffers' intrinsics, by their bytes (issue #14: the LAPACK call was ~40 us
+#: of each render; the same inverse, to the bit, for the same matrix)
+_K_INV: dict[bytes, np.ndarray] = {}
+
+
+def _inverse_K(Ks: np.ndarray) -> np.ndarray:
+    key = Ks.dtype.str.encode() + Ks.tobytes()
+    Kinv = _K_INV.get(key)
+    if Kinv is None:
+        if len(_K_INV) >= 64:  # a few cameras and scales in a process
+            _K_INV.clear()
+        Kinv = _K_INV[key] = np.linalg.inv(Ks)
+        Kinv.flags.writeable = False
+    return Kinv
+
+
 def _render_buffer(geom, T_cam_model, K, width, height, faces, near, scale, Xc_all, _numpy_reference) -> np.ndarray:
     """The rendering of :func:`inverse_depth_buffer` (its docstring), uncached."""
     import cv2
@@ -137,7 +153,7 @@ def _render_buffer(geom, T_cam_model, K, width, height, faces, near, scale, Xc_a
     Ks[:2] *= scale
     Ks[0, 2] = (K[0, 2] + 0.5) * scale - 0.5
     Ks[1, 2] = (K[1, 2] + 0.5) * scale - 0.5
-    Kinv = np.linalg.inv(Ks)
+    Kinv = _inverse_K(Ks)
     R, t = T_cam_model[:3, :3], T_cam_model[:3, 3]
     sel = np.flatnonzero(faces)
     if not len(sel):
