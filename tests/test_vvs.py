@@ -144,3 +144,23 @@ def test_klt_points_lifted_under_a_wrong_pose_do_not_outvote_the_edges(seed):
     U = np.diag([1e3, 1e3, 1e3, 1, 1, 1])  # metres -> millimetres: H -> U^-1 H U^-1
     assert abs(klt_info_scale(np.linalg.inv(U) @ He @ np.linalg.inv(U), np.linalg.inv(U) @ Hk @ np.linalg.inv(U), 1.0) - s) < 1e-12
     assert klt_info_scale(He, 0.5 * He, 1.0) == 1.0 and klt_info_scale(He, Hk, None) == 1.0
+
+
+@pytest.mark.parametrize("noise_px", [0.05, 2.0])
+def test_fine_stage_is_two_solves(noise_px):
+    # solve_pose(fine_mad_px=f): where the floor binds (small noise) the same result as a second call
+    # from the first's pose with floor f; where it does not (noise above the floor) the first
+    # call's result; to the bit in both
+    X, edge, A, B = _cube()
+    T_true = _true_pose()
+    rng = np.random.default_rng(4)
+    cand = (_project(T_true, X) + rng.normal(0, noise_px, (len(X), 1)) * _normals(T_true, A, B, edge))[:, None, :]
+    kw = dict(min_mad_px=0.5, iters=30)
+    one = solve_pose(_start(T_true), K, X, edge, A, B, cand, fine_mad_px=0.15, **kw)
+    a = solve_pose(_start(T_true), K, X, edge, A, B, cand, **kw)
+    binds = a.sigma_px <= 0.5
+    assert binds == (noise_px < 0.5)
+    two = solve_pose(a.T_cam_model, K, X, edge, A, B, cand, min_mad_px=0.15, iters=30) if binds else a
+    assert one.status is two.status and one.sigma_px == two.sigma_px and one.iters == two.iters
+    for f in ("T_cam_model", "W", "cov_classical", "weights", "residual", "inlier", "cov"):
+        assert np.array_equal(getattr(one, f), getattr(two, f), equal_nan=True), f
