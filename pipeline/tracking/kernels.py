@@ -1134,3 +1134,37 @@ def canonical_normals_kernel(normal, ang, n_masks, n_out, idx):
         a = a % 180.0
         idx[i] = np.int64(np.rint(a / step)) % n_masks
     return True
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def vvs_inputs(X_model, edge, cand_uv):
+    """The inputs of :func:`vvs_solve` from a solve's samples (issue #14: six numpy calls, ~50 us a
+    solve): ``has (N,)`` the samples with a candidate (a finite u), and of those the model points
+    ``X (n, 3)``, edge ids ``e (n,)`` and candidates ``cu, cv (n, C)`` px with each non-finite
+    coordinate replaced by 1e9 (never the nearest candidate)."""
+    N, C = cand_uv.shape[0], cand_uv.shape[1]
+    has = np.zeros(N, np.bool_)
+    n = 0
+    for i in range(N):
+        for c in range(C):
+            if np.isfinite(cand_uv[i, c, 0]):
+                has[i] = True
+                n += 1
+                break
+    X = np.empty((n, 3))
+    e = np.empty(n, np.int64)
+    cu = np.empty((n, C))
+    cv = np.empty((n, C))
+    k = 0
+    for i in range(N):
+        if not has[i]:
+            continue
+        for j in range(3):
+            X[k, j] = X_model[i, j]
+        e[k] = edge[i]
+        for c in range(C):
+            u, v = cand_uv[i, c, 0], cand_uv[i, c, 1]
+            cu[k, c] = u if np.isfinite(u) else 1e9
+            cv[k, c] = v if np.isfinite(v) else 1e9
+        k += 1
+    return has, X, e, cu, cv

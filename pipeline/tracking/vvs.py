@@ -250,15 +250,12 @@ def solve_pose(T0: np.ndarray, K: np.ndarray, X_model: np.ndarray, edge: np.ndar
     and product in a fixed order without BLAS: the pose of :func:`solve_pose_numpy` within rounding
     (~1e-15 relative; tests/test_tracking_kernels.py), and the same on every CPU and BLAS kernel.
     """
-    from mst.pipeline.tracking.kernels import vvs_solve
+    from mst.pipeline.tracking.kernels import vvs_inputs, vvs_solve
 
     fx, fy, cx, cy = float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2])
-    has = np.isfinite(cand_uv[..., 0]).any(axis=1)
-    X = np.ascontiguousarray(X_model[has], np.float64)
-    e = np.ascontiguousarray(edge[has], np.int64)
-    cand = cand_uv[has]
-    cand = np.where(np.isfinite(cand), cand, 1e9)
-    cu, cv = np.ascontiguousarray(cand[..., 0]), np.ascontiguousarray(cand[..., 1])
+    # the samples with a candidate and their candidates, non-finite coordinates at 1e9 (one kernel)
+    has, X, e, cu, cv = vvs_inputs(np.ascontiguousarray(X_model, np.float64), np.ascontiguousarray(edge, np.int64),
+                                   np.ascontiguousarray(cand_uv, np.float64))
     nk = 0 if klt_X_model is None else len(klt_X_model)
     if len(X) + 2 * nk < 6:
         return _no_pose(T0, len(X_model), SolveStatus.TOO_FEW, min_mad_px)
