@@ -406,15 +406,14 @@ def visible_samples(geom: ModelGeometry, T_cam_model: np.ndarray, K: np.ndarray,
         masks: dict = {}
         if indexed:  # the grid's candidates (reused between close poses), then the exact test
             in_view = view_faces(geom, T_cam_model, K, width, height, near, far)
-        else:
-            in_view = frustum_faces(geom, T_cam_model, K, width, height, near, far, masks)
+        else:  # the culling counts only to explain a failure (below)
+            in_view = frustum_faces(geom, T_cam_model, K, width, height, near, far)
         fv = face_visibility(geom, T_cam_model, prev_faces, appear_deg, disappear_deg, among=in_view)
         if not indexed and in_view.all():  # nothing culled (a small object in view): fv is the all-faces test
             fv_all = fv
-            culled = {k: 0 for k in masks}
+            culled = {k: 0 for k in ("behind", "beyond_far", "outside")}
         elif fv.sum() < 6:  # a failure to explain: which front-facing faces were culled, and why
-            if indexed:
-                frustum_faces(geom, T_cam_model, K, width, height, near, far, masks)
+            frustum_faces(geom, T_cam_model, K, width, height, near, far, masks)
             fv_all = face_visibility(geom, T_cam_model, prev_faces, appear_deg, disappear_deg)
             culled = {k: int((m & fv_all).sum()) for k, m in masks.items()}
         else:
