@@ -264,6 +264,34 @@ def test_depth_buffer_setup_kernel_is_identical_to_numpy():
     assert n_px > 10_000
 
 
+def test_depth_buffer_plane_kernel_is_identical_to_numpy():
+    # exact: the plane coefficients (float64, before the float32 buffer rounds them) of every face of
+    # a city under random poses, against _mat3 / einsum's (einsum sums the 3 products as (0 + 2) + 1
+    # on x86-64, the order the kernel fixes; its explicit form is checked too)
+    from mst.meshtools.generate import city_block_model
+    from mst.pipeline.tracking.depth_buffer import _mat3
+    from mst.pipeline.tracking.kernels import zbuffer_planes
+    from mst.pipeline.tracking.visibility import ModelGeometry
+
+    g = ModelGeometry.from_model(city_block_model(buildings=120))
+    rng = np.random.default_rng(8)
+    sel = np.arange(len(g.faces))
+    for _ in range(4):
+        T = se3_exp(np.r_[rng.normal(0, 50, 3), rng.normal(0, 1, 3)])
+        R, t = T[:3, :3], T[:3, 3]
+        Kinv = np.linalg.inv(K * [[rng.uniform(0.4, 1.2)], [rng.uniform(0.4, 1.2)], [1.0]])
+        n_c = _mat3(g.face_normals[sel], R)
+        p_c = _mat3(g.face_point[sel], R, t)
+        d = np.einsum("ij,ij->i", n_c, p_c)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            coef_np = _mat3(n_c, Kinv.T) / d[:, None]
+        coef = np.zeros((len(g.faces), 3))
+        d_k = zbuffer_planes(g.face_normals, g.face_point, sel, R.copy(), t.copy(), Kinv, coef)
+        q = n_c * p_c
+        assert d_k.tobytes() == ((q[:, 0] + q[:, 2]) + q[:, 1]).tobytes()
+        assert d_k.tobytes() == d.tobytes() and coef.tobytes() == coef_np.tobytes()
+
+
 def _health_numpy(img, X, A, B, edge, T, near, thr):
     """The numpy formulation of the health tests and of the evidence gradients that the kernels
     (``kernels.pose_health``, ``kernels.pose_gradients``) replaced (their reference)."""

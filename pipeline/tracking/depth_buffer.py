@@ -158,12 +158,6 @@ def _render_buffer(geom, T_cam_model, K, width, height, faces, near, scale, Xc_a
     sel = np.flatnonzero(faces)
     if not len(sel):
         return buf
-    # plane of each selected face in the camera frame: 1/z = (n_c . Kinv [u v 1]) / d
-    n_c = _mat3(geom.face_normals[sel], R)
-    p_c = _mat3(geom.face_point[sel], R, t)
-    d = np.einsum("ij,ij->i", n_c, p_c)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        coef_sel = _mat3(n_c, Kinv.T) / d[:, None]
     # per-model scratch (the rasteriser reads the rows of the faces it draws and the entries of their
     # vertices only, all written below): no (F, 3) and 2 x (V,) allocations per call
     scratch = geom.__dict__.get("_zbuffer_scratch")
@@ -171,7 +165,18 @@ def _render_buffer(geom, T_cam_model, K, width, height, faces, near, scale, Xc_a
         scratch = (np.zeros((len(geom.faces), 3)), np.zeros(len(geom.vertices)), np.zeros(len(geom.vertices)))
         geom.__dict__["_zbuffer_scratch"] = scratch
     coef, uu, vv = scratch
-    coef[sel] = coef_sel
+    # plane of each selected face in the camera frame: 1/z = (n_c . Kinv [u v 1]) / d
+    if _numpy_reference:
+        n_c = _mat3(geom.face_normals[sel], R)
+        p_c = _mat3(geom.face_point[sel], R, t)
+        d = np.einsum("ij,ij->i", n_c, p_c)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            coef[sel] = _mat3(n_c, Kinv.T) / d[:, None]
+    else:  # the same operations in their order, in one kernel
+        from mst.pipeline.tracking.kernels import zbuffer_planes
+
+        d = zbuffer_planes(geom.face_normals, geom.face_point, sel.astype(np.int64), np.ascontiguousarray(R, np.float64),
+                           np.ascontiguousarray(t, np.float64), Kinv, coef)
     if _numpy_reference:  # the numpy formulation (the reference of the kernel's test)
         # depth range of each face's outer loop
         Xc = geom.to_camera(T_cam_model, sel) if Xc_all is None else Xc_all

@@ -1168,3 +1168,30 @@ def vvs_inputs(X_model, edge, cand_uv):
             cv[k, c] = v if np.isfinite(v) else 1e9
         k += 1
     return has, X, e, cu, cv
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def zbuffer_planes(face_normals, face_point, sel, R, t, Kinv, coef):
+    """The plane set-up of :func:`mst.pipeline.tracking.depth_buffer.inverse_depth_buffer` for the
+    faces ``sel`` (K,): each face's normal and point in the camera frame (``_mat3``'s products and
+    sums in its order), ``d = n_c . p_c`` (the 3 products summed as ``numpy.einsum`` sums them on x86-64,
+    ``(p0 + p2) + p1``, fixed here on every CPU) and ``coef[f] = (n_c Kinv) / d`` (``1/z`` affine in the
+    buffer's pixels) written into the rows ``sel`` of ``coef (F, 3)``; returns ``d (K,)`` (issue #14:
+    five numpy calls of each render)."""
+    k = sel.shape[0]
+    d = np.empty(k)
+    for j in range(k):
+        f = sel[j]
+        n0, n1, n2 = face_normals[f, 0], face_normals[f, 1], face_normals[f, 2]
+        q0, q1, q2 = face_point[f, 0], face_point[f, 1], face_point[f, 2]
+        c0 = (n0 * R[0, 0] + n1 * R[0, 1]) + n2 * R[0, 2]
+        c1 = (n0 * R[1, 0] + n1 * R[1, 1]) + n2 * R[1, 2]
+        c2 = (n0 * R[2, 0] + n1 * R[2, 1]) + n2 * R[2, 2]
+        p0 = ((q0 * R[0, 0] + q1 * R[0, 1]) + q2 * R[0, 2]) + t[0]
+        p1 = ((q0 * R[1, 0] + q1 * R[1, 1]) + q2 * R[1, 2]) + t[1]
+        p2 = ((q0 * R[2, 0] + q1 * R[2, 1]) + q2 * R[2, 2]) + t[2]
+        dj = (c0 * p0 + c2 * p2) + c1 * p1  # numpy's einsum order for 3 terms (its 2-wide pairs 0+2, then 1)
+        d[j] = dj
+        for m in range(3):
+            coef[f, m] = ((c0 * Kinv[0, m] + c1 * Kinv[1, m]) + c2 * Kinv[2, m]) / dj
+    return d
