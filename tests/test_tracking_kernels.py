@@ -67,6 +67,62 @@ def test_moving_edge_search_matches_numpy(dtype):
                                            atol=1e-6 * max(1.0, float(np.abs(b.conv).max())))
 
 
+def test_moving_edge_convolution_shortcuts_are_bit_exact():
+    # me_convolve skips the masks' zero weights on 8-bit images and copies the convolution of a
+    # position that reads the previous position's pixel: the same bits as the plain sum (four
+    # float64 partial sums, pixel s of the mask into sum s % 4, rounded once to float32), written
+    # out here per convolution; the float32 image (no skipping) gives the same bits too
+    img, uv, normal, midx, _ = _scene()
+    masks, moff = me.make_masks(5, 180)
+    ks = np.arange(-8, 9, dtype=np.float64)
+    conv8, keff8 = me._convolve(img, uv, normal, ks, midx, masks, moff)
+    conv32, keff32 = me._convolve(img.astype(np.float32), uv, normal, ks, midx, masks, moff)
+    assert conv8.tobytes() == conv32.tobytes() and keff8.tobytes() == keff32.tobytes()
+    H, W = img.shape
+    dup = 0
+    for i in range(0, len(uv), 7):
+        last = None
+        for m, k in enumerate(ks):
+            ix = min(max(np.rint(uv[i, 0] + k * normal[i, 0]), 2), W - 3)
+            iy = min(max(np.rint(uv[i, 1] + k * normal[i, 1]), 2), H - 3)
+            dup += last == (ix, iy)
+            last = (ix, iy)
+            a = [0.0, 0.0, 0.0, 0.0]
+            for s, (dx, dy) in enumerate(moff):
+                a[s % 4] += float(img[int(iy) + dy, int(ix) + dx]) * float(masks[midx[i], s])
+            assert np.float32((a[0] + a[1]) + (a[2] + a[3])) == conv8[i, m]
+            assert (ix - uv[i, 0]) * normal[i, 0] + (iy - uv[i, 1]) * normal[i, 1] == keff8[i, m]
+    assert dup >= 20  # the copied positions were exercised
+
+
+def test_edge_chunks_kernel_is_the_numpy_clustering():
+    from mst.pipeline.tracking.covariance import edge_chunks, edge_chunks_numpy
+
+    rng = np.random.default_rng(5)
+    for n, n_edges, chunk in ((0, 1, 8), (1, 1, 8), (500, 40, 8), (300, 3, 1), (200, 90, 5), (64, 2, 100)):
+        e = rng.integers(0, n_edges, n)
+        e[: n // 2].sort()  # runs of one edge, and interleaved ids
+        cl, nc = edge_chunks(e, chunk)
+        cl_np, nc_np = edge_chunks_numpy(e, chunk)
+        assert nc == nc_np and cl.dtype == cl_np.dtype and np.array_equal(cl, cl_np)
+    e = np.array([3, -1, 3, -1])  # negative ids: the numpy formulation
+    assert np.array_equal(edge_chunks(e, 1)[0], edge_chunks_numpy(e, 1)[0])
+
+
+def test_canonical_normals_kernel_is_the_numpy_formulation():
+    rng = np.random.default_rng(2)
+    ang = np.concatenate([rng.uniform(-np.pi, np.pi, 2000), np.arange(-4, 5) * np.pi / 4])
+    nrm = np.c_[np.cos(ang), np.sin(ang)]
+    nrm = np.concatenate([nrm, [[-1.0, 0.0], [-1.0, -0.0], [0.0, -1.0], [1.0, -0.0], [0.0, 0.0]]])
+    for n_masks in (180, 7, 1):
+        a, ia = me.canonical_normals(nrm, n_masks)
+        b, ib = me.canonical_normals_numpy(nrm, n_masks)
+        assert a.tobytes() == b.tobytes() and ia.tobytes() == ib.tobytes()
+    bad = np.array([[np.nan, 1.0], [1.0, 0.0]])  # a non-finite angle: numpy's formulation
+    with np.errstate(invalid="ignore"):  # numpy's cast of the NaN angle
+        assert me.canonical_normals(bad, 180)[1][1] == me.canonical_normals_numpy(bad, 180)[1][1]
+
+
 def test_moving_edge_search_of_no_samples():
     img = np.zeros((50, 60), np.uint8)
     z = np.zeros((0, 2))
@@ -206,6 +262,34 @@ def test_depth_buffer_setup_kernel_is_identical_to_numpy():
             np.testing.assert_array_equal(a, b)
             n_px += int((a > 0).sum())
     assert n_px > 10_000
+
+
+def test_depth_buffer_plane_kernel_is_identical_to_numpy():
+    # exact: the plane coefficients (float64, before the float32 buffer rounds them) of every face of
+    # a city under random poses, against _mat3 / einsum's (einsum sums the 3 products as (0 + 2) + 1
+    # on x86-64, the order the kernel fixes; its explicit form is checked too)
+    from mst.meshtools.generate import city_block_model
+    from mst.pipeline.tracking.depth_buffer import _mat3
+    from mst.pipeline.tracking.kernels import zbuffer_planes
+    from mst.pipeline.tracking.visibility import ModelGeometry
+
+    g = ModelGeometry.from_model(city_block_model(buildings=120))
+    rng = np.random.default_rng(8)
+    sel = np.arange(len(g.faces))
+    for _ in range(4):
+        T = se3_exp(np.r_[rng.normal(0, 50, 3), rng.normal(0, 1, 3)])
+        R, t = T[:3, :3], T[:3, 3]
+        Kinv = np.linalg.inv(K * [[rng.uniform(0.4, 1.2)], [rng.uniform(0.4, 1.2)], [1.0]])
+        n_c = _mat3(g.face_normals[sel], R)
+        p_c = _mat3(g.face_point[sel], R, t)
+        d = np.einsum("ij,ij->i", n_c, p_c)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            coef_np = _mat3(n_c, Kinv.T) / d[:, None]
+        coef = np.zeros((len(g.faces), 3))
+        d_k = zbuffer_planes(g.face_normals, g.face_point, sel, R.copy(), t.copy(), Kinv, coef)
+        q = n_c * p_c
+        assert d_k.tobytes() == ((q[:, 0] + q[:, 2]) + q[:, 1]).tobytes()
+        assert d_k.tobytes() == d.tobytes() and coef.tobytes() == coef_np.tobytes()
 
 
 def _health_numpy(img, X, A, B, edge, T, near, thr):

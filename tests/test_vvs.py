@@ -169,3 +169,23 @@ def test_a_damped_step_does_not_end_the_solve_along_the_weak_direction():
     assert err_m(one.T_cam_model) > 0.5 * err_m(T0)  # the damped first step: most of the error remains
     res = solve_pose(T0, K, X, edge, A, B, cand, min_mad_px=1.0, stop_px=3.0)
     assert res.has_pose and err_m(res.T_cam_model) <= 0.05 * err_m(T0), (err_m(res.T_cam_model), res.iters)
+
+
+@pytest.mark.parametrize("noise_px", [0.05, 2.0])
+def test_fine_stage_is_two_solves(noise_px):
+    # solve_pose(fine_mad_px=f): where the floor binds (small noise) the same result as a second call
+    # from the first's pose with floor f; where it does not (noise above the floor) the first
+    # call's result; to the bit in both
+    X, edge, A, B = _cube()
+    T_true = _true_pose()
+    rng = np.random.default_rng(4)
+    cand = (_project(T_true, X) + rng.normal(0, noise_px, (len(X), 1)) * _normals(T_true, A, B, edge))[:, None, :]
+    kw = dict(min_mad_px=0.5, iters=30)
+    one = solve_pose(_start(T_true), K, X, edge, A, B, cand, fine_mad_px=0.15, **kw)
+    a = solve_pose(_start(T_true), K, X, edge, A, B, cand, **kw)
+    binds = a.sigma_px <= 0.5
+    assert binds == (noise_px < 0.5)
+    two = solve_pose(a.T_cam_model, K, X, edge, A, B, cand, min_mad_px=0.15, iters=30) if binds else a
+    assert one.status is two.status and one.sigma_px == two.sigma_px and one.iters == two.iters
+    for f in ("T_cam_model", "W", "cov_classical", "weights", "residual", "inlier", "cov"):
+        assert np.array_equal(getattr(one, f), getattr(two, f), equal_nan=True), f

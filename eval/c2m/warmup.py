@@ -87,7 +87,7 @@ def warm_tracking() -> None:
     T0 = se3_exp(np.array([0.01, 0, 0, 0, 0.01, 0])) @ T
     for klt in (False, True):
         kw = {"klt_X_model": X[::4], "klt_uv": uvX[::4]} if klt else {}
-        solve_pose(T0, K, X, e, A, B, cand, **kw)
+        solve_pose(T0, K, X, e, A, B, cand, **kw).cov  # noqa: B018 (the cluster-robust covariance's kernels)
     # edge sampling (visibility.visible_samples -> kernels.edge_samples), with and without the LOD rule
     from mst.meshtools.generate import l_shape_model
     from mst.pipeline.tracking.visibility import ModelGeometry, visible_samples

@@ -125,6 +125,22 @@ def eroded_buffer(geom: ModelGeometry, T_cam_model: np.ndarray, K: np.ndarray, w
     return e.buf, e.eroded, scale
 
 
+#: ``numpy.linalg.inv`` of the buffers' intrinsics, by their bytes (issue #14: the LAPACK call was ~40 us
+#: of each render; the same inverse, to the bit, for the same matrix)
+_K_INV: dict[bytes, np.ndarray] = {}
+
+
+def _inverse_K(Ks: np.ndarray) -> np.ndarray:
+    key = Ks.dtype.str.encode() + Ks.tobytes()
+    Kinv = _K_INV.get(key)
+    if Kinv is None:
+        if len(_K_INV) >= 64:  # a few cameras and scales in a process
+            _K_INV.clear()
+        Kinv = _K_INV[key] = np.linalg.inv(Ks)
+        Kinv.flags.writeable = False
+    return Kinv
+
+
 def _render_buffer(geom, T_cam_model, K, width, height, faces, near, scale, Xc_all, _numpy_reference) -> np.ndarray:
     """The rendering of :func:`inverse_depth_buffer` (its docstring), uncached."""
     import cv2
@@ -137,17 +153,11 @@ def _render_buffer(geom, T_cam_model, K, width, height, faces, near, scale, Xc_a
     Ks[:2] *= scale
     Ks[0, 2] = (K[0, 2] + 0.5) * scale - 0.5
     Ks[1, 2] = (K[1, 2] + 0.5) * scale - 0.5
-    Kinv = np.linalg.inv(Ks)
+    Kinv = _inverse_K(Ks)
     R, t = T_cam_model[:3, :3], T_cam_model[:3, 3]
     sel = np.flatnonzero(faces)
     if not len(sel):
         return buf
-    # plane of each selected face in the camera frame: 1/z = (n_c . Kinv [u v 1]) / d
-    n_c = _mat3(geom.face_normals[sel], R)
-    p_c = _mat3(geom.face_point[sel], R, t)
-    d = np.einsum("ij,ij->i", n_c, p_c)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        coef_sel = _mat3(n_c, Kinv.T) / d[:, None]
     # per-model scratch (the rasteriser reads the rows of the faces it draws and the entries of their
     # vertices only, all written below): no (F, 3) and 2 x (V,) allocations per call
     scratch = geom.__dict__.get("_zbuffer_scratch")
@@ -155,7 +165,18 @@ def _render_buffer(geom, T_cam_model, K, width, height, faces, near, scale, Xc_a
         scratch = (np.zeros((len(geom.faces), 3)), np.zeros(len(geom.vertices)), np.zeros(len(geom.vertices)))
         geom.__dict__["_zbuffer_scratch"] = scratch
     coef, uu, vv = scratch
-    coef[sel] = coef_sel
+    # plane of each selected face in the camera frame: 1/z = (n_c . Kinv [u v 1]) / d
+    if _numpy_reference:
+        n_c = _mat3(geom.face_normals[sel], R)
+        p_c = _mat3(geom.face_point[sel], R, t)
+        d = np.einsum("ij,ij->i", n_c, p_c)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            coef[sel] = _mat3(n_c, Kinv.T) / d[:, None]
+    else:  # the same operations in their order, in one kernel
+        from mst.pipeline.tracking.kernels import zbuffer_planes
+
+        d = zbuffer_planes(geom.face_normals, geom.face_point, sel.astype(np.int64), np.ascontiguousarray(R, np.float64),
+                           np.ascontiguousarray(t, np.float64), Kinv, coef)
     if _numpy_reference:  # the numpy formulation (the reference of the kernel's test)
         # depth range of each face's outer loop
         Xc = geom.to_camera(T_cam_model, sel) if Xc_all is None else Xc_all

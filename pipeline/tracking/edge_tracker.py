@@ -168,26 +168,20 @@ class EdgeTracker:
             m = self.sample_provider.filter_matches(img, K, S, m, ref_img, ref_T)
         cand = m.candidates_uv(S.uv)
         kx, ku = (None, None) if klt is None else klt
+        # without a given floor: where the floor binds (the fit's own robust scale is below it), a fine
+        # stage from the converged pose, same matches, a tighter floor (solve_pose's fine_mad_px). The
+        # coarse floor must admit the whole inter-frame motion at the start (with the fine one from
+        # the start a translating camera's samples were all rejected and it stood still). Real video
+        # (MAD above the floor) skips it
         res = solve_pose(T, K, S.X_model, S.edge, S.A_model, S.B_model, cand, iters=c.vvs_iters, lm_mu=c.lm_mu,
                          min_mad_px=c.min_mad_px if min_mad_px is None else min_mad_px, tukey_c=c.tukey_c, klt_X_model=kx,
-                         klt_uv=ku, klt_weight=c.klt_weight, klt_info_cap=c.klt_info_cap)
+                         klt_uv=ku, klt_weight=c.klt_weight, klt_info_cap=c.klt_info_cap,
+                         fine_mad_px=c.fine_mad_px if min_mad_px is None else None)
         if res.status is SolveStatus.TOO_FEW:
             n_m = int(np.isfinite(cand[..., 0]).any(axis=1).sum())
             self._fail = (f"pose solver failed: only {n_m} of {len(S)} edge samples found a moving edge within "
                           f"{int(search_range)} px (need 6; no image edge near the projected model)")
             return None, S, m, None
-        if (min_mad_px is None and c.fine_mad_px < c.min_mad_px and res.sigma_px <= c.min_mad_px
-                and np.isfinite(res.T_cam_model).all()):
-            # the floor binds (the fit's own robust scale is below it): a fine stage from the
-            # converged pose, same matches, a tighter floor. The coarse floor must admit the whole
-            # inter-frame motion at the start (with the fine one from the start a translating
-            # camera's samples were all rejected and it stood still). Real video (MAD above the
-            # floor) skips it
-            fine = solve_pose(res.T_cam_model, K, S.X_model, S.edge, S.A_model, S.B_model, cand, iters=c.vvs_iters,
-                              lm_mu=c.lm_mu, min_mad_px=c.fine_mad_px, tukey_c=c.tukey_c, klt_X_model=kx,
-                              klt_uv=ku, klt_weight=c.klt_weight, klt_info_cap=c.klt_info_cap)
-            if fine.has_pose:
-                res = fine
         if not res.has_pose:
             self._fail = "pose solver failed: the optimisation diverged (non-finite pose)"
             return None, S, m, None

@@ -16,9 +16,12 @@
   rounding and the same on every CPU.
 * :func:`sobel_at`: the Sobel gradient at sample positions; :func:`pose_health` and
   :func:`pose_gradients`: the health tests and the evidence gradients of a solved pose.
-* :func:`edge_samples`, :func:`face_angles`, :func:`zbuffer_faces`: the visibility
-  pass (clipping and sampling of the candidate edges, the face angle test, the depth buffer's
-  per-vertex set-up), the numpy formulations' values to the bit (face angles: to an ulp).
+* :func:`edge_samples`, :func:`face_angles`, :func:`zbuffer_planes`, :func:`zbuffer_faces`,
+  :func:`samples_unhidden`: the visibility pass (clipping and sampling of the candidate edges, the
+  face angle test, the depth buffer's plane and per-vertex set-up, the hidden-line test at the
+  samples), the numpy formulations' values to the bit (face angles: to an ulp).
+* :func:`canonical_normals_kernel`, :func:`vvs_inputs`: the per-call set-up of the moving-edge
+  search (normal flips, mask indices) and of the VVS (samples with a candidate), numpy's bits.
 
 No fastmath (reproducible bit for bit on every CPU), single-threaded (the tracker's one-core budget).
 Units: pixels, metres; ``R``, ``t`` the rotation and translation of ``T_cam_model``.
@@ -38,15 +41,22 @@ F32 = np.float32
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def me_convolve(img, uv, normal, ks, moff, masks, mask_idx, conv, k_eff):
+def me_convolve(img, uv, normal, ks, moff, masks, mask_idx, conv, k_eff, skip_zero):
     """The oriented-mask convolutions ``conv[i, m]`` (float32) at ``uv[i] + ks[m] * normal[i]`` (nearest
     pixel, clipped so that the mask ``masks[mask_idx[i]]`` (offsets ``moff``) stays inside the image),
     and ``k_eff[i, m]`` the signed distance (px) along the normal of the pixel actually read (see
     :func:`~mst.pipeline.tracking.moving_edges.convolve_along`). Each convolution is summed in
     float64 (every product of an 8-bit or float32 gray level and a float32 weight is exact there;
-    four interleaved partial sums in the mask's pixel order) and rounded once to float32: within
-    one float32 rounding of the exact value, and the same on every CPU (numpy's float32 matrix
-    product of the gathered pixels went through BLAS, whose summation order depends on the CPU)."""
+    four partial sums, the mask's pixel ``s`` going to sum ``s % 4`` in the mask's pixel order) and
+    rounded once to float32: within one float32 rounding of the exact value, and the same on every
+    CPU (numpy's float32 matrix product of the gathered pixels went through BLAS, whose summation
+    order depends on the CPU).
+
+    Work skipped, to the same bits: ``skip_zero`` (8-bit images: every pixel finite) leaves out
+    the mask's zero weights (the disc's corners, the pixels on the edge line; a partial sum that
+    starts at +0.0 is unchanged by adding +-0.0), and a position whose rounded pixel is the previous
+    position's (a slanted normal reads pixels twice) copies that convolution (issue #14: 0.21 ->
+    0.13 ms per call on the L-building orbit's ~430 samples)."""
     H, W = img.shape
     S = moff.shape[0]
     r = 0
@@ -57,31 +67,51 @@ def me_convolve(img, uv, normal, ks, moff, masks, mask_idx, conv, k_eff):
     for s in range(S):
         fo[s] = moff[s, 1] * W + moff[s, 0]
     flat = img.ravel()
-    wrow = np.empty(S)
+    # the taps of the current mask per partial sum (lane s % 4), in the mask's pixel order
+    tf = np.empty((4, S), np.int64)
+    tw = np.empty((4, S))
+    nt = np.zeros(4, np.int64)
+    last_mk = -1
     for i in range(uv.shape[0]):
         u, v = uv[i, 0], uv[i, 1]
         nx, ny = normal[i, 0], normal[i, 1]
         mk = mask_idx[i]
-        for s in range(S):
-            wrow[s] = np.float64(masks[mk, s])
+        if mk != last_mk:  # the samples of one edge share their mask
+            last_mk = mk
+            for lane in range(4):
+                nt[lane] = 0
+            for s in range(S):
+                wv = np.float64(masks[mk, s])
+                if skip_zero and wv == 0.0:
+                    continue
+                lane = s & 3
+                tf[lane, nt[lane]] = fo[s]
+                tw[lane, nt[lane]] = wv
+                nt[lane] += 1
+        b_prev = -1
         for m in range(ks.shape[0]):
             k = ks[m]
             ix = min(max(np.rint(u + k * nx), r), hi_x)
             iy = min(max(np.rint(v + k * ny), r), hi_y)
             b = int(iy) * W + int(ix)
-            a0, a1, a2, a3 = 0.0, 0.0, 0.0, 0.0
-            s = 0
-            while s + 4 <= S:  # independent partial sums: the adds are not one latency-bound chain
-                a0 += np.float64(flat[b + fo[s]]) * wrow[s]
-                a1 += np.float64(flat[b + fo[s + 1]]) * wrow[s + 1]
-                a2 += np.float64(flat[b + fo[s + 2]]) * wrow[s + 2]
-                a3 += np.float64(flat[b + fo[s + 3]]) * wrow[s + 3]
-                s += 4
-            while s < S:
-                a0 += np.float64(flat[b + fo[s]]) * wrow[s]
-                s += 1
-            conv[i, m] = F32((a0 + a1) + (a2 + a3))
             k_eff[i, m] = (ix - u) * nx + (iy - v) * ny
+            if b == b_prev:  # the same pixel as the previous position: the same convolution
+                conv[i, m] = conv[i, m - 1]
+                continue
+            b_prev = b
+            a0 = 0.0
+            for j in range(nt[0]):
+                a0 += np.float64(flat[b + tf[0, j]]) * tw[0, j]
+            a1 = 0.0
+            for j in range(nt[1]):
+                a1 += np.float64(flat[b + tf[1, j]]) * tw[1, j]
+            a2 = 0.0
+            for j in range(nt[2]):
+                a2 += np.float64(flat[b + tf[2, j]]) * tw[2, j]
+            a3 = 0.0
+            for j in range(nt[3]):
+                a3 += np.float64(flat[b + tf[3, j]]) * tw[3, j]
+            conv[i, m] = F32((a0 + a1) + (a2 + a3))
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -1060,3 +1090,112 @@ def surface_values(img, X, face, face_visible, T, fx, fy, cx, cy, near, buf, sc,
         val[k] = np.float64(s / F32(9.0))
         k += 1
     return idx[:k], val[:k]
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def samples_unhidden(buf, uv, iz, sc):
+    """The hidden-line test of :func:`~mst.pipeline.tracking.visibility.visible_samples` at the samples
+    ``uv (N, 2)`` px (inverse depths ``iz (N,)`` 1/m): (N,) bool, True where the sample is not behind the
+    farthest surface of its buffer pixel's 3x3 neighbourhood (``buf (h, w)`` float32 inverse depths at
+    ``sc`` x the image's pixels; the neighbours inside the buffer, as ``cv2.erode``'s default border).
+    The erosion read at the N samples instead of computed over the whole buffer (issue #14: a
+    320x240 ``cv2.erode`` was ~0.2 ms a frame); float32 margin arithmetic as numpy's ``far_nb * (1.0 -
+    2e-3) - 1e-9`` on the float32 erosion: the same bits."""
+    bh, bw = buf.shape
+    f = F32(1.0 - 2e-3)
+    eps = F32(1e-9)
+    out = np.empty(uv.shape[0], np.bool_)
+    for i in range(uv.shape[0]):
+        ix = min(max(np.int64(np.rint((uv[i, 0] + 0.5) * sc - 0.5)), 0), bw - 1)
+        iy = min(max(np.int64(np.rint((uv[i, 1] + 0.5) * sc - 0.5)), 0), bh - 1)
+        m = buf[iy, ix]
+        for y in range(max(iy - 1, 0), min(iy + 2, bh)):
+            for x in range(max(ix - 1, 0), min(ix + 2, bw)):
+                m = min(m, buf[y, x])
+        out[i] = iz[i] >= np.float64(m * f - eps)
+    return out
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def canonical_normals_kernel(normal, ang, n_masks, n_out, idx):
+    """The flips and mask indices of :func:`~mst.pipeline.tracking.moving_edges.canonical_normals` from
+    ``ang (N,)`` (degrees of each normal, numpy's ``degrees(arctan2)``: the transcendental stays numpy's)
+    into ``n_out (N, 2)`` and ``idx (N,)``, numpy's elementwise operations in its order (issue #14: ~10
+    numpy calls, ~60 us a call). Returns False (outputs incomplete) at a non-finite angle, whose integer
+    cast numpy defines by the CPU: the caller takes numpy's formulation then."""
+    step = 180.0 / n_masks
+    for i in range(normal.shape[0]):
+        a = ang[i]
+        if not np.isfinite(a):
+            return False
+        if a < 0 or a >= 180:
+            n_out[i, 0] = -normal[i, 0]
+            n_out[i, 1] = -normal[i, 1]
+            a = a + 180.0
+        else:
+            n_out[i, 0] = normal[i, 0]
+            n_out[i, 1] = normal[i, 1]
+        a = a % 180.0
+        idx[i] = np.int64(np.rint(a / step)) % n_masks
+    return True
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def vvs_inputs(X_model, edge, cand_uv):
+    """The inputs of :func:`vvs_solve` from a solve's samples (issue #14: six numpy calls, ~50 us a
+    solve): ``has (N,)`` the samples with a candidate (a finite u), and of those the model points
+    ``X (n, 3)``, edge ids ``e (n,)`` and candidates ``cu, cv (n, C)`` px with each non-finite
+    coordinate replaced by 1e9 (never the nearest candidate)."""
+    N, C = cand_uv.shape[0], cand_uv.shape[1]
+    has = np.zeros(N, np.bool_)
+    n = 0
+    for i in range(N):
+        for c in range(C):
+            if np.isfinite(cand_uv[i, c, 0]):
+                has[i] = True
+                n += 1
+                break
+    X = np.empty((n, 3))
+    e = np.empty(n, np.int64)
+    cu = np.empty((n, C))
+    cv = np.empty((n, C))
+    k = 0
+    for i in range(N):
+        if not has[i]:
+            continue
+        for j in range(3):
+            X[k, j] = X_model[i, j]
+        e[k] = edge[i]
+        for c in range(C):
+            u, v = cand_uv[i, c, 0], cand_uv[i, c, 1]
+            cu[k, c] = u if np.isfinite(u) else 1e9
+            cv[k, c] = v if np.isfinite(v) else 1e9
+        k += 1
+    return has, X, e, cu, cv
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def zbuffer_planes(face_normals, face_point, sel, R, t, Kinv, coef):
+    """The plane set-up of :func:`mst.pipeline.tracking.depth_buffer.inverse_depth_buffer` for the
+    faces ``sel`` (K,): each face's normal and point in the camera frame (``_mat3``'s products and
+    sums in its order), ``d = n_c . p_c`` (the 3 products summed as ``numpy.einsum`` sums them on x86-64,
+    ``(p0 + p2) + p1``, fixed here on every CPU) and ``coef[f] = (n_c Kinv) / d`` (``1/z`` affine in the
+    buffer's pixels) written into the rows ``sel`` of ``coef (F, 3)``; returns ``d (K,)`` (issue #14:
+    five numpy calls of each render)."""
+    k = sel.shape[0]
+    d = np.empty(k)
+    for j in range(k):
+        f = sel[j]
+        n0, n1, n2 = face_normals[f, 0], face_normals[f, 1], face_normals[f, 2]
+        q0, q1, q2 = face_point[f, 0], face_point[f, 1], face_point[f, 2]
+        c0 = (n0 * R[0, 0] + n1 * R[0, 1]) + n2 * R[0, 2]
+        c1 = (n0 * R[1, 0] + n1 * R[1, 1]) + n2 * R[1, 2]
+        c2 = (n0 * R[2, 0] + n1 * R[2, 1]) + n2 * R[2, 2]
+        p0 = ((q0 * R[0, 0] + q1 * R[0, 1]) + q2 * R[0, 2]) + t[0]
+        p1 = ((q0 * R[1, 0] + q1 * R[1, 1]) + q2 * R[1, 2]) + t[1]
+        p2 = ((q0 * R[2, 0] + q1 * R[2, 1]) + q2 * R[2, 2]) + t[2]
+        dj = (c0 * p0 + c2 * p2) + c1 * p1  # numpy's einsum order for 3 terms (its 2-wide pairs 0+2, then 1)
+        d[j] = dj
+        for m in range(3):
+            coef[f, m] = ((c0 * Kinv[0, m] + c1 * Kinv[1, m]) + c2 * Kinv[2, m]) / dj
+    return d

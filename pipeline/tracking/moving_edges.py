@@ -52,8 +52,25 @@ def canonical_normals(normal: np.ndarray, n_masks: int) -> tuple[np.ndarray, np.
     """Flip normals into the half-plane of the masks (angle in [0, 180)) and pick each mask index.
 
     Returns ``(normal (N,2), mask_index (N,))``; the flip keeps search direction and mask polarity
-    consistent.
+    consistent. The angle by numpy (its ``arctan2``), the rest in one kernel
+    (:func:`mst.pipeline.tracking.kernels.canonical_normals_kernel`; :func:`canonical_normals_numpy`
+    the same bits) for float64 normals.
     """
+    normal = np.asarray(normal)
+    if normal.dtype != np.float64 or normal.ndim != 2 or normal.shape[1] != 2:
+        return canonical_normals_numpy(normal, n_masks)
+    from mst.pipeline.tracking.kernels import canonical_normals_kernel
+
+    ang = np.degrees(np.arctan2(normal[:, 1], normal[:, 0]))
+    n = np.empty((len(normal), 2))
+    idx = np.empty(len(normal), np.int64)
+    if not canonical_normals_kernel(np.ascontiguousarray(normal), ang, int(n_masks), n, idx):
+        return canonical_normals_numpy(normal, n_masks)
+    return n, idx
+
+
+def canonical_normals_numpy(normal: np.ndarray, n_masks: int) -> tuple[np.ndarray, np.ndarray]:
+    """The numpy formulation of :func:`canonical_normals` (the reference of its kernel's test)."""
     ang = np.degrees(np.arctan2(normal[:, 1], normal[:, 0]))
     flip = (ang < 0) | (ang >= 180)
     n = np.where(flip[:, None], -normal, normal)
@@ -117,8 +134,9 @@ def _convolve(img: np.ndarray, uv: np.ndarray, normal: np.ndarray, ks: np.ndarra
     N, M = len(uv), len(ks)
     conv = np.empty((N, M), np.float32)
     k_eff = np.empty((N, M))
-    me_convolve(_image(img), np.ascontiguousarray(uv, np.float64), np.ascontiguousarray(normal, np.float64), ks, moff,
-                masks, np.ascontiguousarray(mask_idx, np.int64), conv, k_eff)
+    im = _image(img)
+    me_convolve(im, np.ascontiguousarray(uv, np.float64), np.ascontiguousarray(normal, np.float64), ks, moff,
+                masks, np.ascontiguousarray(mask_idx, np.int64), conv, k_eff, im.dtype == np.uint8)
     return conv, k_eff
 
 

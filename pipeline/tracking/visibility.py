@@ -406,15 +406,14 @@ def visible_samples(geom: ModelGeometry, T_cam_model: np.ndarray, K: np.ndarray,
         masks: dict = {}
         if indexed:  # the grid's candidates (reused between close poses), then the exact test
             in_view = view_faces(geom, T_cam_model, K, width, height, near, far)
-        else:
-            in_view = frustum_faces(geom, T_cam_model, K, width, height, near, far, masks)
+        else:  # the culling counts only to explain a failure (below)
+            in_view = frustum_faces(geom, T_cam_model, K, width, height, near, far)
         fv = face_visibility(geom, T_cam_model, prev_faces, appear_deg, disappear_deg, among=in_view)
         if not indexed and in_view.all():  # nothing culled (a small object in view): fv is the all-faces test
             fv_all = fv
-            culled = {k: 0 for k in masks}
+            culled = {k: 0 for k in ("behind", "beyond_far", "outside")}
         elif fv.sum() < 6:  # a failure to explain: which front-facing faces were culled, and why
-            if indexed:
-                frustum_faces(geom, T_cam_model, K, width, height, near, far, masks)
+            frustum_faces(geom, T_cam_model, K, width, height, near, far, masks)
             fv_all = face_visibility(geom, T_cam_model, prev_faces, appear_deg, disappear_deg)
             culled = {k: int((m & fv_all).sum()) for k, m in masks.items()}
         else:
@@ -462,10 +461,17 @@ def visible_samples(geom: ModelGeometry, T_cam_model: np.ndarray, K: np.ndarray,
     if hidden_lines and not geom.convex and len(uv):
         # the buffer and the farthest surface in each 3x3 neighbourhood (reused when the same pose and
         # faces were rendered before: the previous frame's evidence at the pose this frame starts from)
-        buf, far_nb, sc = eroded_buffer(geom, T_cam_model, K, width, height, fv, near, zbuffer_scale)
-        ix = np.clip(np.round((uv[:, 0] + 0.5) * sc - 0.5).astype(np.int64), 0, buf.shape[1] - 1)
-        iy = np.clip(np.round((uv[:, 1] + 0.5) * sc - 0.5).astype(np.int64), 0, buf.shape[0] - 1)
-        vis = iz >= far_nb[iy, ix] * (1.0 - 2e-3) - 1e-9
+        if _numpy_reference:
+            buf, far_nb, sc = eroded_buffer(geom, T_cam_model, K, width, height, fv, near, zbuffer_scale)
+            ix = np.clip(np.round((uv[:, 0] + 0.5) * sc - 0.5).astype(np.int64), 0, buf.shape[1] - 1)
+            iy = np.clip(np.round((uv[:, 1] + 0.5) * sc - 0.5).astype(np.int64), 0, buf.shape[0] - 1)
+            vis = iz >= far_nb[iy, ix] * (1.0 - 2e-3) - 1e-9
+        else:  # the same test, the erosion read at the samples only (kernels.samples_unhidden)
+            from mst.pipeline.tracking.kernels import samples_unhidden
+
+            buf, sc = inverse_depth_buffer(geom, T_cam_model, K, width, height, fv, near, zbuffer_scale)
+            vis = samples_unhidden(buf, np.ascontiguousarray(uv, np.float64), np.ascontiguousarray(iz, np.float64),
+                                   float(sc))
         stats["hidden"] = int((~vis).sum())
         uv, nrm, Xc, edge_id = uv[vis], nrm[vis], Xc[vis], edge_id[vis]
     stats["visible"] = int(len(uv))  # before the cap: how much of the model the view holds

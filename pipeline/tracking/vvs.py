@@ -235,8 +235,15 @@ def solve_pose(T0: np.ndarray, K: np.ndarray, X_model: np.ndarray, edge: np.ndar
                B_model: np.ndarray, cand_uv: np.ndarray, *, iters: int = 30, lm_mu: float = 0.01,
                min_mad_px: float = 1.0, tukey_c: float = TUKEY_C, klt_X_model: np.ndarray | None = None,
                klt_uv: np.ndarray | None = None, klt_weight: float = 1.0, stop_px: float = 0.1,
-               edge_spread_weight: bool = True, klt_info_cap: float | None = None) -> VVSResult:
+               edge_spread_weight: bool = True, klt_info_cap: float | None = None,
+               fine_mad_px: float | None = None) -> VVSResult:
     """Robust VVS from ``T0``. ``cand_uv`` (N, C, 2) candidate pixels per sample (NaN = none).
+
+    ``fine_mad_px`` (below ``min_mad_px``): a fine stage where the floor binds (the solve's robust
+    scale at or below ``min_mad_px``, a finite pose): a second solve from the converged pose with the
+    same matches and the floor ``fine_mad_px``, whose result is returned when it has a pose (else the
+    first solve's). The same results as two calls (the tracker's edge pass made them), with the
+    inputs prepared once and the first solve's result built only when it is returned (issue #14).
 
     Each iteration: residuals at the current pose, candidate choice, Tukey weights, a damped
     Gauss-Newton step; a step that raises the weighted cost (evaluated at the next iteration
@@ -249,15 +256,12 @@ def solve_pose(T0: np.ndarray, K: np.ndarray, X_model: np.ndarray, edge: np.ndar
     and product in a fixed order without BLAS: the pose of :func:`solve_pose_numpy` within rounding
     (~1e-15 relative; tests/test_tracking_kernels.py), and the same on every CPU and BLAS kernel.
     """
-    from mst.pipeline.tracking.kernels import vvs_solve
+    from mst.pipeline.tracking.kernels import vvs_inputs, vvs_solve
 
     fx, fy, cx, cy = float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2])
-    has = np.isfinite(cand_uv[..., 0]).any(axis=1)
-    X = np.ascontiguousarray(X_model[has], np.float64)
-    e = np.ascontiguousarray(edge[has], np.int64)
-    cand = cand_uv[has]
-    cand = np.where(np.isfinite(cand), cand, 1e9)
-    cu, cv = np.ascontiguousarray(cand[..., 0]), np.ascontiguousarray(cand[..., 1])
+    # the samples with a candidate and their candidates, non-finite coordinates at 1e9 (one kernel)
+    has, X, e, cu, cv = vvs_inputs(np.ascontiguousarray(X_model, np.float64), np.ascontiguousarray(edge, np.int64),
+                                   np.ascontiguousarray(cand_uv, np.float64))
     nk = 0 if klt_X_model is None else len(klt_X_model)
     if len(X) + 2 * nk < 6:
         return _no_pose(T0, len(X_model), SolveStatus.TOO_FEW, min_mad_px)
@@ -265,16 +269,32 @@ def solve_pose(T0: np.ndarray, K: np.ndarray, X_model: np.ndarray, edge: np.ndar
     n = len(X)
     Xk = np.ascontiguousarray(klt_X_model, np.float64) if nk else np.zeros((0, 3))
     uk = np.ascontiguousarray(klt_uv, np.float64) if nk else np.zeros((0, 2))
-    T, H = np.empty((4, 4)), np.empty((6, 6))
-    w, r, w_tukey, wk = np.empty(n), np.empty(n), np.empty(n), np.empty(2 * nk)
-    it, sigma, status = vvs_solve(X, e, AB, len(A_model), cu, cv, Xk, uk, np.ascontiguousarray(T0, np.float64),
-                                  fx, fy, cx, cy, int(iters), float(lm_mu), float(min_mad_px), float(tukey_c),
-                                  float(klt_weight), float(stop_px), STOP_MU, bool(edge_spread_weight), SPREAD_K,
-                                  T, H, w, r, w_tukey, wk, float(klt_info_cap or 0.0))
-    if status == 1:  # the damped retry of an accepted step could not be solved
-        return _no_pose(T0, len(X_model), SolveStatus.DIVERGED, min_mad_px)
-    jk = (T, K, X, e, A_model, B_model, w, r, Xk if nk else None, uk if nk else None, wk, klt_info_cap)
-    return _vvs_result(T, H, w, r, w_tukey, wk, nk, klt_weight, has, len(X_model), float(sigma), int(it), jk)
+
+    def run(T_start, mad):
+        T, H = np.empty((4, 4)), np.empty((6, 6))
+        w, r, w_tukey, wk = np.empty(n), np.empty(n), np.empty(n), np.empty(2 * nk)
+        it, sigma, status = vvs_solve(X, e, AB, len(A_model), cu, cv, Xk, uk, np.ascontiguousarray(T_start, np.float64),
+                                      fx, fy, cx, cy, int(iters), float(lm_mu), float(mad), float(tukey_c),
+                                      float(klt_weight), float(stop_px), STOP_MU, bool(edge_spread_weight), SPREAD_K,
+                                      T, H, w, r, w_tukey, wk, float(klt_info_cap or 0.0))
+        return T, H, w, r, w_tukey, wk, int(it), float(sigma), int(status)
+
+    def result(raw, T_start, mad):
+        T, H, w, r, w_tukey, wk, it, sigma, status = raw
+        if status == 1:  # the damped retry of an accepted step could not be solved
+            return _no_pose(T_start, len(X_model), SolveStatus.DIVERGED, mad)
+        jk = (T, K, X, e, A_model, B_model, w, r, Xk if nk else None, uk if nk else None, wk, klt_info_cap)
+        return _vvs_result(T, H, w, r, w_tukey, wk, nk, klt_weight, has, len(X_model), sigma, it, jk)
+
+    raw = run(T0, min_mad_px)
+    if fine_mad_px is not None and fine_mad_px < min_mad_px:
+        T1, sigma1 = (T0, min_mad_px) if raw[8] == 1 else (raw[0], raw[7])  # the first solve's pose and scale
+        if sigma1 <= min_mad_px and np.isfinite(T1).all():
+            fine = run(T1, fine_mad_px)
+            # a pose (status OK or DEGENERATE): the kernel solved every step, finite pose and information
+            if fine[8] != 1 and np.isfinite(fine[0]).all() and np.isfinite(fine[1]).all():
+                return result(fine, T1, fine_mad_px)
+    return result(raw, T0, min_mad_px)
 
 
 def solve_pose_numpy(T0: np.ndarray, K: np.ndarray, X_model: np.ndarray, edge: np.ndarray, A_model: np.ndarray,
