@@ -265,9 +265,9 @@ def test_depth_buffer_setup_kernel_is_identical_to_numpy():
 
 
 def test_depth_buffer_plane_kernel_is_identical_to_numpy():
-    # exact: the plane coefficients (float64, before the float32 buffer rounds them) of every face of
-    # a city under random poses, against _mat3 / einsum's (einsum sums the 3 products as (0 + 2) + 1
-    # on x86-64, the order the kernel fixes; its explicit form is checked too)
+    # the plane coefficients (float64, before the float32 buffer rounds them) of every face of a city
+    # under random poses: d exactly in the kernel's fixed order ((0 + 2) + 1, einsum's on the x86-64
+    # machines measured), and against _mat3 / einsum's within rounding
     from mst.meshtools.generate import city_block_model
     from mst.pipeline.tracking.depth_buffer import _mat3
     from mst.pipeline.tracking.kernels import zbuffer_planes
@@ -288,8 +288,13 @@ def test_depth_buffer_plane_kernel_is_identical_to_numpy():
         coef = np.zeros((len(g.faces), 3))
         d_k = zbuffer_planes(g.face_normals, g.face_point, sel, R.copy(), t.copy(), Kinv, coef)
         q = n_c * p_c
-        assert d_k.tobytes() == ((q[:, 0] + q[:, 2]) + q[:, 1]).tobytes()
-        assert d_k.tobytes() == d.tobytes() and coef.tobytes() == coef_np.tobytes()
+        assert d_k.tobytes() == ((q[:, 0] + q[:, 2]) + q[:, 1]).tobytes()  # the kernel's fixed order, exact
+        # numpy's einsum picks its summation by CPU (SIMD width): the same values within rounding
+        # everywhere (bit-equal where it sums (0 + 2) + 1, as on the machines measured), so that this
+        # test does not fail on another CPU while the kernel gives the same bits on all of them
+        np.testing.assert_allclose(d_k, d, rtol=1e-13, atol=1e-12 * np.abs(d).max())
+        fin = np.isfinite(coef_np[sel]).all(axis=1) & (np.abs(d) > 1e-9 * np.abs(d).max())
+        np.testing.assert_allclose(coef[sel][fin], coef_np[sel][fin], rtol=1e-9)
 
 
 def _health_numpy(img, X, A, B, edge, T, near, thr):
