@@ -578,6 +578,7 @@ def vvs_solve(X, e, AB, nE, cu, cv, Xk, uk, T0, fx, fy, cx, cy, iters, lm_mu, mi
             xy_max = max(xy_max, abs(Xc[i, 0] / zz), abs(Xc[i, 1] / zz))
         iz_max = 1.0 / max(zmin, 1e-9)
     mu = lm_mu
+    raised = False  # a step was undone: the damping rose at a minimum, small steps are convergence
     sigma = min_mad
     it = 0
     completed = True
@@ -607,6 +608,7 @@ def vvs_solve(X, e, AB, nE, cu, cv, Xk, uk, T0, fx, fy, cx, cy, iters, lm_mu, mi
             if cost_new > pcost * (1 + 1e-9) and mu < 1e8:
                 # undo: retry from the previous linearisation with more damping
                 mu *= 10.0
+                raised = True
                 for i in range(6):
                     for j in range(6):
                         A[i, j] = pH[i, j]
@@ -681,7 +683,7 @@ def vvs_solve(X, e, AB, nE, cu, cv, Xk, uk, T0, fx, fy, cx, cy, iters, lm_mu, mi
         step_px = fmax * (a0 * iz_max + a1 * (1.0 + xy_max))
         _se3_exp_left(xi, T, Tn)
         T[:, :] = Tn
-        if step_px < stop_px and mu <= stop_mu:
+        if step_px < stop_px and (mu <= stop_mu or raised):
             completed = False
             break
     if completed and have_prev:
