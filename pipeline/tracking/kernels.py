@@ -40,6 +40,15 @@ from numba import njit
 F32 = np.float32
 
 
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")  # called from me_convolve only
+def _lane_sum(flat, b, tf, tw, nt, lane):
+    """One of :func:`me_convolve`'s 4 partial sums at the flat pixel ``b``: the taps of ``lane`` in order."""
+    a = 0.0
+    for j in range(nt[lane]):
+        a += np.float64(flat[b + tf[lane, j]]) * tw[lane, j]
+    return a
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
 def me_convolve(img, uv, normal, ks, moff, masks, mask_idx, conv, k_eff, skip_zero):
     """The oriented-mask convolutions ``conv[i, m]`` (float32) at ``uv[i] + ks[m] * normal[i]`` (nearest
@@ -99,19 +108,8 @@ def me_convolve(img, uv, normal, ks, moff, masks, mask_idx, conv, k_eff, skip_ze
                 conv[i, m] = conv[i, m - 1]
                 continue
             b_prev = b
-            a0 = 0.0
-            for j in range(nt[0]):
-                a0 += np.float64(flat[b + tf[0, j]]) * tw[0, j]
-            a1 = 0.0
-            for j in range(nt[1]):
-                a1 += np.float64(flat[b + tf[1, j]]) * tw[1, j]
-            a2 = 0.0
-            for j in range(nt[2]):
-                a2 += np.float64(flat[b + tf[2, j]]) * tw[2, j]
-            a3 = 0.0
-            for j in range(nt[3]):
-                a3 += np.float64(flat[b + tf[3, j]]) * tw[3, j]
-            conv[i, m] = F32((a0 + a1) + (a2 + a3))
+            conv[i, m] = F32((_lane_sum(flat, b, tf, tw, nt, 0) + _lane_sum(flat, b, tf, tw, nt, 1))
+                             + (_lane_sum(flat, b, tf, tw, nt, 2) + _lane_sum(flat, b, tf, tw, nt, 3)))
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
