@@ -435,3 +435,45 @@ def test_surface_values_kernel_is_identical_to_numpy(convex):
         assert a_v.dtype == b_v.dtype and np.array_equal(a_v, b_v)
         n += len(a_i)
     assert n > 200
+
+
+def test_face_area_kernel_is_identical_to_numpy():
+    """The LOD rule's projected face areas (kernels.face_areas_px2) equal the numpy formulation to the
+    bit: loops of 4-6 vertices (numpy's sequential sum), of 12 and 64 (its 8 partial sums) and of 300
+    (its halving), faces crossing the near plane (inf), some faces only."""
+    from mst.meshtools.generate import city_block_model, cylinder_model, l_shape_model
+    from mst.pipeline.tracking.visibility import ModelGeometry, projected_face_area_px2
+
+    K = np.array([[600.0, 0, 319.5], [0, 600.0, 239.5], [0, 0, 1]])
+    rng = np.random.default_rng(5)
+    models = (l_shape_model(), city_block_model(buildings=40), cylinder_model(sections=12),
+              cylinder_model(sections=64), cylinder_model(sections=300))
+    n_inf = 0
+    for m in models:
+        g = ModelGeometry.from_model(m)
+        c = g.vertices.mean(0)
+        for _ in range(6):
+            eye = c + rng.normal(size=3) * g.scale_m * rng.uniform(0.3, 3.0)
+            T = inv_T(look_at(eye, c + rng.normal(size=3) * 0.2 * g.scale_m))
+            near = float(rng.uniform(0.01, 0.5) * g.scale_m)
+            faces = rng.random(len(g.faces)) < 0.7
+            for sel in (None, faces):
+                a = projected_face_area_px2(g, T, K, near, faces=sel)
+                b = projected_face_area_px2(g, T, K, near, faces=sel, _numpy_reference=True)
+                assert np.array_equal(a, b)
+                n_inf += int(np.isinf(a).sum())
+    assert n_inf > 0  # the near-plane case was exercised
+
+
+def test_mat3_kernel_is_identical_to_numpy():
+    """_mat3's kernel (X @ M.T + t without temporaries) gives numpy's formulation's bits, for a
+    transposed (non-contiguous) M, with and without t, and for no points."""
+    from mst.pipeline.tracking.depth_buffer import _mat3, _mat3_numpy
+
+    rng = np.random.default_rng(9)
+    R = cv2.Rodrigues(rng.normal(size=3))[0]
+    t = rng.normal(size=3) * 100
+    for n in (0, 1, 7, 1000):
+        X = rng.normal(size=(n, 3)) * 10 ** rng.uniform(-3, 5, size=(n, 1))
+        for M, tt in ((R, t), (R.T, None), (R.T, t)):
+            assert np.array_equal(_mat3(X, M, tt), _mat3_numpy(X, M, tt))

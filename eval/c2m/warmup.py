@@ -95,8 +95,9 @@ def warm_tracking() -> None:
     geom = ModelGeometry.from_model(l_shape_model())
     Tl = np.eye(4)
     Tl[:3, 3] = -geom.vertices.mean(0) + [0.0, 0.0, 4.0 * geom.scale_m]
-    for lod in (0.0, 12.0):  # also the face angles and the depth buffer's set-up (a non-convex model)
-        S = visible_samples(geom, Tl, K, 80, 60, 4.0, 0.01, None, 80.0, 85.0, lod_min_line_px=lod)
+    for lod in (0.0, 12.0):  # also the face angles, the face areas and the depth buffer's set-up (non-convex)
+        S = visible_samples(geom, Tl, K, 80, 60, 4.0, 0.01, None, 80.0, 85.0, lod_min_line_px=lod,
+                            lod_min_face_px2=4.0 * lod)
     # the health tests and the evidence gradients (EdgeTracker._absolute_health, evidence)
     from mst.pipeline.tracking.kernels import pose_gradients, pose_health
 

@@ -17,7 +17,23 @@ if TYPE_CHECKING:
 
 def _mat3(X: np.ndarray, M: np.ndarray, t=None) -> np.ndarray:
     """``X @ M.T (+ t)`` for (N,3) points without BLAS: a (N,3)x(3,3) product through OpenBLAS
-    took 63 ms for 92k points on a loaded 2-core machine (thread spinning), this 1-3 ms."""
+    took 63 ms for 92k points on a loaded 2-core machine (thread spinning), this 1-3 ms. float64
+    inputs go through one kernel (:func:`mst.pipeline.tracking.kernels.mat3_kernel`, the same bits
+    as :func:`_mat3_numpy`, without its four temporaries: ~10 us a call on the tracker's few hundred
+    samples), others through numpy."""
+    if X.dtype == np.float64 and M.dtype == np.float64 and X.ndim == 2 and X.shape[1] == 3 and M.shape == (3, 3) \
+            and (t is None or np.asarray(t).dtype == np.float64):
+        from mst.pipeline.tracking.kernels import mat3_kernel
+
+        out = np.empty((len(X), 3))
+        tt = np.zeros(3) if t is None else np.broadcast_to(np.asarray(t, np.float64), (3,))
+        mat3_kernel(X, M, tt, t is not None, out)
+        return out
+    return _mat3_numpy(X, M, t)
+
+
+def _mat3_numpy(X: np.ndarray, M: np.ndarray, t=None) -> np.ndarray:
+    """The numpy formulation of :func:`_mat3` (its kernel's reference)."""
     out = X[:, 0:1] * M[:, 0] + X[:, 1:2] * M[:, 1] + X[:, 2:3] * M[:, 2]
     if t is not None:
         out += t

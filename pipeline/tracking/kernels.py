@@ -1199,3 +1199,115 @@ def zbuffer_planes(face_normals, face_point, sel, R, t, Kinv, coef):
         for m in range(3):
             coef[f, m] = ((c0 * Kinv[0, m] + c1 * Kinv[1, m]) + c2 * Kinv[2, m]) / dj
     return d
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _pairwise_block(a, lo, n):
+    """numpy's ``pairwise_sum`` of ``a[lo:lo + n]`` for ``n <= 128``: sequential from -0.0 below 8
+    terms, else 8 interleaved partial sums combined as a tree, then the rest sequentially."""
+    if n < 8:
+        res = -0.0
+        for i in range(lo, lo + n):
+            res += a[i]
+        return res
+    r0, r1, r2, r3 = a[lo], a[lo + 1], a[lo + 2], a[lo + 3]
+    r4, r5, r6, r7 = a[lo + 4], a[lo + 5], a[lo + 6], a[lo + 7]
+    i = 8
+    while i < n - (n % 8):
+        r0 += a[lo + i]
+        r1 += a[lo + i + 1]
+        r2 += a[lo + i + 2]
+        r3 += a[lo + i + 3]
+        r4 += a[lo + i + 4]
+        r5 += a[lo + i + 5]
+        r6 += a[lo + i + 6]
+        r7 += a[lo + i + 7]
+        i += 8
+    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+    while i < n:
+        res += a[lo + i]
+        i += 1
+    return res
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _pairwise_sum(a, lo, n):
+    """numpy's pairwise summation of ``a[lo:lo + n]`` (the ``pairwise_sum`` of its add loop), to the
+    bit: :func:`_pairwise_block` up to 128 terms, beyond it the sum of the two halves (the first a
+    multiple of 8 terms long), evaluated here with an explicit stack (numba's on-disk cache of a
+    recursive function crashed the next process that loaded it)."""
+    if n <= 128:
+        return _pairwise_block(a, lo, n)
+    s_lo = np.empty(64, np.int64)  # the pending halvings (depth <= log2(n / 128) + 1)
+    s_n = np.empty(64, np.int64)
+    s_st = np.empty(64, np.int64)  # 0: left half not summed, 1: right half not summed, 2: both summed
+    vals = np.empty(64)
+    top, nv = 0, 0
+    s_lo[0], s_n[0], s_st[0] = lo, n, 0
+    while top >= 0:
+        lo_, n_ = s_lo[top], s_n[top]
+        if n_ <= 128:
+            vals[nv] = _pairwise_block(a, lo_, n_)
+            nv += 1
+            top -= 1
+            continue
+        n2 = n_ // 2
+        n2 -= n2 % 8
+        st = s_st[top]
+        if st == 2:
+            vals[nv - 2] = vals[nv - 2] + vals[nv - 1]
+            nv -= 1
+            top -= 1
+            continue
+        s_st[top] = st + 1
+        top += 1
+        if st == 0:
+            s_lo[top], s_n[top] = lo_, n2
+        else:
+            s_lo[top], s_n[top] = lo_ + n2, n_ - n2
+        s_st[top] = 0
+    return vals[0]
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def face_areas_px2(Xc, loop_vid, loop_start, loop_end, sel, fx, fy, near, area):
+    """The projected area (px^2) of each face ``sel[j]``'s outer loop into ``area[sel[j]]``: the
+    shoelace formula on ``u = fx X / z``, ``v = fy Y / z`` of the camera-frame vertices ``Xc`` (V, 3)
+    (``z`` replaced by 1 at or in front of ``near``), ``inf`` for a face with a vertex at or in front
+    of ``near`` (metres; its projection is unbounded). The numpy formulation of
+    :func:`mst.pipeline.tracking.visibility.projected_face_area_px2` to the bit: the same products,
+    and each loop's cross products summed as ``np.add.reduceat`` does (the first term, then numpy's
+    pairwise sum of the rest)."""
+    n_max = 0
+    for j in range(sel.shape[0]):
+        n_max = max(n_max, loop_end[sel[j]] - loop_start[sel[j]])
+    u = np.empty(n_max)
+    v = np.empty(n_max)
+    cr = np.empty(n_max)
+    for j in range(sel.shape[0]):
+        f = sel[j]
+        a0, n = loop_start[f], loop_end[f] - loop_start[f]
+        z_min = np.inf
+        for q in range(n):
+            vi = loop_vid[a0 + q]
+            z = Xc[vi, 2]
+            z_min = min(z_min, z)
+            zs = z if z > near else 1.0
+            u[q] = fx * Xc[vi, 0] / zs
+            v[q] = fy * Xc[vi, 1] / zs
+        for q in range(n):
+            q1 = q + 1 if q + 1 < n else 0  # the last vertex closes the loop
+            cr[q] = u[q] * v[q1] - u[q1] * v[q]
+        s = cr[0] + _pairwise_sum(cr, 1, n - 1) if n > 1 else cr[0]
+        area[f] = np.inf if z_min <= near else 0.5 * abs(s)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def mat3_kernel(X, M, t, add_t, out):
+    """``out = X @ M.T (+ t)`` for (N, 3) points, as :func:`mst.pipeline.tracking.depth_buffer._mat3`'s
+    numpy formulation sums it (``(x0 m0 + x1 m1) + x2 m2``, then ``+ t``): the same bits, no temporaries."""
+    for i in range(X.shape[0]):
+        x0, x1, x2 = X[i, 0], X[i, 1], X[i, 2]
+        for j in range(3):
+            s = (x0 * M[j, 0] + x1 * M[j, 1]) + x2 * M[j, 2]
+            out[i, j] = s + t[j] if add_t else s

@@ -231,13 +231,18 @@ def _face_visibility(geom, T_cam_model, prev, appear_deg, disappear_deg, among, 
     return vis
 
 
-def _face_angles_kernel(geom: ModelGeometry, sel: np.ndarray, c_model: np.ndarray, all_faces: bool) -> np.ndarray:
-    from mst.pipeline.tracking.kernels import face_angles
-
+def _loop_end(geom: ModelGeometry) -> np.ndarray:
+    """(F,) int64 end of each face's outer loop in ``geom.loop_vid`` (computed once per geometry)."""
     loop_end = geom.__dict__.get("_loop_end")
     if loop_end is None:
         loop_end = geom.__dict__["_loop_end"] = np.append(geom.loop_start[1:], len(geom.loop_vid)).astype(np.int64)
-    return face_angles(geom.vertices, geom.face_normals, geom.loop_vid, geom.loop_start, loop_end, sel,
+    return loop_end
+
+
+def _face_angles_kernel(geom: ModelGeometry, sel: np.ndarray, c_model: np.ndarray, all_faces: bool) -> np.ndarray:
+    from mst.pipeline.tracking.kernels import face_angles
+
+    return face_angles(geom.vertices, geom.face_normals, geom.loop_vid, geom.loop_start, _loop_end(geom), sel,
                        np.ascontiguousarray(c_model, np.float64))
 
 
@@ -333,16 +338,27 @@ def view_faces(geom: ModelGeometry, T_cam_model: np.ndarray, K: np.ndarray, widt
 
 
 def projected_face_area_px2(geom: ModelGeometry, T_cam_model: np.ndarray, K: np.ndarray, near: float,
-                            Xc_all: np.ndarray | None = None, faces: np.ndarray | None = None) -> np.ndarray:
+                            Xc_all: np.ndarray | None = None, faces: np.ndarray | None = None,
+                            _numpy_reference: bool = False) -> np.ndarray:
     """(F,) area in px^2 of each face's outer loop projected with ``K`` (shoelace formula; holes
     ignored); ``inf`` for a face with a vertex in front of the near plane ``near`` (metres), whose
-    projection is unbounded. ``faces`` (F,) bool: compute only these (the others get 0)."""
+    projection is unbounded. ``faces`` (F,) bool: compute only these (the others get 0).
+    ``Xc_all`` (V, 3): the vertices already in the camera frame (rows of the faces read must be set).
+    One kernel (:func:`mst.pipeline.tracking.kernels.face_areas_px2`); ``_numpy_reference``: the
+    numpy formulation it equals to the bit (its test's reference)."""
     F = len(geom.faces)
     if not F:
         return np.zeros(0)
     sel = np.arange(F) if faces is None else np.flatnonzero(faces)
     area = np.zeros(F)
     if not len(sel):
+        return area
+    if not _numpy_reference:  # one kernel, the same bits (kernels.face_areas_px2)
+        from mst.pipeline.tracking.kernels import face_areas_px2
+
+        Xc = _mat3(geom.vertices, T_cam_model[:3, :3], T_cam_model[:3, 3]) if Xc_all is None else Xc_all
+        face_areas_px2(np.ascontiguousarray(Xc, np.float64), geom.loop_vid, geom.loop_start, _loop_end(geom),
+                       sel.astype(np.int64), float(K[0, 0]), float(K[1, 1]), float(near), area)
         return area
     vid, start = _loops_of(geom, sel)
     R, t = T_cam_model[:3, :3], T_cam_model[:3, 3]
