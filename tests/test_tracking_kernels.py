@@ -477,3 +477,26 @@ def test_mat3_kernel_is_identical_to_numpy():
         X = rng.normal(size=(n, 3)) * 10 ** rng.uniform(-3, 5, size=(n, 1))
         for M, tt in ((R, t), (R.T, None), (R.T, t)):
             assert np.array_equal(_mat3(X, M, tt), _mat3_numpy(X, M, tt))
+
+
+def test_frustum_cull_kernel_matches_numpy():
+    """frustum_faces' kernel (no counts asked) keeps the faces its numpy formulation (counts asked)
+    keeps, on a city block seen from random poses, with and without a far plane and a candidate list."""
+    from mst.meshtools.generate import city_block_model
+    from mst.pipeline.tracking.visibility import ModelGeometry, frustum_faces
+
+    g = ModelGeometry.from_model(city_block_model(buildings=150))
+    K = np.array([[600.0, 0, 319.5], [0, 600.0, 239.5], [0, 0, 1]])
+    rng = np.random.default_rng(4)
+    c = g.vertices.mean(0)
+    kept = 0
+    for _ in range(20):
+        T = inv_T(look_at(c + rng.normal(size=3) * g.scale_m, c + rng.normal(size=3) * 0.3 * g.scale_m))
+        among = np.flatnonzero(rng.random(len(g.faces)) < 0.5)
+        for far in (np.inf, 0.8 * g.scale_m):
+            for sel in (None, among):
+                a = frustum_faces(g, T, K, 640, 480, 0.5, far, among=sel)
+                b = frustum_faces(g, T, K, 640, 480, 0.5, far, {}, among=sel)
+                assert np.array_equal(a, b)
+                kept += int(a.sum())
+    assert 0 < kept < 20 * 4 * len(g.faces)

@@ -1311,3 +1311,25 @@ def mat3_kernel(X, M, t, add_t, out):
         for j in range(3):
             s = (x0 * M[j, 0] + x1 * M[j, 1]) + x2 * M[j, 2]
             out[i, j] = s + t[j] if add_t else s
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def frustum_cull(center, radius, sel, R, t, planes, near, far, out):
+    """``out[sel[j]] = True`` for each face ``sel[j]`` whose bounding sphere (``center`` (F, 3) model
+    frame, ``radius`` (F,) m) reaches into the view frustum: ``near - r <= z <= far + r`` and on the
+    inner side of the 4 side ``planes`` (4, 3) within ``r`` (the test of
+    :func:`mst.pipeline.tracking.visibility.frustum_faces`; the centre moved to the camera frame as
+    ``_mat3`` does, each plane's dot product in a fixed order, so a face's answer can differ from
+    numpy's BLAS product only where its sphere touches a plane within rounding)."""
+    for j in range(sel.shape[0]):
+        f = sel[j]
+        x0, x1, x2 = center[f, 0], center[f, 1], center[f, 2]
+        c0 = (x0 * R[0, 0] + x1 * R[0, 1]) + x2 * R[0, 2] + t[0]
+        c1 = (x0 * R[1, 0] + x1 * R[1, 1]) + x2 * R[1, 2] + t[1]
+        c2 = (x0 * R[2, 0] + x1 * R[2, 1]) + x2 * R[2, 2] + t[2]
+        r = radius[f]
+        ok = c2 >= near - r and c2 <= far + r
+        for p in range(4):
+            if ok and (c0 * planes[p, 0] + c1 * planes[p, 1]) + c2 * planes[p, 2] < -r:
+                ok = False
+        out[f] = ok

@@ -305,6 +305,15 @@ def frustum_faces(geom: ModelGeometry, T_cam_model: np.ndarray, K: np.ndarray, w
     F = len(geom.faces)
     if not F:
         return np.zeros(0, bool)
+    if counts is None:  # one kernel (kernels.frustum_cull): a few us instead of ~15 numpy calls a frame
+        from mst.pipeline.tracking.kernels import frustum_cull
+
+        out = np.zeros(F, np.bool_)
+        sel_i = np.arange(F, dtype=np.int64) if among is None else np.ascontiguousarray(among, np.int64)
+        frustum_cull(geom.face_center, geom.face_radius, sel_i, np.ascontiguousarray(T_cam_model[:3, :3], np.float64),
+                     np.ascontiguousarray(T_cam_model[:3, 3], np.float64), frustum_planes(K, width, height), float(near),
+                     float(np.inf if far is None else far), out)
+        return out
     sel = slice(None) if among is None else among
     c = _mat3(geom.face_center[sel], T_cam_model[:3, :3], T_cam_model[:3, 3])
     r = geom.face_radius[sel]
