@@ -1,5 +1,5 @@
 """Small valid inputs for every ``mst`` command (fixed seed), from which tests/test_bad_input.py derives
-bad ones: a 0.4 x 0.3 x 0.2 m box model, a 160x120 camera, a pose, clicks, frames, a trajectory,
+bad ones: a 0.4 x 0.3 x 0.2 m box model, a 320x240 camera (a pose there is pinned within the error budget of a first frame), a pose, clicks, frames, a trajectory,
 depth frames, a cloud. Everything is tiny so that a command runs in milliseconds in-process."""
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ from mst.core.camera import Camera, write_camera
 from mst.core.poses import inv_T, look_at
 from mst.core.trajectory import format_tum, write_pose_file
 
-CAM = Camera(200.0, 200.0, 79.5, 59.5, 160, 120)
+CAM = Camera(400.0, 400.0, 159.5, 119.5, 320, 240)
 BOX_V = np.array([[x, y, z] for z in (0.0, 0.2) for y in (0.0, 0.3) for x in (0.0, 0.4)], float)
 # quads, outward normals (counter-clockwise seen from outside)
 BOX_F = [[0, 2, 3, 1], [4, 5, 7, 6], [0, 1, 5, 4], [2, 6, 7, 3], [0, 4, 6, 2], [1, 3, 7, 5]]
@@ -35,7 +35,7 @@ def project(T_cam_model: np.ndarray, X: np.ndarray) -> np.ndarray:
 
 
 def render_frame(T_cam_model: np.ndarray) -> np.ndarray:
-    """BGR 160x120 picture of the box (faces filled far to near, grey per face) on a dark background."""
+    """BGR 320x240 picture of the box (faces filled far to near, grey per face) on a dark background."""
     import cv2
 
     img = np.full((CAM.height, CAM.width, 3), 40, np.uint8)

@@ -18,7 +18,7 @@ HOUSE = ROOT / "samples" / "building_tin.obj"
 BOX = """v -1 -0.75 0\nv 1 -0.75 0\nv 1 0.75 0\nv -1 0.75 0\nv -1 -0.75 1.2\nv 1 -0.75 1.2\nv 1 0.75 1.2
 v -1 0.75 1.2\nf 1 3 2\nf 1 4 3\nf 5 6 7\nf 5 7 8\nf 1 2 6\nf 1 6 5\nf 2 3 7\nf 2 7 6\nf 3 4 8\nf 3 8 7
 f 4 1 5\nf 4 5 8\n"""
-SMALL = ["--frames", "5", "--width", "160", "--height", "120", "--aa", "0", "--texture-size", "256", "-q",
+SMALL = ["--frames", "5", "--width", "320", "--height", "240", "--aa", "0", "--texture-size", "256", "-q",
          "--seed", "1"]
 
 
@@ -33,7 +33,7 @@ def _seq(name: str, data: str, model: str, **kw) -> dict:
 
 @pytest.fixture(scope="module")
 def campaign(tmp_path_factory) -> Path:
-    """Two models x two scenarios (orbit; fast = every 3rd frame), 160x120, 5 frames, and a manifest of
+    """Two models x two scenarios (orbit; fast = every 3rd frame), 320x240, 5 frames, and a manifest of
     six sequences: those four, one more on the house orbit (edges only, no depth) and one broken
     (two clicks)."""
     import yaml

@@ -20,7 +20,7 @@ import numpy as np
 from mst import InputError, atomic_outputs
 from mst.errors import ConfigError
 from mst.meshtools.formats import load_tracking_model
-from mst.pipeline.tracking.budget import PoseBudget
+from mst.pipeline.tracking.budget import PoseBudget, is_refusal
 from mst.pipeline.tracking.config import TrackConfig
 from mst.pipeline.tracking.health import HealthMonitor
 from mst.pipeline.tracking.session import FrameRecord, TrackingPolicy, TrackingSession
@@ -292,8 +292,15 @@ def _no_frame_tracked(records: list[FrameRecord], policy: TrackingPolicy, init_p
         # the setting is to blame, not the pose
         return ConfigError("edges.far_clip_m", f"no frame could be tracked: frame {k}: {reason}; raise or remove this "
                                                "setting (default: no far plane)")
-    hint = ("the model is too far or too small for this camera" if "too small" in reason
-            else "check the pose, the camera and the model units")
+    if "too small" in reason:
+        hint = "the model is too far or too small for this camera"
+    elif is_refusal(reason):
+        # the first frame is judged by the error budget as every other: a pose its image does not
+        # pin is no start to output from (Delft at 250 m, 640x480: frame 0 was 8 % off as `model`)
+        hint = ("this image does not pin the pose within the error budget: a nearer view, a higher "
+                "resolution, or a wider budget (slam.drift_budget_rel)")
+    else:
+        hint = "check the pose, the camera and the model units"
     return InputError(init_pose_path, f"no frame could be tracked from this initial pose (frame {k}: {reason}); {hint}")
 
 

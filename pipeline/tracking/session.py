@@ -404,7 +404,7 @@ class TrackingSession:
         reacq = p.reacquiring(aid is not None)
         fr, relocalised = self._edge_pose(idx, gray, T_start, reacq)
         healthy = p.gate_recovery(fr, reacq)
-        if healthy and not p.first:
+        if healthy:
             # the error budget judges the pose that the rescues and gates above settled on, and only
             # a pose that passed them all (inside the rescues a refusal set off other fits: the demo's
             # UAV pass lost its return after the turn; before the recovery gate, a pose that it
@@ -412,7 +412,7 @@ class TrackingSession:
             why = p.beyond_budget(fr)
             if why:
                 fr.healthy, fr.reason = False, why
-            elif not relocalised:
+            elif not relocalised and not p.first:
                 fr = self._ambiguous(gray, fr)
             healthy = fr.healthy
         recovering = reacq or p.lost_streak > 0
