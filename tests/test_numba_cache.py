@@ -41,8 +41,16 @@ def _cached_kernels() -> set[str]:
     mods = (kernels, tracking_kernels, convert_kernels, klt_kernels)
     # the Python code outside the kernel modules: a kernel only ever called from other kernels is
     # compiled into them (its dispatcher gets no signature when its caller is loaded from the cache)
-    others = "\n".join(p.read_text() for p in root.rglob("*.py")
-                       if p.resolve() not in {Path(m.__file__).resolve() for m in mods} and "tests" not in p.parts)
+    # (the project's own sources: not the tests, not a virtual environment or other hidden folder,
+    # whose site-packages made this scan 20 s of the suite)
+    mod_files = {Path(m.__file__).resolve() for m in mods}
+    def skip(q: str) -> bool:
+        return q == "tests" or q.startswith(".") or q in ("build", "dist") or q.endswith(".egg-info")
+
+    files = [p for top in root.iterdir() if not skip(top.name)
+             for p in ([top] if top.suffix == ".py" else top.rglob("*.py") if top.is_dir() else [])
+             if p.resolve() not in mod_files and not any(skip(q) for q in p.relative_to(root).parts[:-1])]
+    others = "\n".join(p.read_text() for p in files)
     out = set()
     for mod, prefix in zip(mods, ("", "tracking.", "convert.", "klt.")):
         for name in dir(mod):
