@@ -197,6 +197,52 @@ def test_uav_survey_band_default_mode(survey):
     assert ate_d <= max(0.001 * dist, ate_o + 0.2 * o["budget"]), (ate_d, ate_o, dist)
 
 
+@pytest.fixture(scope="module", params=[40, 120, 250], ids=["40m", "120m", "250m"])
+def survey_1080(request, shared_data, tmp_path_factory):
+    """The survey pass of :func:`survey` filmed at 1920x1080 (the camera's focal length scaled with
+    the width: the same field of view), both modes."""
+    h = request.param
+    d = tmp_path_factory.mktemp(f"uav1080_{h}")
+    seq = d / "seq"
+    _cli("synth", "uav", "--model", shared_data / "cityjson/rotterdam_subset.json", "-o", seq, "--frames", 240,
+         "--distance", h, "--width", 1920, "--height", 1080, "--no-depth", "--aa", 4, "--texture-size", 512, "-q")
+    m = _prepare(seq, d)
+    from mst.meshtools.formats import load_model
+
+    runs = {slam: _run(seq, d, m, slam, 30.0) for slam in ("auto", "off")}
+    return h, seq, load_model(m).vertices, runs
+
+
+@pytest.mark.slow
+def test_uav_survey_band_at_1080p_meets_the_issue_target(survey_1080):
+    """Issue 11's target where the image resolves it: at 1920x1080 every band's whole-run ATE of the
+    default mode within 0.1 % of the camera-building distance; no pose marked tracked without a
+    building in view or beyond 1 % / 2 deg; the default at least as accurate as edges only on the
+    frames both output (within the comparison's noise, 0.2 x edges only's 5-sigma budget, as in
+    :func:`test_uav_survey_band_default_mode`). The default search range scales with the width
+    (8 px at 640 -> 24 px here): with ViSP's fixed 8 px the 250 m band was 0.23-0.26 % (h1, session 9)."""
+    h, seq, V, runs = survey_1080
+    n = 240
+    px = _model_px(seq)
+    steady = np.arange(n) < 0.2 * n
+    cam = json.loads((seq / "camera.json").read_text())
+    dist = _view_distance(runs["auto"]["Tg"], V, cam, np.flatnonzero(steady))
+    for slam, r in runs.items():
+        assert not [k for k, s in r["status"].items() if px[k] == 0 and s in ("model", "relocalised")], slam
+        _assert_within_budget(r, V, ("model", "relocalised", "slam"))
+        sig = np.array([r["cov"][k] for k in r["idx"][steady[r["idx"]]] if k in r["cov"]])
+        r["budget"] = 5.0 * float(np.sqrt(np.mean(np.sum(sig**2, axis=1))))
+        print(f"1080p band {h} m ({dist:.0f} m): {slam} {r['summary']['tracked']}/{n} output, whole-run ATE "
+              f"{_rms(r['err']):.3f} m ({100 * _rms(r['err']) / dist:.3f} %)")
+    d, o = runs["auto"], runs["off"]
+    assert all(d["status"].get(k) == "model" for k in np.flatnonzero(steady))
+    assert _rms(d["err"]) <= 0.001 * dist, (_rms(d["err"]), dist)
+    both = np.isin(d["idx"], o["idx"])
+    e_d, e_o = d["err"][both], o["err"][np.isin(o["idx"], d["idx"])]
+    assert _rms(e_d) <= _rms(e_o) + 0.2 * o["budget"], (_rms(e_d), _rms(e_o))
+    assert d["summary"]["tracked"] >= o["summary"]["tracked"]
+
+
 def _assert_slam_within_budget(run, V) -> None:
     """Every `slam` pose of ``run`` within 1 % of its camera's distance to the nearest model vertex and 2 deg."""
     _assert_within_budget(run, V, ("slam",))

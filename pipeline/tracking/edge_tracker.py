@@ -16,13 +16,14 @@ Frames: ``T_cam_model`` (ViSP cMo). Pixels, metres. One class whose methods shar
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from mst.core.poses import inv_T, transform_points
 from mst.errors import SolveStatus
-from mst.pipeline.tracking.config import TrackConfig, lod_thresholds, scene_near_m
+from mst.pipeline.tracking.config import TrackConfig, lod_thresholds, scene_near_m, search_range_px
 from mst.pipeline.tracking.health import ORIENT_TOL_DEG, PoseEvidence, image_noise_sigma
 from mst.pipeline.tracking.moving_edges import _image
 
@@ -91,6 +92,8 @@ class EdgeTracker:
 
         config = config or TrackConfig()
         cfg = config.edges
+        if cfg.search_range_px is None:  # the default: from the image width (config.search_range_px)
+            cfg = dataclasses.replace(cfg, search_range_px=search_range_px(cfg, camera.width))
         self.geom = ModelGeometry.from_model(model)
         self.cam = camera
         self.K = camera.K

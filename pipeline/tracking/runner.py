@@ -375,7 +375,7 @@ def build_session(cfg: TrackConfig, model, model_path, cam, T0: np.ndarray, aid=
         reloc = Relocaliser(tracker, cfg.reloc)
     monitor = HealthMonitor(len(tracker.geom.edges), len(tracker.surf_X)) if cfg.health_score else None
     budget = PoseBudget(cfg.slam.drift_budget_rel, cfg.slam.drift_budget_deg, cfg.slam.drift_sigmas)
-    policy = TrackingPolicy(T0, cfg.edges.search_range_px, cfg.edges.constant_velocity, monitor, budget)
+    policy = TrackingPolicy(T0, tracker.cfg.search_range_px, cfg.edges.constant_velocity, monitor, budget)
     return TrackingSession(tracker, policy, aid, reloc), edges_used
 
 
