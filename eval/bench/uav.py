@@ -217,15 +217,15 @@ def survey_metrics(d: Path, model: Path, label: str) -> list[dict]:
     return rows
 
 
-def survey(workdir: Path, sets=SURVEY_SETS, altitudes=ALTITUDES) -> list[dict]:
+def survey(workdir: Path, sets=SURVEY_SETS, altitudes=ALTITUDES, size: tuple[int, int] = (640, 480)) -> list[dict]:
     """The issue's flyover table: every set (the shared CityJSON sets present, the procedural
-    block ``city36``) at every altitude, default vs ``--slam off``."""
+    block ``city36``) at every altitude, default vs ``--slam off``, ``size`` = (width, height) px."""
     rows = []
     for name in sets:
         if not name.startswith("city") and not (SHARED / "cityjson" / name).is_file():
             continue
         for a in altitudes:
-            rows += survey_row(name, a, workdir)
+            rows += survey_row(name, a, workdir, size=size)
     return rows
 
 
@@ -236,10 +236,13 @@ if __name__ == "__main__":
     wd = Path(sys.argv[1] if len(sys.argv) > 1 else "/tmp/mst-uav-survey")
     sets = sys.argv[2].split(",") if len(sys.argv) > 2 else SURVEY_SETS
     alts = [float(a) for a in sys.argv[3].split(",")] if len(sys.argv) > 3 else ALTITUDES
+    size = tuple(int(v) for v in sys.argv[4].split("x")) if len(sys.argv) > 4 else (640, 480)  # e.g. 1920x1080
+    from mst import InputError
+
     for name in sets:
         for a in alts:
             try:
-                for r in survey(wd, [name], [a]):
-                    print(json.dumps(r), flush=True)
-            except RuntimeError as e:  # e.g. too few model corners in frame 0 for the clicks
+                for r in survey(wd, [name], [a], size=size):
+                    print(json.dumps({**r, "size": f"{size[0]}x{size[1]}"}), flush=True)
+            except (RuntimeError, InputError) as e:  # too few model corners in frame 0 for the clicks; no frame tracked
                 print(json.dumps({"bench": f"uav survey {Path(name).stem} {a:g} m", "error": str(e)}), flush=True)
