@@ -161,7 +161,7 @@ def test_rendered_views_find_a_new_side(turned_box, k):
     cfg = TrackConfig()
     tr = EdgeTracker(m, cam, cfg)
     V = np.asarray(m.vertices, float)
-    R = cfg.edges.search_range_px
+    R = tr.cfg.search_range_px  # the default, resolved for this camera
     plain = Relocaliser(tr, RelocConfig(synth_steps=0, kf_per_attempt=20))
     plain.learn(0, imgs[0], poses[0])
     views = Relocaliser(tr, RelocConfig(kf_per_attempt=20))
