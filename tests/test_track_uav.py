@@ -71,6 +71,18 @@ def _rms(a) -> float:
 
 # ---------------------------------------------------------------------------- FPV facade pass
 def test_fpv_facade_pass_default_tracks_every_frame(tmp_path):
+    _fpv_facade_pass(tmp_path, 320, 240)
+
+
+@pytest.mark.slow
+def test_fpv_facade_pass_default_tracks_every_frame_at_1080p(tmp_path):
+    """The same pass filmed at 1920x1080: the default search range scales with the width (24 px) and a
+    half-resolution pass comes first (config.pyramid_levels); with 24 px and one level 2 of 30 frames
+    were tracked (1 m and ~2 deg a frame moves the facades further than the range)."""
+    _fpv_facade_pass(tmp_path, 1920, 1080)
+
+
+def _fpv_facade_pass(tmp_path, width: int, height: int):
     from mst.meshtools.formats import load_model, save_model
     from mst.meshtools.generate import city_block_model
 
@@ -78,7 +90,7 @@ def test_fpv_facade_pass_default_tracks_every_frame(tmp_path):
     save_model(city, city_block_model(36, seed=0))
     seq = tmp_path / "seq"
     # 3 s at 10 frames/s: 1 m and up to ~2 deg of yaw between frames, the S-turn and banking
-    _cli("synth", "fpv", "--model", city, "-o", seq, "--frames", 30, "--fps", 10, "--width", 320, "--height", 240,
+    _cli("synth", "fpv", "--model", city, "-o", seq, "--frames", 30, "--fps", 10, "--width", width, "--height", height,
          "--no-depth", "--aa", 4, "--texture-size", 512, "-q")
     m = _prepare(seq, tmp_path, model=city)
     d = _run(seq, tmp_path, m, "auto", 10.0)

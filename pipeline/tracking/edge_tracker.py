@@ -23,7 +23,7 @@ import numpy as np
 
 from mst.core.poses import inv_T, transform_points
 from mst.errors import SolveStatus
-from mst.pipeline.tracking.config import TrackConfig, lod_thresholds, scene_near_m, search_range_px
+from mst.pipeline.tracking.config import TrackConfig, lod_thresholds, pyramid_levels, scene_near_m, search_range_px
 from mst.pipeline.tracking.health import ORIENT_TOL_DEG, PoseEvidence, image_noise_sigma
 from mst.pipeline.tracking.moving_edges import _image
 
@@ -92,8 +92,9 @@ class EdgeTracker:
 
         config = config or TrackConfig()
         cfg = config.edges
-        if cfg.search_range_px is None:  # the default: from the image width (config.search_range_px)
-            cfg = dataclasses.replace(cfg, search_range_px=search_range_px(cfg, camera.width))
+        if cfg.search_range_px is None or cfg.pyramid_levels is None:  # defaults from the image width
+            cfg = dataclasses.replace(cfg, search_range_px=search_range_px(cfg, camera.width),
+                                      pyramid_levels=pyramid_levels(cfg, camera.width))
         self.geom = ModelGeometry.from_model(model)
         self.cam = camera
         self.K = camera.K
