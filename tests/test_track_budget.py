@@ -51,6 +51,21 @@ def test_pose_uncertain_beyond_the_budget_is_refused():
     assert TrackingPolicy(_T(0.0), search_range_px=8).beyond_budget(_fr(_T(0.0), sigma_m=5.0)) == ""  # no budget
 
 
+def test_indefinite_covariance_is_refused_however_small_its_trace():
+    """A fit whose covariance is not positive definite pins no direction it leaves out: refused, even
+    where its trace is tiny (the pose had been output as `model` with no covariance written)."""
+    p = TrackingPolicy(_T(0.0), search_range_px=8, budget=PoseBudget())
+    p.distance_m = lambda T: D
+    fr = _fr(_T(0.0), sigma_m=0.01)
+    assert p.beyond_budget(fr) == ""
+    v = np.array([1.0, 0.0, 0.0, 0.0, 1.0, 0.0]) / np.sqrt(2.0)
+    fr.cov = fr.cov - 1.5 * float(v @ fr.cov @ v) * np.outer(v, v)  # one negative eigenvalue, trace smaller
+    assert np.linalg.eigvalsh(fr.cov).min() < 0 and np.trace(fr.cov) < np.trace(_fr(_T(0.0), sigma_m=0.01).cov)
+    assert p.beyond_budget(fr).startswith(REASON_UNCERTAIN)
+    fr.cov = np.diag([1e-6] * 5 + [0.0])  # singular: a zero variance
+    assert p.beyond_budget(fr).startswith(REASON_UNCERTAIN)
+
+
 def test_model_distance_is_a_lower_bound_within_5_percent():
     V = np.array([[0.0, 0.0, 0.0], [50.0, 0.0, 0.0]])
     md = ModelDistance(V)

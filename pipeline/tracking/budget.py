@@ -99,6 +99,15 @@ RETURN_STEADY_FRAMES = 3
 RETURN_STEADY_VIEW = 0.05
 
 
+def positive_definite(C: np.ndarray) -> bool:
+    """Whether the symmetric 6x6 ``C`` is a covariance: finite, positive variances, its correlation
+    matrix's smallest eigenvalue above 1e-12 (the test ``traj.cov.csv`` writes a covariance by)."""
+    if not np.isfinite(C).all() or not (np.diag(C) > 0).all():
+        return False
+    d = 1.0 / np.sqrt(np.diag(C))
+    return bool(np.linalg.eigvalsh(C * d[:, None] * d[None, :]).min() > 1e-12)
+
+
 def beyond_budget(b: PoseBudget, cov: np.ndarray | None, T: np.ndarray | None, distance_m,
                   fraction: float = 1.0) -> str:
     """Why an edge pose's own uncertainty exceeds the error budget ('' when it does not, or
@@ -112,6 +121,11 @@ def beyond_budget(b: PoseBudget, cov: np.ndarray | None, T: np.ndarray | None, d
         return ""
     if not np.isfinite(cov).all():  # a fit whose information cannot be inverted pins nothing
         return f"{REASON_UNCERTAIN}: no finite covariance (a degenerate fit)"
+    if not positive_definite(0.5 * (cov + cov.T)):
+        # an indefinite inverse (a direction the fit does not pin, lost in rounding) bounds nothing:
+        # its trace could pass the budget, and the pose was output as `model` with no covariance
+        # written (Rotterdam 120 m survey, 640x480, seed 1, frame 81)
+        return f"{REASON_UNCERTAIN}: covariance not positive definite (a degenerate fit)"
     pos = b.sigmas * float(np.sqrt(max(np.trace(cov[:3, :3]), 0.0)))
     rot = b.sigmas * float(np.degrees(np.sqrt(max(np.linalg.eigvalsh(0.5 * (cov[3:, 3:] + cov[3:, 3:].T)).max(), 0.0))))
     d = distance_m(T)

@@ -20,7 +20,7 @@ import numpy as np
 from mst import InputError, atomic_outputs
 from mst.errors import ConfigError
 from mst.meshtools.formats import load_tracking_model
-from mst.pipeline.tracking.budget import PoseBudget, is_refusal
+from mst.pipeline.tracking.budget import PoseBudget, is_refusal, positive_definite
 from mst.pipeline.tracking.config import TrackConfig
 from mst.pipeline.tracking.health import HealthMonitor
 from mst.pipeline.tracking.session import FrameRecord, TrackingPolicy, TrackingSession
@@ -71,11 +71,8 @@ def _psd_text(cov: np.ndarray) -> list[str] | None:
     C = 0.5 * (cov + cov.T)
     for fmt in (".6g", ".17g"):
         txt = [f"{x:{fmt}}" for x in C.ravel()]
-        Cw = np.array([float(x) for x in txt]).reshape(6, 6)
-        if (np.diag(Cw) > 0).all():
-            d = 1.0 / np.sqrt(np.diag(Cw))
-            if np.linalg.eigvalsh(Cw * d[:, None] * d[None, :]).min() > 1e-12:  # of the correlation matrix
-                return txt
+        if positive_definite(np.array([float(x) for x in txt]).reshape(6, 6)):
+            return txt
     return None
 
 
