@@ -17,15 +17,18 @@ Frames: ``T_cam_model`` (ViSP cMo). Pixels, metres. One class whose methods shar
 from __future__ import annotations
 
 import dataclasses
+import logging
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from mst.core.poses import inv_T, transform_points
 from mst.errors import SolveStatus
-from mst.pipeline.tracking.config import TrackConfig, lod_thresholds, pyramid_levels, scene_near_m, search_range_px
+from mst.pipeline.tracking.config import TrackConfig, lod_thresholds, retry_pyramid_levels, scene_near_m, search_range_px
 from mst.pipeline.tracking.health import ORIENT_TOL_DEG, PoseEvidence, image_noise_sigma
 from mst.pipeline.tracking.moving_edges import _image
+
+log = logging.getLogger(__name__)
 
 #: fewer KLT points than this in a fit: no ``klt_agree`` for the health score (one cluster of the
 #: monitor's noise model, :class:`mst.pipeline.tracking.health.HealthMonitor`)
@@ -92,9 +95,9 @@ class EdgeTracker:
 
         config = config or TrackConfig()
         cfg = config.edges
-        if cfg.search_range_px is None or cfg.pyramid_levels is None:  # defaults from the image width
+        if cfg.search_range_px is None or cfg.retry_pyramid_levels is None:  # defaults from the image width
             cfg = dataclasses.replace(cfg, search_range_px=search_range_px(cfg, camera.width),
-                                      pyramid_levels=pyramid_levels(cfg, camera.width))
+                                      retry_pyramid_levels=retry_pyramid_levels(cfg, camera.width))
         self.geom = ModelGeometry.from_model(model)
         self.cam = camera
         self.K = camera.K
@@ -348,7 +351,25 @@ class EdgeTracker:
 
     # -------------------------------------------------------------- main entry
     def track(self, gray: np.ndarray, T_init: np.ndarray, recover: bool = False, first: bool = False) -> FrameResult:
-        """Refine ``T_init`` (T_cam_model) on ``gray`` (H, W) uint8; update the internal reference."""
+        """Refine ``T_init`` (T_cam_model) on ``gray`` (H, W) uint8; update the internal reference.
+
+        A tracked frame that the search at ``pyramid_levels`` loses is searched once more
+        coarse-to-fine with ``retry_pyramid_levels`` (the motion outran the range: the FPV pass at
+        1080p); the retry's pose is taken only when healthy."""
+        c = self.cfg
+        klt = self._klt_track(gray) if self.use_klt and not (first or recover) else None
+        out = self._track(gray, T_init, recover, first, klt, c.pyramid_levels)
+        retry = int(c.retry_pyramid_levels)
+        if not out.healthy and not (first or recover) and retry > max(c.pyramid_levels, 1):
+            klt_next = self._klt_next
+            again = self._track(gray, T_init, recover, first, klt, retry)
+            self._klt_next = self._klt_next if again.healthy else klt_next
+            if again.healthy:
+                log.debug(f"the single-level search lost the frame ({out.reason}); coarse-to-fine with {retry} levels kept it")
+                return again
+        return out
+
+    def _track(self, gray: np.ndarray, T_init: np.ndarray, recover: bool, first: bool, klt, levels: int) -> FrameResult:
         import cv2
 
         c = self.cfg
@@ -358,9 +379,8 @@ class EdgeTracker:
         ref_img = None if (first or recover or self.prev_img is None) else self.prev_img
         ref_T = self.prev_T
         R = c.search_range_px * (c.recover_range_factor if recover else 1.0)
-        klt = self._klt_track(gray) if self.use_klt and not (first or recover) else None
         # coarse-to-fine: a half-resolution pass first (always after a loss)
-        levels = max(c.pyramid_levels, 2 if recover else 1)
+        levels = max(levels, 2 if recover else 1)
         for lev in range(levels - 1, 0, -1):
             s = 0.5**lev
             small = img
