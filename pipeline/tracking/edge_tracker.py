@@ -24,7 +24,13 @@ import numpy as np
 
 from mst.core.poses import inv_T, transform_points
 from mst.errors import SolveStatus
-from mst.pipeline.tracking.config import TrackConfig, lod_thresholds, retry_pyramid_levels, scene_near_m, search_range_px
+from mst.pipeline.tracking.config import (
+    TrackConfig,
+    lod_thresholds,
+    retry_pyramid_levels,
+    scene_near_m,
+    search_range_px,
+)
 from mst.pipeline.tracking.health import ORIENT_TOL_DEG, PoseEvidence, image_noise_sigma
 from mst.pipeline.tracking.moving_edges import _image
 
