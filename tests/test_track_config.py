@@ -149,3 +149,22 @@ def test_depth_scale_reaches_the_rgbd_aid(tmp_path):
         outs.append(out)
     assert outs[0].read_text() == outs[1].read_text()
     assert outs[2].read_text() != outs[0].read_text()  # the same depth read as millimetres: twice as far
+
+
+def test_search_range_and_retry_levels_follow_the_image_width():
+    """The width-derived defaults (issue 11): ViSP's 8 px and no coarse-to-fine retry up to 640 /
+    1279 px wide (the real teabox, the 320x240 tests), the same angular range above; explicit
+    values and the LOD face rule (range^2) follow."""
+    from mst.core.camera import Camera
+    from mst.meshtools.generate import box_model
+    from mst.pipeline.tracking import EdgeTracker
+    from mst.pipeline.tracking.config import EdgesConfig, lod_thresholds, retry_pyramid_levels, search_range_px
+
+    e = EdgesConfig()
+    assert [search_range_px(e, w) for w in (0, 320, 640, 1280, 1920, 3840)] == [8, 8, 8, 16, 24, 48]
+    assert [retry_pyramid_levels(e, w) for w in (0, 640, 1279, 1280, 1920, 2559, 2560, 3840)] == [1, 1, 1, 2, 2, 2, 3, 3]
+    assert lod_thresholds(e, 1920)[1] == 24.0**2 and lod_thresholds(e)[1] == 64.0
+    fixed = EdgesConfig(search_range_px=10, retry_pyramid_levels=1)
+    assert search_range_px(fixed, 1920) == 10 and retry_pyramid_levels(fixed, 1920) == 1
+    tr = EdgeTracker(box_model(), Camera(1575.0, 1575.0, 959.5, 539.5, 1920, 1080), TrackConfig())
+    assert (tr.cfg.search_range_px, tr.cfg.retry_pyramid_levels, tr.lod[1]) == (24, 2, 576.0)
