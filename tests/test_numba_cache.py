@@ -44,6 +44,7 @@ def _cached_kernels() -> set[str]:
     # (the project's own sources: not the tests, not a virtual environment or other hidden folder,
     # whose site-packages made this scan 20 s of the suite)
     mod_files = {Path(m.__file__).resolve() for m in mods}
+
     def skip(q: str) -> bool:
         return q == "tests" or q.startswith(".") or q in ("build", "dist") or q.endswith(".egg-info")
 

@@ -158,7 +158,12 @@ def test_search_range_and_retry_levels_follow_the_image_width():
     from mst.core.camera import Camera
     from mst.meshtools.generate import box_model
     from mst.pipeline.tracking import EdgeTracker
-    from mst.pipeline.tracking.config import EdgesConfig, lod_thresholds, retry_pyramid_levels, search_range_px
+    from mst.pipeline.tracking.config import (
+        EdgesConfig,
+        lod_thresholds,
+        retry_pyramid_levels,
+        search_range_px,
+    )
 
     e = EdgesConfig()
     assert [search_range_px(e, w) for w in (0, 320, 640, 1280, 1920, 3840)] == [8, 8, 8, 16, 24, 48]

@@ -76,9 +76,10 @@ def test_fpv_facade_pass_default_tracks_every_frame(tmp_path):
 
 @pytest.mark.slow
 def test_fpv_facade_pass_default_tracks_every_frame_at_1080p(tmp_path):
-    """The same pass filmed at 1920x1080: the default search range scales with the width (24 px) and a
-    half-resolution pass comes first (config.pyramid_levels); with 24 px and one level 2 of 30 frames
-    were tracked (1 m and ~2 deg a frame moves the facades further than the range)."""
+    """The same pass filmed at 1920x1080: the default search range scales with the width (24 px), and a
+    frame that search loses is searched again with a half-resolution pass first
+    (config.retry_pyramid_levels); with 24 px and one level 2 of 30 frames were tracked (1 m and
+    ~2 deg a frame moves the facades further than the range)."""
     _fpv_facade_pass(tmp_path, 1920, 1080)
 
 
@@ -130,18 +131,23 @@ def _fpv_facade_pass(tmp_path, width: int, height: int):
 # now 39 of 48, 126 model poses (main: 100), worst model pose 0.86 % of the nearest-vertex distance,
 # whole-run ATE 1.10 m (0.36 % of 307 m: the issue's 0.1 % is below what the image pins per frame;
 # edges only 0.91 m on 84 poses; measured after the merge of the VVS step test)
-@pytest.fixture(scope="module", params=[40, 120, 250], ids=["40m", "120m", "250m"])
-def survey(request, shared_data, tmp_path_factory):
-    h = request.param
-    d = tmp_path_factory.mktemp(f"uav{h}")
-    seq = d / "seq"
-    _cli("synth", "uav", "--model", shared_data / "cityjson/rotterdam_subset.json", "-o", seq, "--frames", 240,
-         "--distance", h, "--no-depth", "--aa", 4, "--texture-size", 512, "-q")
-    m = _prepare(seq, d)
+def _survey_runs(h: float, shared_data, d, size: tuple = ()):
+    """The survey pass over Rotterdam at ``h`` m (240 frames; ``size`` = (width, height), else the
+    scenario's 640x480) in ``d``, tracked in both modes: ``(h, seq, model vertices, runs)``."""
     from mst.meshtools.formats import load_model
 
+    seq = d / "seq"
+    wh = ["--width", size[0], "--height", size[1]] if size else []
+    _cli("synth", "uav", "--model", shared_data / "cityjson/rotterdam_subset.json", "-o", seq, "--frames", 240,
+         "--distance", h, *wh, "--no-depth", "--aa", 4, "--texture-size", 512, "-q")
+    m = _prepare(seq, d)
     runs = {slam: _run(seq, d, m, slam, 30.0) for slam in ("auto", "off")}
     return h, seq, load_model(m).vertices, runs
+
+
+@pytest.fixture(scope="module", params=[40, 120, 250], ids=["40m", "120m", "250m"])
+def survey(request, shared_data, tmp_path_factory):
+    return _survey_runs(request.param, shared_data, tmp_path_factory.mktemp(f"uav{request.param}"))
 
 
 @pytest.mark.slow
@@ -213,16 +219,7 @@ def test_uav_survey_band_default_mode(survey):
 def survey_1080(request, shared_data, tmp_path_factory):
     """The survey pass of :func:`survey` filmed at 1920x1080 (the camera's focal length scaled with
     the width: the same field of view), both modes."""
-    h = request.param
-    d = tmp_path_factory.mktemp(f"uav1080_{h}")
-    seq = d / "seq"
-    _cli("synth", "uav", "--model", shared_data / "cityjson/rotterdam_subset.json", "-o", seq, "--frames", 240,
-         "--distance", h, "--width", 1920, "--height", 1080, "--no-depth", "--aa", 4, "--texture-size", 512, "-q")
-    m = _prepare(seq, d)
-    from mst.meshtools.formats import load_model
-
-    runs = {slam: _run(seq, d, m, slam, 30.0) for slam in ("auto", "off")}
-    return h, seq, load_model(m).vertices, runs
+    return _survey_runs(request.param, shared_data, tmp_path_factory.mktemp(f"uav1080_{request.param}"), (1920, 1080))
 
 
 @pytest.mark.slow

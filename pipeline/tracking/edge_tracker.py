@@ -366,7 +366,7 @@ class EdgeTracker:
         klt = self._klt_track(gray) if self.use_klt and not (first or recover) else None
         out = self._track(gray, T_init, recover, first, klt, c.pyramid_levels)
         retry = int(c.retry_pyramid_levels)
-        if not out.healthy and not (first or recover) and retry > max(c.pyramid_levels, 1):
+        if not out.healthy and not (first or recover) and retry > c.pyramid_levels:
             klt_next = self._klt_next
             again = self._track(gray, T_init, recover, first, klt, retry)
             self._klt_next = self._klt_next if again.healthy else klt_next
