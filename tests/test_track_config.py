@@ -167,7 +167,7 @@ def test_search_range_and_retry_levels_follow_the_image_width():
 
     e = EdgesConfig()
     assert [search_range_px(e, w) for w in (0, 320, 640, 1280, 1920, 3840)] == [8, 8, 8, 16, 24, 48]
-    assert [retry_pyramid_levels(e, w) for w in (0, 640, 1279, 1280, 1920, 2559, 2560, 3840)] == [1, 1, 1, 2, 2, 2, 3, 3]
+    assert [retry_pyramid_levels(e, w) for w in (0, 639, 640, 1279, 1280, 1920, 2559, 2560, 3840)] == [1, 1, 2, 2, 2, 2, 2, 3, 3]
     assert lod_thresholds(e, 1920)[1] == 24.0**2 and lod_thresholds(e)[1] == 64.0
     fixed = EdgesConfig(search_range_px=10, retry_pyramid_levels=1)
     assert search_range_px(fixed, 1920) == 10 and retry_pyramid_levels(fixed, 1920) == 1

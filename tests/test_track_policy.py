@@ -1,4 +1,4 @@
-"""The tracking policy on its own (:class:`mst.pipeline.tracking.session.TrackingPolicy`): frame results
+"""The tracking policy on its own (:class:`mst.pipeline.tracking.policy.TrackingPolicy`): frame results
 in, decisions out, no images: the start pose, re-acquisition, the recovery gate, lost frames and hints,
 relocalisation cadence, the health score's veto."""
 

@@ -153,7 +153,7 @@ class AidPolicy:
     def refute_map_pose(self, k: int) -> bool:
         """The image refutes the map pose of frame ``k`` (output as ``slam``), while the model lies in
         the view at that pose: its edges and appearance are not there (the tracking session's check,
-        :meth:`mst.pipeline.tracking.session.TrackingPolicy.map_pose_refuted`). The map and the object
+        :meth:`mst.pipeline.tracking.policy.TrackingPolicy.map_pose_refuted`). The map and the object
         disagree: the object moved in the map's world (carried, turned) or the map drifted. Either
         way this map pose is no model pose: the frame is not output (the session marks it lost).
         Once refuted, the map keeps predicting (its pose is still the best start for the edge

@@ -212,6 +212,9 @@ class Refusals:
         self.within = False  #: the frame being judged counts towards ``steady`` (set by :meth:`judge`)
         self.n_prev: int | None = None  #: the last frame's visible edge samples, uncapped (:meth:`seen`)
         self.model_pair: list[np.ndarray] = []
+        #: a frame since the start was not output as a model pose (lost, refused, map pose): from then on
+        #: a frame without a motion prediction is also checked from +-BASIN_SIGMAS (:func:`ambiguity`)
+        self.broken = False
 
     def judge(self, b: PoseBudget, fr, distance_m) -> str:
         """Why the edge pose ``fr`` is beyond the budget ``b`` (:func:`beyond_budget`; '' when it is not).
@@ -241,6 +244,7 @@ class Refusals:
             self.model_pair = (self.model_pair[-1:] + [T_out])[-2:]
         else:
             self.model_pair = []
+            self.broken = True
 
     def predicted(self) -> np.ndarray | None:
         """Constant-velocity prediction from the last two frames when both were model poses (None otherwise)."""

@@ -1,7 +1,7 @@
 """A tracking session over a sequence: :class:`TrackingSession` ``step(index, time_s, gray) -> FrameRecord``.
 
 The session holds the one-frame tracker (:class:`~mst.pipeline.tracking.edge_tracker.EdgeTracker`),
-the optional SLAM aid (:mod:`mst.pipeline.slam`) and relocaliser, and a :class:`TrackingPolicy`: the
+the optional SLAM aid (:mod:`mst.pipeline.slam`) and relocaliser, and a :class:`~mst.pipeline.tracking.policy.TrackingPolicy`: the
 sequence-level decisions and their state (where a frame starts, re-acquisition after a SLAM-only
 stretch or a loss, the running gradient-support mean, the calibrated health score, when to
 relocalise, what the next frame starts from). The policy is testable on its own: it takes frame
@@ -18,30 +18,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mst.core.poses import inv_T, matmul_exact
+from mst.core.poses import inv_T
 from mst.pipeline.tracking.budget import (
     ModelDistance,
-    PoseBudget,
-    Refusals,
     ambiguity,
     is_refusal,
 )
 from mst.pipeline.tracking.edge_tracker import EdgeTracker, FrameResult
-from mst.pipeline.tracking.health import HealthMonitor
+from mst.pipeline.tracking.policy import MAP_CHECK_MIN_VIEW, REACQUIRE_SUPPORT_RATIO, TrackingPolicy  # noqa: F401 (re-exported)
 
 log = logging.getLogger(__name__)
-
-#: on re-acquisition (the model back after a SLAM-only stretch) an edge pose is healthy only when its
-#: gradient support is at least this fraction of its running mean over the model frames (measured
-#: on the synthetic corridor at 640x480: correct poses 0.90-0.96 against a usual 0.93, poses locked
-#: onto floor/texture edges 0.52-0.66; the real teabox: 0.66-0.73)
-REACQUIRE_SUPPORT_RATIO = 0.8
-
-#: a map (``slam``) pose is checked against the image only where the model lies mostly in the view
-#: at that pose: at least this fraction of the usual number of visible edge samples of the accepted
-#: model frames (fewer: the model is leaving or out of the view, where the map must bridge and the
-#: health score's binomial floors are wide)
-MAP_CHECK_MIN_VIEW = 0.5
 
 #: the first frame: the tolerant multi-pass search from the user's pose and a plain search from it
 #: (one pass, the usual range and robust scale) must agree within this many sigma (Mahalanobis
@@ -95,159 +81,6 @@ class FrameRecord:
                 "inliers": fr.n_inliers, "residual_px": fr.residual_px, "health_deg": fr.proj_error_deg,
                 "score": fr.score, "aid": self.aid_state, "reason": self.reason, "ms": self.ms,
                 "T_cam_model": None if self.T_cam_model is None else self.T_cam_model.tolist()}
-
-
-class TrackingPolicy:
-    """The sequence-level tracking decisions and their state (no images: frame results in, decisions out).
-
-    State: the last output pose ``T_prev`` (and the one before, ``T_prev2``, for the constant-velocity
-    prediction), ``lost_streak`` (frames lost in a row), ``first`` (no frame done yet),
-    ``prev_status``, ``support_ref`` (running mean of the gradient support of model frames),
-    ``T_hint`` (a healthy edge pose the aid refused: where the next frame starts), the health
-    monitor (``monitor``, None without the health score) and its reject count.
-    """
-
-    def __init__(self, T0: np.ndarray, search_range_px: float, constant_velocity: bool = False,
-                 monitor: HealthMonitor | None = None, budget: PoseBudget | None = None):
-        self.T_prev = T0
-        self.T_prev2: np.ndarray | None = None
-        self.T_hint: np.ndarray | None = None
-        self.lost_streak = 0
-        self.slam_streak = 0  # frames in a row output by the SLAM aid alone
-        self.first = True
-        self.first_reason = ""
-        self.prev_status = "model"
-        self.support_ref: float | None = None
-        self.search_range_px = search_range_px
-        self.constant_velocity = constant_velocity
-        self.monitor = monitor
-        self.n_score_rejects = 0
-        self.n_ref: float | None = None  #: running mean of the visible edge samples of model frames
-        self.budget = budget  #: the error budget of an output pose (None: not checked)
-        self.distance_m = None  #: ``distance_m(T_cam_model) -> m`` to the model (set by the session)
-        self.refusals = Refusals()  #: the error budget's state: refused frames, the model-pose pair
-
-    # -------------------------------------------------------------- before the edge tracker
-    def start_pose(self, T_pred: np.ndarray | None, aided: bool, shift_px) -> np.ndarray:
-        """The pose a frame starts from: the aid's prediction ``T_pred``, else constant velocity (when
-        on), else a hint, else the last pose. ``shift_px(T)``: the image motion (px) from ``T_prev`` to T."""
-        if T_pred is None and self.constant_velocity and self.T_prev2 is not None and self.lost_streak == 0:
-            T_pred = matmul_exact(matmul_exact(self.T_prev, inv_T(self.T_prev2)), self.T_prev)  # constant velocity (camera-frame motion)
-        T_start = T_pred if T_pred is not None else (self.T_hint if self.T_hint is not None else self.T_prev)
-        self.T_hint = None
-        if (aided and T_pred is not None and self.prev_status == "model" and self.lost_streak == 0
-                and not self.first and shift_px(T_pred) < 0.5 * self.search_range_px):
-            # slow motion: the edges' own last pose is inside the search range already; the
-            # SLAM pose (its map triangulated from earlier edge poses) would only pass its
-            # error on along the edges' weakly observed direction (250 m flyover: 2.5-3.9 m
-            # predictions, the edges followed). The aid predicts where the motion is large
-            T_start = self.T_prev
-        return T_start
-
-    def reacquiring(self, aided: bool) -> bool:
-        """Re-acquisition: the model comes back after a SLAM-only stretch. The SLAM prediction has
-        drifted (mono: ~1 deg = several pixels), the previous image holds no model edges to take
-        contrasts from: a widened coarse-to-fine search too, and the pose must look like a full fit
-        (gradient support near its usual value), since a pose locked onto floor/texture edges
-        passes the absolute tests."""
-        return aided and self.prev_status == "slam" and self.lost_streak == 0 and not self.first
-
-    @property
-    def recover(self) -> bool:
-        """The edge tracker's recovery mode (widened, coarse-to-fine search): after a loss."""
-        return self.lost_streak > 0
-
-    def should_relocalise(self, fr: FrameResult, every: int, aid_on: bool = False) -> bool:
-        """Lost, or (``aid_on``: an active SLAM aid will carry the frame) the model projects into the
-        image (edge samples), and this frame's edge pose unhealthy: a relocalisation attempt every
-        ``every`` frames of the stretch. (A drifted aid keeps the model's edges outside their
-        search range after a stretch without the model: on the 40 m UAV survey its map poses
-        reached 11 m off while the relocaliser could find the block.)"""
-        n = self.lost_streak if self.lost_streak > 0 else (self.slam_streak + 1 if aid_on and fr.n_samples > 0 else 0)
-        return n > 0 and not fr.healthy and (n - 1) % every == 0
-
-    # -------------------------------------------------------------- judging an edge pose
-    def judge(self, fr: FrameResult, first_frame: bool, count: bool = True) -> FrameResult:
-        """The calibrated health score on top of the tracker's absolute tests (``fr`` updated).
-        ``count``: a health-score reject is counted."""
-        if self.monitor is not None and fr.evidence is not None:
-            fr.features = self.monitor.features(fr.evidence, fr.klt_agree, fr.n_klt)
-            fr.score, worst = self.monitor.score(fr.features)
-            if fr.healthy and not first_frame and fr.score <= 0:
-                fr.healthy = False
-                fr.reason = f"health score {fr.score:.2f} ({worst})"
-                self.n_score_rejects += int(count)
-        return fr
-
-    def beyond_budget(self, fr: FrameResult) -> str:
-        """Why an edge pose's own uncertainty exceeds the error budget ('' when it does not, or
-        without a budget or a model distance): :func:`mst.pipeline.tracking.budget.beyond_budget`, after
-        an uncertain frame with the return rule of :meth:`~mst.pipeline.tracking.budget.Refusals.judge`."""
-        if self.budget is None or self.distance_m is None:
-            return ""
-        return self.refusals.judge(self.budget, fr, self.distance_m)
-
-    def map_pose_refuted(self, ev) -> str:
-        """Why the image refutes a map (``slam``) pose, from its evidence ``ev`` at that pose ('' when
-        it does not, or cannot judge: no health score, or the model mostly out of the view there).
-
-        The same calibrated score as for an edge pose (:meth:`judge`), without KLT: with the model
-        in the view at the map's pose, its edges of the learned polarity and its learned
-        appearance must be there. A map of a still room while the object is carried, or a drifted
-        mono map on the model's return, puts the model where the image shows none of it."""
-        if self.monitor is None or ev is None or self.n_ref is None or ev.n < MAP_CHECK_MIN_VIEW * self.n_ref:
-            return ""
-        score, worst = self.monitor.score(self.monitor.features(ev, None, 0))
-        return f"map pose refuted by the image: score {score:.2f} ({worst})" if score <= 0 else ""
-
-    def gate_recovery(self, fr: FrameResult, reacq: bool) -> bool:
-        """Whether the frame's edge pose counts as healthy. After a re-acquisition or a loss (edges
-        only, or the aid lost too), a pose found by the widened search on its first frame back has
-        too little history for the health score (few edges in view: wide binomial floors) and can
-        lock onto texture edges: its gradient support must be near its usual value."""
-        healthy = fr.healthy
-        recovering = reacq or self.lost_streak > 0
-        if healthy and recovering and self.support_ref is not None and fr.support < REACQUIRE_SUPPORT_RATIO * self.support_ref:
-            healthy = False
-            fr.reason = f"gradient support {fr.support:.0%} (usual {self.support_ref:.0%})"
-        return healthy
-
-    # -------------------------------------------------------------- after the output decision
-    def update_support(self, status: str, recovering: bool, support: float) -> None:
-        """The running mean of the gradient support over model frames (not recovering ones)."""
-        if status == "model" and not recovering:
-            self.support_ref = support if self.support_ref is None else 0.9 * self.support_ref + 0.1 * support
-
-    def learn(self, fr: FrameResult, status: str, healthy: bool) -> None:
-        """An accepted model frame teaches the health monitor."""
-        if self.monitor is not None and status in ("model", "relocalised") and healthy and fr.evidence is not None:
-            self.monitor.learn(fr.evidence, fr.features)
-            n = float(fr.evidence.n)
-            self.n_ref = n if self.n_ref is None else 0.9 * self.n_ref + 0.1 * n
-
-    def should_learn_appearance(self, fr: FrameResult, status: str, healthy: bool, min_score: float = 0.5) -> bool:
-        """A model (or relocalised) frame confident enough to teach the relocaliser (the first, or a
-        health score >= ``min_score``: :attr:`RelocConfig.learn_min_score`)."""
-        return status in ("model", "relocalised") and healthy and (self.first or fr.score >= min_score)
-
-    def accepted(self, T_out: np.ndarray) -> None:
-        """An output pose: the next frame starts from it."""
-        self.T_prev2 = self.T_prev if self.lost_streak == 0 and not self.first else None
-        self.T_prev = T_out
-        self.lost_streak = 0
-
-    def lost(self, fr: FrameResult) -> None:
-        """No output pose; a healthy edge pose the aid refused (it contradicts the map) is not output,
-        but it says where the object is: the next frame starts there."""
-        self.lost_streak += 1
-        if fr.healthy and fr.T_cam_model is not None:
-            self.T_hint = fr.T_cam_model
-
-    def frame_done(self, fr: FrameResult) -> None:
-        if self.first:
-            self.first_reason = fr.reason
-        self.first = False
-        self.refusals.seen(fr)
 
 
 def _shift_px(tracker: EdgeTracker, T_a: np.ndarray, T_b: np.ndarray) -> float:
@@ -318,6 +151,22 @@ class TrackingSession:
             fr_p = p.judge(tr.track(gray, p.T_prev, recover=p.recover), False)
             if fr_p.healthy:
                 fr = fr_p
+        T_cv = None if (fr.healthy or p.first or reacq or p.constant_velocity) else p.refusals.predicted()
+        if T_cv is not None:
+            # the last motion repeated (the last two frames output as model poses; the start itself
+            # when edges.constant_velocity is on), fitted on the edges alone: a fast, steady camera
+            # outruns the search from the last pose. Measured (session 11): the FPV pass at 640x480,
+            # 10 frames/s (1 m and ~2 deg a frame), edges only 5 -> 30 of 30 frames; Rotterdam
+            # 40 m survey at 1080p, the default 146 -> 156 frames (the model leaving the view: the
+            # other fits, with the 5-7 KLT tracks on its last sliver, lost frames 72-80), ATE
+            # 0.006 -> 0.007 m. Only for a lost fit after two output model poses: refits of a pose
+            # refused by the error budget came back within it but less accurate (Rotterdam 120 m at
+            # 640x480, after the turn: 0.195 -> 0.451 m), and after withheld poses the motion led
+            # the Rotterdam FPV pass into a wrong basin (5.7 m, 17 % off, output as model)
+            fr_v = self._edges_only(lambda: p.judge(tr.track(gray, T_cv, recover=p.recover), False))
+            if fr_v.healthy:
+                fr = fr_v
+                tr.discard_klt_matches()  # this fit used none: the next frame re-detects them
         if reacq:
             # also the widened search; keep the better fit (healthy, then gradient support)
             fr_w = p.judge(tr.track(gray, T_start, recover=True), False)
@@ -337,10 +186,22 @@ class TrackingSession:
                     break
         return fr, relocalised
 
+    def _edges_only(self, fit):
+        """``fit()`` with the tracker's KLT points left out (restored after)."""
+        tr = self.tracker
+        klt = getattr(tr, "use_klt", False)
+        if not klt:
+            return fit()
+        tr.use_klt = False
+        try:
+            return fit()
+        finally:
+            tr.use_klt = klt
+
     def _ambiguous(self, gray: np.ndarray, fr: FrameResult) -> FrameResult:
         """Refuse ``fr`` (``healthy`` False, reason ``ambiguous``) when a second healthy fit of the image
         lies beyond the budget from it (:func:`mst.pipeline.tracking.budget.ambiguity`): from the
-        motion prediction of the last two model frames, and after a refused frame from +-3 sigma;
+        motion prediction of the last two model frames, and after a refused frame (or, without a prediction, after any frame that was not a model pose) from +-3 sigma;
         poses compared modulo the model's axis of revolution (:meth:`_modulo_symmetry`). A refit
         with clearly better evidence (:data:`mst.pipeline.tracking.budget.SCORE_MARGIN`) is returned
         in its place: the first fit settled in the image's worse minimum."""
@@ -352,7 +213,11 @@ class TrackingSession:
         def refit(T_start):
             return p.judge(tr.track(gray, T_start, recover=p.recover), False, count=False)
 
-        why, better = ambiguity(p.budget, fr, p.distance_m(fr.T_cam_model), p.refusals.predicted(), p.refusals.after,
+        # no motion prediction since a frame that was not a model pose (the two frames after a loss,
+        # the one after a relocalised frame): also from +-3 sigma, as after a refusal. Rotterdam
+        # 120 m at 640x480, edges only: frame 177, after a relocalised one, had been output 1.4 % off
+        T_cv, ref = p.refusals.predicted(), p.refusals
+        why, better = ambiguity(p.budget, fr, p.distance_m(fr.T_cam_model), T_cv, ref.after or (T_cv is None and ref.broken),
                                 refit, align=self._modulo_symmetry)
         if better is not None:
             tr.discard_klt_matches()  # the KLT inliers were those of the discarded fit
