@@ -201,8 +201,9 @@ class TrackingSession:
     def _ambiguous(self, gray: np.ndarray, fr: FrameResult) -> FrameResult:
         """Refuse ``fr`` (``healthy`` False, reason ``ambiguous``) when a second healthy fit of the image
         lies beyond the budget from it (:func:`mst.pipeline.tracking.budget.ambiguity`): from the
-        motion prediction of the last two model frames, and after a refused frame (or, without a prediction, after any frame that was not a model pose) from +-3 sigma;
-        poses compared modulo the model's axis of revolution (:meth:`_modulo_symmetry`). A refit
+        motion prediction of the last two model frames, and from +-3 sigma after a refused frame
+        (or, without a prediction, after any frame that was not a model pose); poses compared
+        modulo the model's axis of revolution (:meth:`_modulo_symmetry`). A refit
         with clearly better evidence (:data:`mst.pipeline.tracking.budget.SCORE_MARGIN`) is returned
         in its place: the first fit settled in the image's worse minimum."""
         p, tr = self.policy, self.tracker
