@@ -60,8 +60,8 @@ class TrackingPolicy:
     def start_pose(self, T_pred: np.ndarray | None, aided: bool, shift_px) -> np.ndarray:
         """The pose a frame starts from: the aid's prediction ``T_pred``, else constant velocity (when
         on), else a hint, else the last pose. ``shift_px(T)``: the image motion (px) from ``T_prev`` to T."""
-        if T_pred is None and self.constant_velocity:
-            T_pred = self.constant_velocity_pose()
+        if T_pred is None and self.constant_velocity and self.T_prev2 is not None and self.lost_streak == 0:
+            T_pred = matmul_exact(matmul_exact(self.T_prev, inv_T(self.T_prev2)), self.T_prev)  # constant velocity (camera-frame motion)
         T_start = T_pred if T_pred is not None else (self.T_hint if self.T_hint is not None else self.T_prev)
         self.T_hint = None
         if (aided and T_pred is not None and self.prev_status == "model" and self.lost_streak == 0
@@ -72,13 +72,6 @@ class TrackingPolicy:
             # predictions, the edges followed). The aid predicts where the motion is large
             T_start = self.T_prev
         return T_start
-
-    def constant_velocity_pose(self) -> np.ndarray | None:
-        """The last motion repeated (camera-frame motion ``T_prev T_prev2^-1`` applied to ``T_prev``),
-        while the last two frames had poses and nothing was lost since; None otherwise."""
-        if self.T_prev2 is None or self.lost_streak != 0:
-            return None
-        return matmul_exact(matmul_exact(self.T_prev, inv_T(self.T_prev2)), self.T_prev)
 
     def reacquiring(self, aided: bool) -> bool:
         """Re-acquisition: the model comes back after a SLAM-only stretch. The SLAM prediction has
