@@ -70,6 +70,18 @@ def metres_per_unit(depth_scale: float) -> float:
     return 1.0 / s if s >= 1.0 else s
 
 
+def units_to_metres(raw: np.ndarray, m_per_unit: float) -> np.ndarray:
+    """Integer depth ``raw`` (H, W) in units of ``m_per_unit`` metres -> float32 metres (H, W).
+
+    The float32 quotient ``raw / units_per_metre`` (correctly rounded), not a product with the
+    rounded reciprocal: the same depth stored in millimetres (``d``, scale 1000) or in TUM's 1/5000 m
+    (``5 d``, scale 5000) then gives bit-identical metres, so a run does not depend on the unit its
+    depth was written in (with the reciprocal the two differed in the last bit of some pixels, and a
+    flipped RANSAC decision in the SLAM aid turned that into millimetres on one CPU).
+    """
+    return raw.astype(np.float32) / np.float32(1.0 / m_per_unit)
+
+
 def natural_key(path: str | os.PathLike) -> list:
     """Sort key that orders ``frame2`` before ``frame10`` (digit runs compared as numbers)."""
     return [int(t) if t.isdigit() else t.lower() for t in re.split(r"(\d+)", Path(path).name)]
@@ -97,7 +109,7 @@ def _read_bin(path: Path, m_per_unit: float) -> np.ndarray:
         what = "truncated" if len(raw) < need else "longer than its header says"
         raise InputError(path, f"ViSP raw depth is {what}: {len(raw)} bytes, expected {need} for {w}x{h}")
     d = np.frombuffer(raw, dtype="<u2", offset=8).reshape(h, w)
-    return d.astype(np.float32) * np.float32(m_per_unit)
+    return units_to_metres(d, m_per_unit)
 
 
 def _read_cv(path: Path, m_per_unit: float) -> np.ndarray:
@@ -121,7 +133,7 @@ def _read_cv(path: Path, m_per_unit: float) -> np.ndarray:
     if img.dtype == np.uint8:
         raise InputError(path, "8-bit image: depth must be 16-bit integer (or float)")
     if np.issubdtype(img.dtype, np.integer):
-        return img.astype(np.float32) * np.float32(m_per_unit)
+        return units_to_metres(img, m_per_unit)
     return img.astype(np.float32)  # float TIFF: metres
 
 
@@ -155,7 +167,7 @@ def _read_npy(path: Path, m_per_unit: float) -> np.ndarray:
     if a.ndim == 3 and a.shape[2] == 1:
         a = a[:, :, 0]
     if np.issubdtype(a.dtype, np.integer):
-        return a.astype(np.float32) * np.float32(m_per_unit)
+        return units_to_metres(a, m_per_unit)
     return a.astype(np.float32, copy=False)
 
 
