@@ -327,9 +327,9 @@ def test_rgbd_reads_depth_with_the_depth_scale(scene, tmp_path):
     map is wrong (before #10 ``track`` read 16-bit depth as millimetres only). (Before the quotient,
     the reciprocal's rounding left the last bit of some pixels apart, and one RANSAC decision turned
     that into 1.3 mm on another CPU: a tolerance on the poses was a fit to one machine.)"""
-    from mst.pipeline.depth_io import read_depth
-
     import cv2
+
+    from mst.pipeline.depth_io import read_depth
 
     Ts = orbit(20)
     imgs = render_sequence(scene, Ts, tmp_path)
