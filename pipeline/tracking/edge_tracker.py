@@ -32,6 +32,7 @@ from mst.pipeline.tracking.config import (
     search_range_px,
 )
 from mst.pipeline.tracking.health import ORIENT_TOL_DEG, PoseEvidence, image_noise_sigma
+from mst.pipeline.tracking.klt_anchor import nearest_face_planes, reanchor_on_planes
 from mst.pipeline.tracking.moving_edges import _image
 
 log = logging.getLogger(__name__)
@@ -115,9 +116,10 @@ class EdgeTracker:
         self.prev_faces: np.ndarray | None = None
         self.klt_pts: np.ndarray | None = None  # (M,2) px in prev frame
         self.klt_X: np.ndarray | None = None  # (M,3) model frame
+        self.klt_plane: np.ndarray | None = None  # (M,4) the face plane (n, d: n.X = d) of each, model frame (klt.reanchor)
         self.prev_gray: np.ndarray | None = None
         self._pyramids = None  # the KLT pyramids of the last two frames (core.klt.PyramidCache)
-        self._klt_next: tuple[np.ndarray, np.ndarray] | None = None  # the last fit's KLT inliers (model points, px)
+        self._klt_next: tuple | None = None  # the last fit's KLT inliers (model points, px, planes)
         self._klt_age = 0  # frames since the KLT corners were detected
         self._klt_n0 = 0  # corners at the last detection
         self.klt_gate: tuple[np.ndarray, float] | None = None  #: texture gate of the last detection (g_min, noise sigma)
@@ -180,7 +182,7 @@ class EdgeTracker:
         if self.sample_provider is not None and ref_img is not None:  # render-based edges: contour side test
             m = self.sample_provider.filter_matches(img, K, S, m, ref_img, ref_T)
         cand = m.candidates_uv(S.uv)
-        kx, ku = (None, None) if klt is None else klt
+        kx, ku = (None, None) if klt is None else klt[:2]
         # without a given floor: where the floor binds (the fit's own robust scale is below it), a fine
         # stage from the converged pose, same matches, a tighter floor (solve_pose's fine_mad_px). The
         # coarse floor must admit the whole inter-frame motion at the start (with the fine one from
@@ -202,7 +204,8 @@ class EdgeTracker:
 
     # -------------------------------------------------------------- KLT (ViSP hybrid tracker)
     def _klt_points(self, gray, T):
-        """Detect KLT corners inside visible faces; their model points from the face plane."""
+        """Detect KLT corners inside visible faces: ``(pts (M,2) px, X (M,3) model points from the
+        inverse depth buffer, planes (M,4) the nearest visible face plane of each)`` or Nones."""
         import cv2
 
         kc = self.klt_cfg
@@ -215,14 +218,14 @@ class EdgeTracker:
         mask = cv2.erode(mask, np.ones((2 * kc.border_px + 1,) * 2, np.uint8))
         ys, xs = np.nonzero(mask[::8, ::8])
         if not len(xs):
-            return None, None
+            return None, None, None
         x0, x1 = max(0, xs.min() * 8 - 8), min(W, xs.max() * 8 + 9)
         y0, y1 = max(0, ys.min() * 8 - 8), min(H, ys.max() * 8 + 9)
         pts = cv2.goodFeaturesToTrack(gray[y0:y1, x0:x1], kc.max_features, kc.quality, kc.min_distance_px,
                                       mask=np.ascontiguousarray(mask[y0:y1, x0:x1]), blockSize=kc.block_px,
                                       useHarrisDetector=False, k=kc.harris_k)
         if pts is None:
-            return None, None
+            return None, None, None
         pts = pts.reshape(-1, 2)
         # texture gate: goodFeaturesToTrack's quality is relative to the strongest corner, so on a
         # textureless face it returns noise. Keep a corner only when the weakest-direction RMS
@@ -237,7 +240,7 @@ class EdgeTracker:
         self.klt_gate = (g_min, sigma)
         pts = pts[g_min >= 3.0 * 0.43 * sigma]
         if not len(pts):
-            return None, None
+            return None, None, None
         pts = pts + [x0, y0]
         pts = pts.astype(np.float64)
         ix, iy = np.rint(pts[:, 0]).astype(int), np.rint(pts[:, 1]).astype(int)
@@ -247,7 +250,8 @@ class EdgeTracker:
         xn = (pts - self.K[:2, 2]) / np.array([self.K[0, 0], self.K[1, 1]])
         Xc = np.column_stack([xn, np.ones(len(xn))]) / iz[:, None]
         X_model = transform_points(inv_T(T), Xc, elementwise=True)
-        return pts, X_model
+        # the face planes only where the points are re-anchored (an (M, F) search over the faces in view)
+        return pts, X_model, nearest_face_planes(self.geom, X_model, fv) if kc.reanchor > 0 else None
 
     def _klt_track(self, gray):
         from mst.core.klt import track_forward_backward
@@ -263,7 +267,7 @@ class EdgeTracker:
         p1, ok, _ = track_forward_backward(pyr.get(self.prev_gray), pyr.get(gray), self.klt_pts, self.klt_cfg)
         if ok.sum() < 4:
             return None
-        return self.klt_X[ok], p1[ok].astype(np.float64)
+        return self.klt_X[ok], p1[ok].astype(np.float64), None if self.klt_plane is None else self.klt_plane[ok]
 
     def discard_klt_matches(self) -> None:
         """Forget the KLT inliers of the last :meth:`track` call (its fit was not the one kept)."""
@@ -429,7 +433,7 @@ class EdgeTracker:
         healthy, reason, uv, support, proj_err = self._absolute_health(img, S, T, res, recover)
         n_s, n_in = len(S), int(res.inlier.sum())
         if klt is not None and res.klt_inlier is not None:
-            self._klt_next = (klt[0][res.klt_inlier], klt[1][res.klt_inlier])
+            self._klt_next = tuple(None if a is None else a[res.klt_inlier] for a in klt)
         prov = self.sample_provider
         cov = res.cov if prov is None else prov.gauge_cov(T, res.W, res.cov, res.rms_px, res.jk_inputs)
         out = FrameResult(T, healthy, n_s, n_in, res.rms_px, proj_err, res.W, cov, uv, res.inlier,
@@ -499,10 +503,13 @@ class EdgeTracker:
             enough = nxt is not None and len(nxt[0]) >= max(20, 0.6 * self._klt_n0)
             # re-detect when too few points survive (at most every 5 frames: textureless scenes) or every 30
             if nxt is not None and len(nxt[0]) >= 4 and (enough or self._klt_age < 5) and self._klt_age < 30:
-                self.klt_X, self.klt_pts = nxt  # keep tracking the surviving points (ViSP keeps its KLT set)
+                # keep tracking the surviving points (ViSP keeps its KLT set)
+                self.klt_X, self.klt_pts, self.klt_plane = nxt
+                if self.klt_plane is not None:  # klt.reanchor: a share of the way to the accepted pose's points
+                    X1 = reanchor_on_planes(self.klt_pts, self.klt_plane, T_cam_model, self.K, self.klt_X)
+                    self.klt_X = self.klt_X + self.klt_cfg.reanchor * (X1 - self.klt_X)
             else:
-                pts, X = self._klt_points(gray, T_cam_model)
-                self.klt_pts, self.klt_X = pts, X
-                self._klt_n0 = 0 if pts is None else len(pts)
+                self.klt_pts, self.klt_X, self.klt_plane = self._klt_points(gray, T_cam_model)
+                self._klt_n0 = 0 if self.klt_pts is None else len(self.klt_pts)
                 self._klt_age = 0
             self.prev_gray = gray
