@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 
 sys.path.insert(0, str(Path(__file__).parent))
-from test_vvs import K, _cube, _project, _start, _true_pose  # noqa: E402
+from test_vvs import K, _corner_px, _cube, _lifted_under_a_wrong_pose, _project, _start, _true_pose  # noqa: E402
 
-from mst.core.poses import inv_T, se3_exp  # noqa: E402
+from mst.core.poses import inv_T  # noqa: E402
 from mst.meshtools.generate import box_model  # noqa: E402
 from mst.pipeline.tracking.klt_anchor import nearest_face_planes, reanchor_on_planes  # noqa: E402
 from mst.pipeline.tracking.visibility import ModelGeometry  # noqa: E402
@@ -82,18 +82,11 @@ def _detection_error_over_frames(alpha: float, seed: int, frames: int = 20) -> n
     T_true = _true_pose()
     rng = np.random.default_rng(seed)
     Xk, _ = _points_on_faces(rng, 200)
-    d = rng.normal(0, 1, 6)
-    d[:3] *= 0.003 / np.linalg.norm(d[:3])
-    d[3:] *= np.radians(0.3) / np.linalg.norm(d[3:])
-    T_det = se3_exp(d) @ T_true
-    Ti = inv_T(T_det)
-    Xk_model = (Xk @ T_true[:3, :3].T + T_true[:3, 3]) @ Ti[:3, :3].T + Ti[:3, 3]  # lifted under T_det
+    T_det, Xk_model, uk = _lifted_under_a_wrong_pose(rng, Xk, T_true)
     planes = nearest_face_planes(_cube_geometry(), Xk_model)
-    uk = _project(T_true, Xk)
-    corners = np.array([[x, y, z] for x in (-0.1, 0.1) for y in (-0.1, 0.1) for z in (-0.1, 0.1)])
 
     def corner_px(T):
-        return np.linalg.norm(_project(T, corners) - _project(T_true, corners), axis=1).mean()
+        return _corner_px(T, T_true)
 
     T, out = _start(T_true), []
     for _ in range(frames):
