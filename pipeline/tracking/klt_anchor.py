@@ -5,7 +5,11 @@ it carries that pose's error. Anchored there (ViSP's ``vpMbKltTracker`` keeps th
 detects again), every later frame is pulled towards the detection pose, and an error of that one
 frame persists until the next detection (up to 30 frames). Re-anchored at every accepted pose
 (:func:`reanchor_on_planes`: the tracked pixel cast onto the point's face plane), the points constrain
-only the motion since the last frame, and a past error decays as the edges pull the pose back.
+only the motion since the last frame, and a past error decays as the edges pull the pose back; the
+tracker moves them a share of the way there (``klt.reanchor``, off by default: README, tracking).
+
+Every dot product is summed in a fixed order (:func:`_dot3`, no BLAS or einsum, whose order depends on
+the CPU), as the tracker's other rounding-sensitive arithmetic (``mst.pipeline.tracking.exact``).
 """
 
 from __future__ import annotations
@@ -17,6 +21,11 @@ import numpy as np
 TREE_MIN_FACES = 20_000
 #: face centres a point's plane is chosen among, on the tree path
 TREE_K = 16
+
+
+def _dot3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``a . b`` over the last axis (length 3, broadcast), summed as ``(a0 b0 + a1 b1) + a2 b2``."""
+    return a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1] + a[..., 2] * b[..., 2]
 
 
 def nearest_face_planes(geom, X_model: np.ndarray, faces: np.ndarray | None = None) -> np.ndarray:
@@ -42,12 +51,12 @@ def nearest_face_planes(geom, X_model: np.ndarray, faces: np.ndarray | None = No
         best = _nearest_by_tree(geom, X, ids)
     else:
         n = N[ids]
-        d = np.einsum("fk,fk->f", n, P[ids])
+        d = _dot3(n, P[ids])
         best = np.empty(len(X), np.int64)
         step = max(1, 4_000_000 // len(ids))  # points per block
         for i in range(0, len(X), step):
-            best[i:i + step] = ids[np.argmin(np.abs(X[i:i + step] @ n.T - d), axis=1)]
-    return np.column_stack([N[best], np.einsum("mk,mk->m", N[best], P[best])])
+            best[i:i + step] = ids[np.argmin(np.abs(_dot3(X[i:i + step, None, :], n[None]) - d), axis=1)]
+    return np.column_stack([N[best], _dot3(N[best], P[best])])
 
 
 def _nearest_by_tree(geom, X: np.ndarray, ids: np.ndarray) -> np.ndarray:
@@ -63,7 +72,7 @@ def _nearest_by_tree(geom, X: np.ndarray, ids: np.ndarray) -> np.ndarray:
     _, nb = tree.query(X, k=k)
     nb = np.asarray(nb, np.int64).reshape(len(X), k)
     N, P = geom.face_normals, geom.face_point
-    dist = np.abs(np.einsum("mkj,mj->mk", N[nb], X) - np.einsum("mkj,mkj->mk", N[nb], P[nb]))
+    dist = np.abs(_dot3(N[nb], X[:, None, :]) - _dot3(N[nb], P[nb]))
     allowed = np.zeros(len(N), bool)
     allowed[ids] = True
     dist = np.where(allowed[nb], dist, np.inf)
@@ -82,15 +91,15 @@ def reanchor_on_planes(uv_px: np.ndarray, planes: np.ndarray, T_cam_model: np.nd
     X_old = np.asarray(X_model, np.float64).reshape(-1, 3)
     if not len(uv):
         return X_old.copy()
-    R, t = T_cam_model[:3, :3], T_cam_model[:3, 3]
-    C = -R.T @ t  # the camera centre in the model frame
+    R = T_cam_model[:3, :3]
+    C = -_dot3(R.T, T_cam_model[:3, 3])  # the camera centre in the model frame: -R^T t
     rays = np.column_stack([(uv[:, 0] - K[0, 2]) / K[0, 0], (uv[:, 1] - K[1, 2]) / K[1, 1], np.ones(len(uv))])
-    D = rays @ R  # R^T ray for each row: the directions in the model frame
+    D = _dot3(rays[:, None, :], R.T[None])  # R^T ray for each row: the directions in the model frame
     n, d = planes[:, :3], planes[:, 3]
-    nD = np.einsum("mk,mk->m", n, D)
-    cos = np.abs(nD) / np.linalg.norm(D, axis=1)
+    nD = _dot3(n, D)
+    cos = np.abs(nD) / np.sqrt(_dot3(D, D))
     with np.errstate(divide="ignore", invalid="ignore"):
-        s = (d - n @ C) / nD
+        s = (d - _dot3(n, C)) / nD
     ok = (cos >= min_cos) & (s > 0) & np.isfinite(s)
     out = X_old.copy()
     out[ok] = C + s[ok, None] * D[ok]
