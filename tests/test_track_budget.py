@@ -94,7 +94,7 @@ class _Tracker:
             T = self.trap[self.k]
         return _fr(T)
 
-    def accept(self, gray, T):
+    def accept(self, gray, T, anchor=True):
         self.T_acc = T
 
     def discard_klt_matches(self):

@@ -165,9 +165,9 @@ class TrackKltConfig(KltConfig):
 
     fb_max_px: float = param(0.5, min=0, min_open=True, help="forward-backward error bound, px")
     backward_from_start: bool = param(False, help="start the backward pass at the original points (else at the tracked ones)")
-    reanchor: float = param(0.0, min=0, max=1, help="share by which the kept KLT points move, at every accepted pose, "
-                                                    "towards their pixels cast onto their face planes (0: anchored at "
-                                                    "their detection, as ViSP; 1: frame-to-frame)")
+    reanchor: str = param("mean", choices=("mean", "off"),
+                          help="the kept KLT points' model coordinates: mean = the mean of their pixels cast onto their "
+                               "face planes under every pose since their detection; off = lifted at their detection (ViSP)")
 
 
 @dataclass

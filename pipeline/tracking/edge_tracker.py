@@ -122,6 +122,7 @@ class EdgeTracker:
         self._klt_next: tuple | None = None  # the last fit's KLT inliers (model points, px, planes)
         self._klt_age = 0  # frames since the KLT corners were detected
         self._klt_n0 = 0  # corners at the last detection
+        self._klt_n_mean = 1  # poses in the KLT points' running mean (klt.reanchor mean): the detection's
         self.klt_gate: tuple[np.ndarray, float] | None = None  #: texture gate of the last detection (g_min, noise sigma)
         self._fail = ""  # why the last edge pass found no pose
         self.near_m: float | None = cfg.near_clip_m  # None: set from the scene depth at the first pose
@@ -250,8 +251,8 @@ class EdgeTracker:
         xn = (pts - self.K[:2, 2]) / np.array([self.K[0, 0], self.K[1, 1]])
         Xc = np.column_stack([xn, np.ones(len(xn))]) / iz[:, None]
         X_model = transform_points(inv_T(T), Xc, elementwise=True)
-        # the face planes only where the points are re-anchored (an (M, F) search over the faces in view)
-        return pts, X_model, nearest_face_planes(self.geom, X_model, fv) if kc.reanchor > 0 else None
+        # the face planes where the points are re-anchored (klt.reanchor)
+        return pts, X_model, nearest_face_planes(self.geom, X_model, fv) if kc.reanchor != "off" else None
 
     def _klt_track(self, gray):
         from mst.core.klt import track_forward_backward
@@ -480,8 +481,10 @@ class EdgeTracker:
                                      if support < c.min_support else f"projection error {proj_err:.1f} deg")
         return healthy, reason, uv, support, proj_err
 
-    def accept(self, gray: np.ndarray, T_cam_model: np.ndarray) -> None:
-        """Make ``(gray, T_cam_model)`` the reference for the next frame (a good pose)."""
+    def accept(self, gray: np.ndarray, T_cam_model: np.ndarray, anchor: bool = True) -> None:
+        """Make ``(gray, T_cam_model)`` the reference for the next frame (a good pose). ``anchor``: the
+        pose is output as the model's (``model``, ``relocalised``), so the kept KLT points may be
+        re-anchored on it (``klt.reanchor``); a pose the error budget withheld or a map pose is not."""
         from mst.pipeline.tracking.visibility import face_visibility, view_faces
 
         c = self.cfg
@@ -505,11 +508,13 @@ class EdgeTracker:
             if nxt is not None and len(nxt[0]) >= 4 and (enough or self._klt_age < 5) and self._klt_age < 30:
                 # keep tracking the surviving points (ViSP keeps its KLT set)
                 self.klt_X, self.klt_pts, self.klt_plane = nxt
-                if self.klt_plane is not None:  # klt.reanchor: a share of the way to the accepted pose's points
+                if anchor and self.klt_cfg.reanchor == "mean" and self.klt_plane is not None:  # over the output poses
                     X1 = reanchor_on_planes(self.klt_pts, self.klt_plane, T_cam_model, self.K, self.klt_X)
-                    self.klt_X = self.klt_X + self.klt_cfg.reanchor * (X1 - self.klt_X)
+                    self._klt_n_mean += 1
+                    self.klt_X = self.klt_X + (X1 - self.klt_X) / self._klt_n_mean
             else:
                 self.klt_pts, self.klt_X, self.klt_plane = self._klt_points(gray, T_cam_model)
                 self._klt_n0 = 0 if self.klt_pts is None else len(self.klt_pts)
                 self._klt_age = 0
+                self._klt_n_mean = 1
             self.prev_gray = gray

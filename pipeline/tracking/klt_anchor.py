@@ -5,8 +5,10 @@ it carries that pose's error. Anchored there (ViSP's ``vpMbKltTracker`` keeps th
 detects again), every later frame is pulled towards the detection pose, and an error of that one
 frame persists until the next detection (up to 30 frames). Re-anchored at every accepted pose
 (:func:`reanchor_on_planes`: the tracked pixel cast onto the point's face plane), the points constrain
-only the motion since the last frame, and a past error decays as the edges pull the pose back; the
-tracker moves them a share of the way there (``klt.reanchor``, off by default: README, tracking).
+only the motion since the last frame, and a past error decays as the edges pull the pose back. The
+tracker (``klt.reanchor mean``, the default) keeps each point at the running mean of its casts under
+the detection pose and every pose output since as the model's (not under a pose the error budget
+withheld, nor a map pose): each such pose counts once (README, tracking).
 
 Every dot product is summed in a fixed order (:func:`_dot3`, no BLAS or einsum, whose order depends on
 the CPU), as the tracker's other rounding-sensitive arithmetic (``mst.pipeline.tracking.exact``).

@@ -342,7 +342,7 @@ class TrackingSession:
                 and reloc.should_learn(idx, fr.T_cam_model)):
             reloc.learn(idx, gray, fr.T_cam_model)
         if T_out is not None and status != "lost":
-            tr.accept(gray, T_out)
+            tr.accept(gray, T_out, anchor=status in ("model", "relocalised"))
             p.accepted(T_out)
         else:
             p.lost(fr)
@@ -360,7 +360,7 @@ class TrackingSession:
         pose is checked for ambiguity (:meth:`_ambiguous`). Going on from the lost frame's map pose
         or last output pose instead lost the demo's UAV pass from the turn on (79 frames)."""
         tr, p = self.tracker, self.policy
-        tr.accept(gray, fr.T_cam_model)
+        tr.accept(gray, fr.T_cam_model, anchor=False)
         p.accepted(fr.T_cam_model)
         p.prev_status = "model"
         p.slam_streak = 0
@@ -374,7 +374,7 @@ class TrackingSession:
         """A map pose that is not output (``lost``) while the map still bridges: the next frame goes
         on from it as from a slam frame (edge search start, re-acquisition, relocalisation attempts)."""
         tr, p = self.tracker, self.policy
-        tr.accept(gray, T_map)
+        tr.accept(gray, T_map, anchor=False)
         p.accepted(T_map)
         p.update_support("slam", recovering, fr.support)
         p.prev_status = "slam"
