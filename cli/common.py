@@ -196,8 +196,9 @@ def _show_config(ctx: click.Context, param: click.Parameter, value: bool) -> Non
 def parse_set_values(values: Iterable[str]) -> dict[str, Any]:
     """``["slam.klt.fb_max_px=2", "edges.passes=3"]`` -> ``{"slam.klt.fb_max_px": 2, "edges.passes": 3}``.
 
-    Values are read as YAML scalars/lists (``2``, ``true``, ``null``, ``[8, 6]``); a malformed item is
-    a usage error naming ``--set``.
+    Values are read as YAML scalars/lists (``2``, ``true``, ``null``, ``[8, 6]``; ``off`` and ``on``
+    are words, as in YAML 1.2: :func:`mst.core.config.load_yaml_text`); a malformed item is a usage
+    error naming ``--set``.
     """
     out: dict[str, Any] = {}
     for item in values:
@@ -206,9 +207,9 @@ def parse_set_values(values: Iterable[str]) -> dict[str, Any]:
         if not sep or not key:
             raise click.BadParameter(f"{item!r} is not KEY=VALUE", param_hint="'--set'")
         try:
-            import yaml
+            from mst.core.config import load_yaml_text
 
-            val = yaml.safe_load(raw) if raw.strip() else ""
+            val = load_yaml_text(raw) if raw.strip() else ""
         except Exception:  # noqa: BLE001 - any YAML problem: keep the text as a string
             val = raw
         out[key] = val

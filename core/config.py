@@ -300,13 +300,48 @@ def deep_merge(base: Mapping[str, Any], over: Mapping[str, Any]) -> dict[str, An
     return out
 
 
+_LOADER = None
+
+
+def yaml_loader():
+    """PyYAML's ``SafeLoader`` with YAML 1.2's booleans: only ``true``/``false`` (any case) are
+    booleans, so ``off``, ``on``, ``yes``, ``no`` stay the words they are. YAML 1.1 (PyYAML's
+    default) reads ``reanchor: off`` as ``false``, and a setting whose choices include ``off``
+    (``klt.reanchor``, ``aid``) could not be written as its documented value in a settings file or
+    in ``--set``. A boolean setting still takes those words (:func:`_coerce` maps them)."""
+    global _LOADER
+    if _LOADER is None:
+        import re
+
+        import yaml
+
+        class Yaml12BoolLoader(yaml.SafeLoader):
+            pass
+
+        resolvers = {}
+        for ch, items in yaml.SafeLoader.yaml_implicit_resolvers.items():
+            resolvers[ch] = [(tag, rx) for tag, rx in items if tag != "tag:yaml.org,2002:bool"]
+        Yaml12BoolLoader.yaml_implicit_resolvers = resolvers
+        Yaml12BoolLoader.add_implicit_resolver("tag:yaml.org,2002:bool", re.compile(r"^(?:true|True|TRUE|false|False|FALSE)$"),
+                                               list("tTfF"))
+        _LOADER = Yaml12BoolLoader
+    return _LOADER
+
+
+def load_yaml_text(text: str) -> Any:
+    """``text`` parsed as YAML with :func:`yaml_loader` (raises PyYAML's errors)."""
+    import yaml
+
+    return yaml.load(text, Loader=yaml_loader())  # noqa: S506 - a SafeLoader subclass
+
+
 def parse_yaml(path: str | os.PathLike, text: str) -> Any:
-    """``text`` (the contents of ``path``) parsed as YAML; :class:`InputError` naming the file with
-    the line and column of the first problem."""
+    """``text`` (the contents of ``path``) parsed as YAML (:func:`load_yaml_text`: ``off`` is a word,
+    not ``false``); :class:`InputError` naming the file with the line and column of the first problem."""
     import yaml
 
     try:
-        return yaml.safe_load(text)
+        return load_yaml_text(text)
     except yaml.YAMLError as e:
         mark = getattr(e, "problem_mark", None)
         where = f" (line {mark.line + 1}, column {mark.column + 1})" if mark is not None else ""

@@ -172,6 +172,14 @@ def test_csv_manifest_equals_yaml(tmp_path, one_seq):
     a, b = load_manifest(tmp_path / "m.yaml", stage_command), load_manifest(tmp_path / "m.csv", stage_command)
     assert a.sequences == b.sequences
     assert a.sequences[0].options["track"].args == ("--range", "8", "--no-klt")
+    # YAML 1.1's boolean words: a flag takes them, a choice keeps ``off`` as the word it is
+    (tmp_path / "w.yaml").write_text("sequences:\n  - {name: a, frames: rgb, model: m.obj, camera: cam.json, "
+                                     "clicks: clicks.txt, options: {track: {klt: no, slam: off}}}\n")
+    (tmp_path / "w.csv").write_text("name,frames,model,camera,clicks,track.klt,track.slam\n"
+                                    "a,rgb,m.obj,cam.json,clicks.txt,off,off\n")
+    for f in ("w.yaml", "w.csv"):
+        assert load_manifest(tmp_path / f, stage_command).sequences[0].options["track"].args == (
+            "--no-klt", "--slam", "off"), f
 
 
 @pytest.mark.slow

@@ -130,6 +130,26 @@ def test_cli_set_values_and_explicit_options_win(tmp_path):
         parse_set_values(["novalue"])
 
 
+def test_off_is_a_word_in_set_values_and_settings_files(tmp_path):
+    """A choice whose value is ``off`` (``klt.reanchor off``, ``aid off``) can be written as documented:
+    in ``--set`` and in a YAML settings file ``off``/``on``/``yes``/``no`` stay words (YAML 1.2), where
+    PyYAML's YAML 1.1 had turned ``off`` into ``false`` and the setting refused it ("needs a string").
+    Booleans are still booleans: ``true``/``false`` parse as such, and a boolean setting takes the words."""
+    from mst.pipeline.tracking.config import TrackConfig
+
+    assert parse_set_values(["mode=off", "ba=on", "x=true", "y=False", "z=no"]) == {
+        "mode": "off", "ba": "on", "x": True, "y": False, "z": "no"}
+    cfg = build_config(Outer, set_values=["mode=off", "ba=off"])
+    assert (cfg.mode, cfg.ba) == ("off", False)
+    (tmp_path / "o.yaml").write_text("mode: off\nba: yes\n")
+    cfg = build_config(Outer, config_file=tmp_path / "o.yaml")
+    assert (cfg.mode, cfg.ba) == ("off", True)
+    (tmp_path / "t.yaml").write_text("klt:\n  reanchor: off\naid: off\n")
+    tc = build_config(TrackConfig, config_file=tmp_path / "t.yaml")
+    assert (tc.klt.reanchor, tc.aid) == ("off", "off")
+    assert build_config(TrackConfig, set_values=["klt.reanchor=off"]).klt.reanchor == "off"
+
+
 def test_infinite_values_survive_the_json_round_trip():
     """``max_m = inf`` (no far limit) is echoed as "inf" and read back, so --config of it repeats the run."""
     cfg = Inner(max_m=float("inf"))

@@ -136,6 +136,8 @@ def _option_args(stage: str, name: str, value: Any, base: Path, where: str, mani
         raise InputError(manifest, f"{where}: unknown option --{name} of mst {stage} (known: {known})")
     flag = f"--{name}"
     if opt.is_flag:
+        if isinstance(value, str) and value.strip().lower() in ("yes", "on", "no", "off"):  # YAML 1.1's booleans
+            value = value.strip().lower() in ("yes", "on")
         if not isinstance(value, bool):
             raise InputError(manifest, f"{where}: --{name} is a flag, give true or false, got {value!r}")
         if value:
@@ -328,8 +330,10 @@ def _csv_value(v: str) -> Any:
     """A CSV option cell as YAML reads a scalar (``true``, ``8``, ``[1, 2]``); text otherwise."""
     import yaml
 
+    from mst.core.config import load_yaml_text
+
     try:
-        return yaml.safe_load(v)
+        return load_yaml_text(v)
     except yaml.YAMLError:
         return v
 
