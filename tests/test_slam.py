@@ -275,6 +275,32 @@ def test_relocalisation_after_blackout(scene, tmp_path):
     assert np.nanmax(err[34:, 0]) < 0.05
 
 
+def test_map_relocalisation_may_not_teleport_the_camera(scene, tmp_path):
+    """A relocalisation of the map is gated by the camera's motion: after 30 frames of an orbit (1 deg,
+    5.2 cm a frame at 3 m), the image of frame 0 (1.50 m back along the orbit) matches the keyframes and
+    PnP finds its pose, yet one frame after the last map pose the camera cannot be there (the gate:
+    0.1 x the scene depth, 7.5 m to the room's walls, + 3 x 5.2 cm = 0.9 m): refused and counted.
+    Without the frame index (no gate) the same image relocalises onto frame 0's pose; the image of
+    where the camera is (frame 29) is taken through the gate; and the gate opens with the frames since
+    the last map pose (at frame 40 it is 2.5 m), as a long loss allows a long way."""
+    Ts = orbit(31)
+    imgs = render_sequence(scene, Ts, tmp_path)
+    aid = slam.make_aid("rgbd", CAM, {}, tmp_path / "depth", None, None)
+    drive(aid, Ts[:30], imgs[:30], np.random.default_rng(3))
+    c = lambda T: -T[:3, :3].T @ T[:3, 3]  # noqa: E731
+    jump = float(np.linalg.norm(c(Ts[0]) - c(Ts[29])))
+    assert 1.4 < jump < 1.7 and aid.reloc_gate_m(30) < jump < aid.reloc_gate_m(40)
+    assert aid._relocalise(imgs[0], 30) is None and aid.stats["reloc_gated"] >= 1
+    # PnP against landmarks lifted under the noisy edge poses: about 0.1 m off; what matters is which
+    # pose it finds (frame 0's, 1.5 m from the camera's), so a fifth of the jump
+    T = aid._relocalise(imgs[0])
+    assert T is not None and np.linalg.norm(c(T) - c(Ts[0])) < 0.2 * jump
+    T = aid._relocalise(imgs[29], 30)
+    assert T is not None and np.linalg.norm(c(T) - c(Ts[29])) < 0.2 * jump
+    assert aid.reloc_gate_m(40) > jump
+    aid.close()
+
+
 @pytest.mark.parametrize("mode", ["rgbd", pytest.param("mono", marks=pytest.mark.slow)])
 def test_static_world_check_object_on_a_turntable(scene, tmp_path, mode):
     """The camera orbits slowly; from frame 20 the object turns on a turntable (2 deg/frame) in the

@@ -125,6 +125,8 @@ class ModelAidedSlam(FrontEnd, Landmarks, AidPolicy, KeyframeMap, LocalBA, Drift
         self.lm_sig: dict[int, tuple] = {}  #: (corr m, ind m, rot rad, scale, triangulation view centre xyz m) (:mod:`.drift`)
         self._pose_sig = (0.0, 0.0, np.zeros((6, 6)), 0.0, 0.0)  # sigmas of the pose the map is being extended under
         self._pose_c = np.zeros(3)  # ... and its camera centre (model frame, m)
+        #: the last output poses' (frame, camera centre): the relocalisation gate's reference and speed
+        self._centres: deque[tuple[int, np.ndarray]] = deque(maxlen=11)
         self._out_sig: tuple | None = None  # sigmas of the last output map pose
         self._reloc_sig: tuple | None = None
         self.drift_log: dict[int, tuple[float, float]] = {}  #: frame -> (bound / distance, bound deg)
@@ -147,7 +149,7 @@ class ModelAidedSlam(FrontEnd, Landmarks, AidPolicy, KeyframeMap, LocalBA, Drift
         #: event counts (each key from the start: no key appears later)
         self.stats = {"keyframes": 0, "ba_runs": 0, "ba_prior_accepted": 0, "ba_prior_downweighted": 0,
                       "ba_prior_dropped": 0, "ba_errors": 0, "gate_rejects": 0, "consensus_resets": 0,
-                      "relocalisations": 0, "reloc_attempts": 0, "reanchors": 0, "contradictions": 0,
+                      "relocalisations": 0, "reloc_attempts": 0, "reloc_gated": 0, "reanchors": 0, "contradictions": 0,
                       "weak_contradictions": 0, "static_world_breaks": 0, "image_refutations": 0,
                       "budget_overrides": 0}
         self.timing_ms = {"predict": 0.0, "update": 0.0, "ba": 0.0}
@@ -238,6 +240,7 @@ class ModelAidedSlam(FrontEnd, Landmarks, AidPolicy, KeyframeMap, LocalBA, Drift
                 self._pose_sig = self._out_sig = st.sig if st.sig is not None else (
                     math.inf, math.inf, np.full((6, 6), np.inf), math.inf, math.inf)
             self._pose_c = camera_centre(T_out)
+            self._centres.append((int(k), self._pose_c.copy()))
             W_prior = W if status == STATUS_MODEL else None
             T_out = self._maintain_map(k, gray, T_out, status, T_cam_model_edges if W_prior is not None else None,
                                        W_prior)

@@ -125,8 +125,24 @@ class KeyframeMap:
             self._export.append(pts[:room])
             self._n_export += min(room, len(pts))
 
-    def _relocalise(self, gray: np.ndarray) -> np.ndarray | None:
-        """ORB matching against the stored keyframes (newest first) + PnP RANSAC."""
+    def reloc_gate_m(self, k: int) -> float:
+        """How far (m) a relocalised camera centre of frame ``k`` may lie from the last output pose of
+        the map: ``reloc_gate_rel`` x scene depth + ``reloc_gate_speed`` x the median step per frame
+        among the last output poses x the frames since (inf before any output pose). The median: one
+        pose off by metres (the edge pose of a sliver of the model) would otherwise open the gate."""
+        if not self._centres:
+            return math.inf
+        ks = np.array([c[0] for c in self._centres], float)
+        C = np.array([c[1] for c in self._centres])
+        step = 0.0
+        if len(ks) > 1:
+            step = float(np.median(np.linalg.norm(np.diff(C, axis=0), axis=1) / np.maximum(np.diff(ks), 1.0)))
+        return self.cfg.reloc_gate_rel * self.scene_depth + self.cfg.reloc_gate_speed * step * max(k - ks[-1], 0.0)
+
+    def _relocalise(self, gray: np.ndarray, k: int | None = None) -> np.ndarray | None:
+        """ORB matching against the stored keyframes (newest first) + PnP RANSAC. With ``k``, a pose
+        beyond :meth:`reloc_gate_m` of the last output pose is refused (counted in
+        ``stats["reloc_gated"]``) and the next keyframe tried: a camera does not jump."""
         import cv2
 
         cands = [kf for kf in reversed(self.reloc_kfs) if kf.desc is not None and len(kf.desc) >= self.cfg.reloc_min_inliers]
@@ -150,6 +166,10 @@ class KeyframeMap:
                 continue
             inl = inl.ravel()
             T = refine_pnp(X[inl], uv[inl], self.K, self.dist, rvec, tvec)
+            if k is not None and self._centres and np.linalg.norm(
+                    -T[:3, :3].T @ T[:3, 3] - self._centres[-1][1]) > self.reloc_gate_m(k):
+                self.stats["reloc_gated"] += 1
+                continue
             # restart the tracks from the inlier matches (new landmark ids, positions from the keyframe,
             # their sigmas as stored with it; the pose's sigma from them: :mod:`.drift`)
             S = kf.sig_desc[qi][inl] if kf.sig_desc is not None else np.full((len(inl), LM_SIG_COLS), np.inf)

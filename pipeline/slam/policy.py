@@ -135,7 +135,7 @@ class AidPolicy:
             self.frames_since_fix += 1
         else:
             self._reloc_sig = None
-            T_out = self._relocalise(gray)
+            T_out = self._relocalise(gray, k)
             status = STATUS_SLAM if T_out is not None else STATUS_LOST
             st.sig = self._reloc_sig
             self.frames_since_fix += 1
