@@ -14,7 +14,7 @@ import math
 import numpy as np
 
 from mst.core.poses import inv_T, pnp_ransac, refine_pnp, se3_log, transform_points
-from mst.pipeline.slam.drift import LM_SIG_COLS
+from mst.pipeline.slam.drift import LM_SIG_COLS, camera_centre
 from mst.pipeline.slam.geometry import pose_information
 from mst.pipeline.slam.state import STATUS_MODEL, Keyframe
 
@@ -166,8 +166,7 @@ class KeyframeMap:
                 continue
             inl = inl.ravel()
             T = refine_pnp(X[inl], uv[inl], self.K, self.dist, rvec, tvec)
-            if k is not None and self._centres and np.linalg.norm(
-                    -T[:3, :3].T @ T[:3, 3] - self._centres[-1][1]) > self.reloc_gate_m(k):
+            if k is not None and self._centres and np.linalg.norm(camera_centre(T) - self._centres[-1][1]) > self.reloc_gate_m(k):
                 self.stats["reloc_gated"] += 1
                 continue
             # restart the tracks from the inlier matches (new landmark ids, positions from the keyframe,
