@@ -87,7 +87,7 @@ class _Tracker:
         self.K = np.array([[500.0, 0, 320], [0, 500.0, 240], [0, 0, 1]])
         self.k, self.starts, self.T_acc = 0, [], _T(0.0)
 
-    def track(self, gray, T_init, recover=False, first=False):
+    def track(self, gray, T_init, recover=False, first=False, klt=True):
         self.starts.append((self.k, T_init.copy()))
         T = self.truth(self.k)
         if self.k in self.trap and abs(_cx(T_init) - _cx(self.T_acc)) < 0.05:
@@ -108,7 +108,7 @@ class _Scored(_Tracker):
         super().__init__(truth, trap)
         self.score_wrong, self.score_right = score_wrong, score_right
 
-    def track(self, gray, T_init, recover=False, first=False):
+    def track(self, gray, T_init, recover=False, first=False, klt=True):
         fr = super().track(gray, T_init, recover, first)
         on_trap = any(np.allclose(fr.T_cam_model, T) for T in self.trap.values())
         fr.score = self.score_wrong if on_trap else self.score_right
@@ -192,7 +192,7 @@ def test_after_an_uncertain_frame_output_resumes_within_half_the_budget():
     assert 2 * 0.45 > RETURN_FRACTION * 1.0 and 2 * 0.2 <= RETURN_FRACTION * 1.0
 
     class Sigmas(_Tracker):
-        def track(self, gray, T_init, recover=False, first=False):
+        def track(self, gray, T_init, recover=False, first=False, klt=True):
             return _fr(self.truth(self.k), sigma_m=sig.get(self.k, 0.2))
 
     s, recs = _run(Sigmas(lambda k: _T(0.1 * k)), 7)
@@ -213,7 +213,7 @@ def test_after_an_uncertain_frame_output_resumes_after_a_steady_stretch_within_t
     sig = {2: 0.6, 3: 0.4, 4: 0.4, 5: 0.4, 6: 0.4, 7: 0.6, 8: 0.4, 9: 0.4, 10: 0.4}
 
     class Sigmas(_Tracker):
-        def track(self, gray, T_init, recover=False, first=False):
+        def track(self, gray, T_init, recover=False, first=False, klt=True):
             return _fr(self.truth(self.k), sigma_m=sig.get(self.k, 0.2))
 
     s, recs = _run(Sigmas(lambda k: _T(0.1 * k)), 11)
@@ -234,7 +234,7 @@ def test_no_steady_return_while_the_model_enters_the_view():
     sig = {2: 0.6}
 
     class Growing(_Tracker):
-        def track(self, gray, T_init, recover=False, first=False):
+        def track(self, gray, T_init, recover=False, first=False, klt=True):
             fr = _fr(self.truth(self.k), sigma_m=sig.get(self.k, 0.4))
             fr.n_samples = n[self.k]
             return fr
@@ -253,7 +253,7 @@ class _LossThenTrap(_Tracker):
         super().__init__(truth, trap)
         self.lost = lost
 
-    def track(self, gray, T_init, recover=False, first=False):
+    def track(self, gray, T_init, recover=False, first=False, klt=True):
         fr = super().track(gray, T_init, recover, first)
         cov = np.diag([0.2**2, 0.01**2, 0.01**2] + [np.radians(0.01) ** 2] * 3)
         fr.cov, fr.W = cov, np.linalg.inv(cov)
@@ -282,15 +282,16 @@ def test_without_a_prediction_after_a_loss_a_second_minimum_is_refused():
 
 class _Outrun(_Tracker):
     """Stand-in tracker whose fit converges to the truth only from a start within ``reach`` m of it (along
-    x), else it is lost; ``dead`` frames are lost from any start. Records whether KLT was on per fit."""
+    x), else it is lost; ``dead`` frames are lost from any start. Records whether KLT was on per fit (the
+    tracker's ``use_klt`` and the fit's ``klt`` argument)."""
 
     def __init__(self, truth, reach=0.15, dead=()):
         super().__init__(truth)
         self.reach, self.dead, self.use_klt, self.klt_on = reach, set(dead), True, []
 
-    def track(self, gray, T_init, recover=False, first=False):
+    def track(self, gray, T_init, recover=False, first=False, klt=True):
         fr = super().track(gray, T_init, recover, first)
-        self.klt_on.append((self.k, self.use_klt))
+        self.klt_on.append((self.k, self.use_klt and klt))
         if self.k in self.dead or abs(_cx(T_init) - _cx(self.truth(self.k))) >= self.reach:
             fr.healthy, fr.reason = False, "inliers 20%"
         return fr
@@ -311,7 +312,7 @@ def test_a_lost_fit_is_fitted_again_from_the_constant_velocity_pose_without_klt(
     assert [r.status for r in recs] == ["model"] * 7, [(r.status, r.reason) for r in recs]
     for r in recs:
         assert np.allclose(r.T_cam_model, truth(r.index))
-    # frame 3: the plain fit (KLT on), then the rescue (KLT off), and KLT is on again after it
+    # frame 3: the plain fit (KLT on), then the rescue (KLT off, the fit's own argument), and KLT on again after it
     assert [on for k, on in tr.klt_on if k == 3][:2] == [True, False] and tr.use_klt
 
 

@@ -39,7 +39,7 @@ def test_first_frame_keeps_the_plain_fit_when_the_tolerant_one_moved_many_sigma(
         def __init__(self, dx):
             self.dx = dx
 
-        def track(self, gray, T_init, recover=False, first=False):
+        def track(self, gray, T_init, recover=False, first=False, klt=True):
             return _fr(sig * np.sqrt(3), T=T_init.copy())  # the plain fit: at the initial pose
 
     for dx_sigma, kept_plain in ((0.5 * FIRST_FRAME_AGREE_SIGMA, False), (2.0 * FIRST_FRAME_AGREE_SIGMA, True)):

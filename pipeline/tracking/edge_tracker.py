@@ -361,14 +361,16 @@ class EdgeTracker:
         return idx, val.astype(np.float64)
 
     # -------------------------------------------------------------- main entry
-    def track(self, gray: np.ndarray, T_init: np.ndarray, recover: bool = False, first: bool = False) -> FrameResult:
+    def track(self, gray: np.ndarray, T_init: np.ndarray, recover: bool = False, first: bool = False,
+              klt: bool = True) -> FrameResult:
         """Refine ``T_init`` (T_cam_model) on ``gray`` (H, W) uint8; update the internal reference.
+        ``klt`` False: this fit leaves the KLT points out (on the edges alone), as without ``use_klt``.
 
         A tracked frame that the search at ``pyramid_levels`` loses is searched once more
         coarse-to-fine with ``retry_pyramid_levels`` (the motion outran the range: the FPV pass at
         1080p); the retry's pose is taken only when healthy."""
         c = self.cfg
-        klt = self._klt_track(gray) if self.use_klt and not (first or recover) else None
+        klt = self._klt_track(gray) if klt and self.use_klt and not (first or recover) else None
         out = self._track(gray, T_init, recover, first, klt, c.pyramid_levels)
         retry = int(c.retry_pyramid_levels)
         if not out.healthy and not (first or recover) and retry > c.pyramid_levels:

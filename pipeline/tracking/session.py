@@ -163,7 +163,7 @@ class TrackingSession:
             # refused by the error budget came back within it but less accurate (Rotterdam 120 m at
             # 640x480, after the turn: 0.195 -> 0.451 m), and after withheld poses the motion led
             # the Rotterdam FPV pass into a wrong basin (5.7 m, 17 % off, output as model)
-            fr_v = self._edges_only(lambda: p.judge(tr.track(gray, T_cv, recover=p.recover), False))
+            fr_v = p.judge(tr.track(gray, T_cv, recover=p.recover, klt=False), False)
             if fr_v.healthy:
                 fr = fr_v
                 tr.discard_klt_matches()  # this fit used none: the next frame re-detects them
@@ -185,18 +185,6 @@ class TrackingSession:
                     tr.discard_klt_matches()
                     break
         return fr, relocalised
-
-    def _edges_only(self, fit):
-        """``fit()`` with the tracker's KLT points left out (restored after)."""
-        tr = self.tracker
-        klt = getattr(tr, "use_klt", False)
-        if not klt:
-            return fit()
-        tr.use_klt = False
-        try:
-            return fit()
-        finally:
-            tr.use_klt = klt
 
     def _ambiguous(self, gray: np.ndarray, fr: FrameResult) -> FrameResult:
         """Refuse ``fr`` (``healthy`` False, reason ``ambiguous``) when a second healthy fit of the image
