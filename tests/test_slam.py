@@ -298,6 +298,7 @@ def test_map_relocalisation_may_not_teleport_the_camera(scene, tmp_path):
     T = aid._relocalise(imgs[29], 30)
     assert T is not None and np.linalg.norm(c(T) - c(Ts[29])) < 0.2 * jump
     assert aid.reloc_gate_m(40) > jump
+    assert aid.map_relocalisations["taken"] == 2 and aid.map_relocalisations["gated"] >= 1
     aid.close()
 
 

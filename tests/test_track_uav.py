@@ -254,6 +254,8 @@ def test_uav_survey_of_the_procedural_block_comes_back_after_the_turn(tmp_path):
     _assert_within_budget(r, load_model(city).vertices, ("model", "relocalised", "slam"))
     tail = [st.get(k) for k in range(int(0.8 * n), n)]
     assert tail.count("model") + tail.count("relocalised") >= 0.5 * len(tail), tail
+    # the summary says what the gate did (the map relocalised, and refused the teleports)
+    assert r["summary"]["map_relocalisations"]["gated"] >= 1, r["summary"]["map_relocalisations"]
 
 
 @pytest.fixture(scope="module", params=[40, 120, 250], ids=["40m", "120m", "250m"])

@@ -125,6 +125,11 @@ class KeyframeMap:
             self._export.append(pts[:room])
             self._n_export += min(room, len(pts))
 
+    @property
+    def map_relocalisations(self) -> dict[str, int]:
+        """This map's relocalisations: ``taken``, and ``gated`` (refused by :meth:`reloc_gate_m`)."""
+        return {"taken": int(self.stats["relocalisations"]), "gated": int(self.stats["reloc_gated"])}
+
     def reloc_gate_m(self, k: int) -> float:
         """How far (m) a relocalised camera centre of frame ``k`` may lie from the last output pose of
         the map: ``reloc_gate_rel`` x scene depth + ``reloc_gate_speed`` x the median step per frame

@@ -50,6 +50,7 @@ class StandbyAid:
         self._refuted: list[int] = []
         self._budget: list[int] = []
         self._drift_log: dict[int, tuple[float, float]] = {}
+        self._reloc = {"taken": 0, "gated": 0}
         self.stats = {"wakes": 0, "sleeps": 0, "frames_active": 0, "wake_frames": []}
         self.timing_ms = {"wake": 0.0}
 
@@ -77,6 +78,13 @@ class StandbyAid:
     def drift_log(self) -> dict[int, tuple[float, float]]:
         """Frame -> (bound / distance, bound deg) of every map pose (:mod:`mst.pipeline.slam.drift`)."""
         return {**self._drift_log, **(self.aid.drift_log if self.aid is not None else {})}
+
+    @property
+    def map_relocalisations(self) -> dict[str, int]:
+        """The maps' relocalisations: ``taken`` and ``gated`` (refused by the motion gate,
+        :meth:`ModelAidedSlam.reloc_gate_m`), over every active stretch."""
+        cur = self.aid.map_relocalisations if self.aid is not None else {}
+        return {k: v + cur.get(k, 0) for k, v in self._reloc.items()}
 
     def within_budget(self, k: int, distance_m: float) -> bool:
         """The active map's pose of frame ``k`` is within its drift budget (True when asleep)."""
@@ -132,13 +140,7 @@ class StandbyAid:
         self.stats["frames_active"] += 1
         self.n_strong = self.n_strong + 1 if (status == STATUS_MODEL and healthy and self._strong(W)) else 0
         if self.n_strong >= self.sleep_after:
-            self._retired.append(self.aid.landmarks())
-            self._fired += self.aid.static_world_fired
-            self._refuted += self.aid.map_refuted
-            self._budget += self.aid.drift_budget_frames
-            self._drift_log.update(self.aid.drift_log)
-            self.aid.close()
-            self.aid = None
+            self._retire()
             self.stats["sleeps"] += 1
         return T_out, status
 
@@ -151,14 +153,22 @@ class StandbyAid:
     def close(self) -> None:
         """Retire the active map (its points stay in :meth:`landmarks`) and drop the buffer."""
         if self.aid is not None:
-            self._retired.append(self.aid.landmarks())
-            self._fired += self.aid.static_world_fired
-            self._refuted += self.aid.map_refuted
-            self._budget += self.aid.drift_budget_frames
-            self._drift_log.update(self.aid.drift_log)
-            self.aid.close()
-            self.aid = None
+            self._retire()
         self.buf.clear()
+
+    def _retire(self) -> None:
+        """Keep what the active map found (points, fired checks, refuted and over-budget frames, the
+        drift log, relocalisation counts), close it and go back to standby."""
+        a = self.aid
+        self._retired.append(a.landmarks())
+        self._fired += a.static_world_fired
+        self._refuted += a.map_refuted
+        self._budget += a.drift_budget_frames
+        self._drift_log.update(a.drift_log)
+        for k, v in a.map_relocalisations.items():
+            self._reloc[k] += v
+        a.close()
+        self.aid = None
 
 
 def make_aid(mode: str, camera: Camera, config: SlamConfig | Mapping | None = None, depth_dir: Path | None = None,

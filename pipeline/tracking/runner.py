@@ -180,6 +180,10 @@ def _summary(records: list[FrameRecord], session: TrackingSession, aid_mode: str
     if refuted is not None:
         # frames whose map pose the image refuted with the model in view (not output: lost)
         opt["map_refuted_frames"] = [int(f) for f in refuted]
+    relocs = getattr(aid, "map_relocalisations", None) if aid is not None else None
+    if relocs is not None:
+        # the map's own relocalisations (ORB against its keyframes) and those its motion gate refused
+        opt["map_relocalisations"] = dict(relocs)
     beyond = getattr(aid, "drift_budget_frames", None) if aid is not None else None
     if beyond is not None and aid.drift_log:
         # map poses whose propagated uncertainty exceeded the drift budget (not output: lost), and the
