@@ -279,7 +279,7 @@ def test_map_relocalisation_may_not_teleport_the_camera(scene, tmp_path):
     """A relocalisation of the map is gated by the camera's motion: after 30 frames of an orbit (1 deg,
     5.2 cm a frame at 3 m), the image of frame 0 (1.50 m back along the orbit) matches the keyframes and
     PnP finds its pose, yet one frame after the last map pose the camera cannot be there (the gate:
-    0.1 x the scene depth, 7.5 m to the room's walls, + 3 x 5.2 cm = 0.9 m): refused and counted.
+    0.1 x the scene depth, 7.5 m to the room's walls, + 3 x 5.4 cm, the camera's steps = 0.9 m): refused and counted.
     Without the frame index (no gate) the same image relocalises onto frame 0's pose; the image of
     where the camera is (frame 29) is taken through the gate; and the gate opens with the frames since
     the last map pose (at frame 40 it is 2.5 m), as a long loss allows a long way."""
@@ -299,6 +299,22 @@ def test_map_relocalisation_may_not_teleport_the_camera(scene, tmp_path):
     assert T is not None and np.linalg.norm(c(T) - c(Ts[29])) < 0.2 * jump
     assert aid.reloc_gate_m(40) > jump
     assert aid.map_relocalisations["taken"] == 2 and aid.map_relocalisations["gated"] >= 1
+    aid.close()
+
+
+def test_relocalisation_gate_remembers_the_cruise_speed_through_a_hover():
+    """The gate grows with the camera's speed, the 75th percentile of its steps between output poses:
+    after 30 frames at 0.2 m a frame and 10 hovering, 50 frames after the last pose the gate is
+    0.1 x scene depth + 3 x 0.2 m x 50 (a UAV that hovered, turned, was lost and flew on is looked for
+    where it can have flown); one pose 5 m off among them (a sliver's edge pose) does not open it."""
+    aid = slam.make_aid("mono", CAM, {}, None, None, None)
+    aid.scene_depth = 80.0
+    x = list(np.arange(30) * 0.2) + [5.8] * 10
+    x[20] += 5.0  # one pose off by 5 m
+    for k, xk in enumerate(x):
+        aid._note_output(k, np.array([xk, 0.0, 40.0]))
+    assert aid.reloc_gate_m(39) == pytest.approx(8.0)
+    assert aid.reloc_gate_m(89) == pytest.approx(8.0 + 3 * 0.2 * 50)
     aid.close()
 
 

@@ -125,8 +125,10 @@ class ModelAidedSlam(FrontEnd, Landmarks, AidPolicy, KeyframeMap, LocalBA, Drift
         self.lm_sig: dict[int, tuple] = {}  #: (corr m, ind m, rot rad, scale, triangulation view centre xyz m) (:mod:`.drift`)
         self._pose_sig = (0.0, 0.0, np.zeros((6, 6)), 0.0, 0.0)  # sigmas of the pose the map is being extended under
         self._pose_c = np.zeros(3)  # ... and its camera centre (model frame, m)
-        #: the last output poses' (frame, camera centre): the relocalisation gate's reference and speed
-        self._centres: deque[tuple[int, np.ndarray]] = deque(maxlen=11)
+        #: the last output pose's (frame, camera centre), the relocalisation gate's reference, and the
+        #: camera's steps (m per frame) between output poses, its speed (:meth:`reloc_gate_m`)
+        self._centres: deque[tuple[int, np.ndarray]] = deque(maxlen=1)
+        self._steps: deque[float] = deque(maxlen=300)
         self._out_sig: tuple | None = None  # sigmas of the last output map pose
         self._reloc_sig: tuple | None = None
         self.drift_log: dict[int, tuple[float, float]] = {}  #: frame -> (bound / distance, bound deg)
@@ -240,7 +242,7 @@ class ModelAidedSlam(FrontEnd, Landmarks, AidPolicy, KeyframeMap, LocalBA, Drift
                 self._pose_sig = self._out_sig = st.sig if st.sig is not None else (
                     math.inf, math.inf, np.full((6, 6), np.inf), math.inf, math.inf)
             self._pose_c = camera_centre(T_out)
-            self._centres.append((int(k), self._pose_c.copy()))
+            self._note_output(k, self._pose_c)
             W_prior = W if status == STATUS_MODEL else None
             T_out = self._maintain_map(k, gray, T_out, status, T_cam_model_edges if W_prior is not None else None,
                                        W_prior)
@@ -251,6 +253,14 @@ class ModelAidedSlam(FrontEnd, Landmarks, AidPolicy, KeyframeMap, LocalBA, Drift
         self._cur = None
         self.timing_ms["update"] += (time.perf_counter() - t0) * 1e3
         return (None if T_out is None else T_out.copy()), status
+
+    def _note_output(self, k: int, centre: np.ndarray) -> None:
+        """Record the camera centre (m, model frame) of frame ``k``'s output pose and its step per frame
+        from the last one (the relocalisation gate, :meth:`reloc_gate_m`)."""
+        if self._centres and k > self._centres[-1][0]:
+            k0, c0 = self._centres[-1]
+            self._steps.append(float(np.linalg.norm(centre - c0)) / (k - k0))
+        self._centres.append((int(k), np.asarray(centre, float).copy()))
 
     def landmarks(self) -> np.ndarray:
         """(N, 3) float64 model-frame map points: retired landmarks plus the current ones."""

@@ -118,12 +118,12 @@ class SlamConfig(Config):
     reloc_keyframes: int = param(40, min=1, max=100_000, help="keyframes kept for relocalisation")
     reloc_min_inliers: int = param(20, min=4, max=100_000, help="ORB matches / PnP inliers needed to relocalise")
     #: a relocalisation of the map may not move the camera further from its last pose of the map
-    #: (model or map pose) than reloc_gate_rel x scene depth + reloc_gate_speed x the recent median
-    #: step per frame x the frames since: a repetitive texture (a tiled ground, rows of windows) gave
+    #: (model or map pose) than reloc_gate_rel x scene depth + reloc_gate_speed x its speed (the 75th
+    #: percentile of its steps per frame) x the frames since: a repetitive texture (a tiled ground, rows of windows) gave
     #: PnP poses with 20+ inliers 60 m away on a 40 m UAV survey after its hover turn, from which the
     #: tracker never came back (README, tracking)
     reloc_gate_rel: float = param(0.1, min=0, help="map relocalisation gate: radius at no elapsed frames, x scene depth (inf: no gate)")
-    reloc_gate_speed: float = param(3.0, min=0, help="map relocalisation gate: growth per frame since the last map pose, x the recent median step per frame")
+    reloc_gate_speed: float = param(3.0, min=0, help="map relocalisation gate: growth per frame since the last map pose, x the camera's speed (75th percentile of its steps per frame)")
     reloc_features: int = param(800, min=1, max=100_000, help="ORB features on a keyframe or a frame being relocalised")
     max_export_points: int = param(200_000, min=0, max=100_000_000, help="cap of the exported landmark map")
     standby: StandbyConfig = section(StandbyConfig)

@@ -132,17 +132,16 @@ class KeyframeMap:
 
     def reloc_gate_m(self, k: int) -> float:
         """How far (m) a relocalised camera centre of frame ``k`` may lie from the last output pose of
-        the map: ``reloc_gate_rel`` x scene depth + ``reloc_gate_speed`` x the median step per frame
-        among the last output poses x the frames since (inf before any output pose). The median: one
-        pose off by metres (the edge pose of a sliver of the model) would otherwise open the gate."""
+        the map: ``reloc_gate_rel`` x scene depth + ``reloc_gate_speed`` x the camera's speed x the
+        frames since (inf before any output pose). The speed (m per frame) is the 75th percentile of
+        its steps between the last 300 output poses: robust to a pose off by metres (the edge pose of
+        a sliver of the model), and it remembers the cruise speed through a hover (a UAV that hovers,
+        turns, is lost and flies on must be found again where it flew to)."""
         if not self._centres:
             return math.inf
-        ks = np.array([c[0] for c in self._centres], float)
-        C = np.array([c[1] for c in self._centres])
-        step = 0.0
-        if len(ks) > 1:
-            step = float(np.median(np.linalg.norm(np.diff(C, axis=0), axis=1) / np.maximum(np.diff(ks), 1.0)))
-        return self.cfg.reloc_gate_rel * self.scene_depth + self.cfg.reloc_gate_speed * step * max(k - ks[-1], 0.0)
+        step = float(np.percentile(np.asarray(self._steps), 75)) if self._steps else 0.0
+        k0 = self._centres[-1][0]
+        return self.cfg.reloc_gate_rel * self.scene_depth + self.cfg.reloc_gate_speed * step * max(k - k0, 0)
 
     def _relocalise(self, gray: np.ndarray, k: int | None = None) -> np.ndarray | None:
         """ORB matching against the stored keyframes (newest first) + PnP RANSAC. With ``k``, a pose
