@@ -191,13 +191,13 @@ def survey_metrics(d: Path, model: Path, label: str) -> list[dict]:
     rows = []
     # the frames with a building in view that both modes output: the like-for-like comparison of their
     # accuracy (each mode's own in-view ATE also counts the frames only it output, the harder ones)
-    out_frames = [np.searchsorted(np.round(tg, 6), np.round(read_tum(d / f"traj_{m}.txt")[0], 6)) for m in ("auto", "off")]
-    common = np.intersect1d(*out_frames)
+    trajs = {m: read_tum(d / f"traj_{m}.txt") for m in ("auto", "off")}
+    common = np.intersect1d(*[np.searchsorted(np.round(tg, 6), np.round(te, 6)) for te, _ in trajs.values()])
     common = common[px[common] > 0]
     for slam in ("auto", "off"):
         out = d / f"traj_{slam}.txt"
         st = [r["status"] for r in csv.DictReader(open(out.with_suffix(".csv")))]
-        te, Te = read_tum(out)
+        te, Te = trajs[slam]
         idx = np.searchsorted(np.round(tg, 6), np.round(te, 6))
         err = np.linalg.norm(Te[:, :3, 3] - Tg[idx, :3, 3], axis=1)
         seen = px[idx] > 0

@@ -127,7 +127,7 @@ class ModelAidedSlam(FrontEnd, Landmarks, AidPolicy, KeyframeMap, LocalBA, Drift
         self._pose_c = np.zeros(3)  # ... and its camera centre (model frame, m)
         #: the last output pose's (frame, camera centre), the relocalisation gate's reference, and the
         #: camera's steps (m per frame) between output poses, its speed (:meth:`reloc_gate_m`)
-        self._centres: deque[tuple[int, np.ndarray]] = deque(maxlen=1)
+        self._last_out: tuple[int, np.ndarray] | None = None
         self._steps: deque[float] = deque(maxlen=300)
         self._out_sig: tuple | None = None  # sigmas of the last output map pose
         self._reloc_sig: tuple | None = None
@@ -257,10 +257,10 @@ class ModelAidedSlam(FrontEnd, Landmarks, AidPolicy, KeyframeMap, LocalBA, Drift
     def _note_output(self, k: int, centre: np.ndarray) -> None:
         """Record the camera centre (m, model frame) of frame ``k``'s output pose and its step per frame
         from the last one (the relocalisation gate, :meth:`reloc_gate_m`)."""
-        if self._centres and k > self._centres[-1][0]:
-            k0, c0 = self._centres[-1]
+        if self._last_out is not None and k > self._last_out[0]:
+            k0, c0 = self._last_out
             self._steps.append(float(np.linalg.norm(centre - c0)) / (k - k0))
-        self._centres.append((int(k), np.asarray(centre, float).copy()))
+        self._last_out = (int(k), np.asarray(centre, float).copy())
 
     def landmarks(self) -> np.ndarray:
         """(N, 3) float64 model-frame map points: retired landmarks plus the current ones."""
