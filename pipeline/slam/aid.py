@@ -125,9 +125,9 @@ class ModelAidedSlam(FrontEnd, Landmarks, AidPolicy, KeyframeMap, LocalBA, Drift
         self.lm_sig: dict[int, tuple] = {}  #: (corr m, ind m, rot rad, scale, triangulation view centre xyz m) (:mod:`.drift`)
         self._pose_sig = (0.0, 0.0, np.zeros((6, 6)), 0.0, 0.0)  # sigmas of the pose the map is being extended under
         self._pose_c = np.zeros(3)  # ... and its camera centre (model frame, m)
-        #: the last output pose's (frame, camera centre), the relocalisation gate's reference, and the
-        #: camera's steps (m per frame) between output poses, its speed (:meth:`reloc_gate_m`)
-        self._last_out: tuple[int, np.ndarray] | None = None
+        #: the frame of the last output pose (its centre: ``_pose_c``), the relocalisation gate's
+        #: reference, and the camera's steps (m per frame) between output poses, its speed (:meth:`reloc_gate_m`)
+        self._last_out_k: int | None = None
         self._steps: deque[float] = deque(maxlen=300)
         self._out_sig: tuple | None = None  # sigmas of the last output map pose
         self._reloc_sig: tuple | None = None
@@ -241,8 +241,7 @@ class ModelAidedSlam(FrontEnd, Landmarks, AidPolicy, KeyframeMap, LocalBA, Drift
             else:
                 self._pose_sig = self._out_sig = st.sig if st.sig is not None else (
                     math.inf, math.inf, np.full((6, 6), np.inf), math.inf, math.inf)
-            self._pose_c = camera_centre(T_out)
-            self._note_output(k, self._pose_c)
+            self._note_output(k, camera_centre(T_out))
             W_prior = W if status == STATUS_MODEL else None
             T_out = self._maintain_map(k, gray, T_out, status, T_cam_model_edges if W_prior is not None else None,
                                        W_prior)
@@ -255,12 +254,13 @@ class ModelAidedSlam(FrontEnd, Landmarks, AidPolicy, KeyframeMap, LocalBA, Drift
         return (None if T_out is None else T_out.copy()), status
 
     def _note_output(self, k: int, centre: np.ndarray) -> None:
-        """Record the camera centre (m, model frame) of frame ``k``'s output pose and its step per frame
-        from the last one (the relocalisation gate, :meth:`reloc_gate_m`)."""
-        if self._last_out is not None and k > self._last_out[0]:
-            k0, c0 = self._last_out
-            self._steps.append(float(np.linalg.norm(centre - c0)) / (k - k0))
-        self._last_out = (int(k), np.asarray(centre, float).copy())
+        """Frame ``k``'s output pose has its camera centre at ``centre`` (m, model frame): the centre the
+        map is extended from (``_pose_c``), and its step per frame from the last output pose (the
+        relocalisation gate, :meth:`reloc_gate_m`)."""
+        if self._last_out_k is not None and k > self._last_out_k:
+            self._steps.append(float(np.linalg.norm(centre - self._pose_c)) / (k - self._last_out_k))
+        self._pose_c = np.asarray(centre, float).copy()
+        self._last_out_k = int(k)
 
     def landmarks(self) -> np.ndarray:
         """(N, 3) float64 model-frame map points: retired landmarks plus the current ones."""

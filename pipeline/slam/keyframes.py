@@ -137,11 +137,10 @@ class KeyframeMap:
         its steps between the last 300 output poses: robust to a pose off by metres (the edge pose of
         a sliver of the model), and it remembers the cruise speed through a hover (a UAV that hovers,
         turns, is lost and flies on must be found again where it flew to)."""
-        if self._last_out is None:
+        if self._last_out_k is None:
             return math.inf
         step = float(np.percentile(np.asarray(self._steps), 75)) if self._steps else 0.0
-        k0 = self._last_out[0]
-        return self.cfg.reloc_gate_rel * self.scene_depth + self.cfg.reloc_gate_speed * step * max(k - k0, 0)
+        return self.cfg.reloc_gate_rel * self.scene_depth + self.cfg.reloc_gate_speed * step * max(k - self._last_out_k, 0)
 
     def _relocalise(self, gray: np.ndarray, k: int | None = None) -> np.ndarray | None:
         """ORB matching against the stored keyframes (newest first) + PnP RANSAC. With ``k``, a pose
@@ -170,8 +169,7 @@ class KeyframeMap:
                 continue
             inl = inl.ravel()
             T = refine_pnp(X[inl], uv[inl], self.K, self.dist, rvec, tvec)
-            if k is not None and self._last_out is not None and \
-                    np.linalg.norm(camera_centre(T) - self._last_out[1]) > self.reloc_gate_m(k):
+            if k is not None and np.linalg.norm(camera_centre(T) - self._pose_c) > self.reloc_gate_m(k):
                 self.stats["reloc_gated"] += 1
                 continue
             # restart the tracks from the inlier matches (new landmark ids, positions from the keyframe,
