@@ -104,6 +104,27 @@ def test_synthetic_correct_pose_accepted(box_scene):
     assert _score(tr, mon, img, T) > 0.5  # a typical healthy frame scores near 1
 
 
+@pytest.mark.parametrize("step_px", [1.0, 6.0, 12.0])
+def test_evidence_search_runs_on_100_to_199_samples(box_scene, step_px):
+    """The evidence's moving-edge search (its found share and median residual) runs on every k-th visible
+    sample, k = N // EVIDENCE_SAMPLES (100): on 100-199 of them, or on all N when fewer; the gradient test
+    (``sign``, ``oriented``) on all N. Sample steps of 1, 6 and 12 px give N above 200, in 100-199 and
+    below 100 on this view."""
+    import dataclasses
+
+    from mst.pipeline.tracking import EdgeTracker
+    from mst.pipeline.tracking.config import TrackConfig
+
+    m, cam, _, _, img, T = box_scene
+    cfg = TrackConfig()
+    tr = EdgeTracker(m, cam, dataclasses.replace(cfg, edges=dataclasses.replace(cfg.edges, sample_step_px=step_px)))
+    ev = tr.evidence(img, T)
+    n, k = len(ev.sign), len(ev.offset_px)
+    assert len(ev.oriented) == len(ev.edge) == n > 12
+    assert k == n if n < 100 else 100 <= k < 200, (n, k)
+    assert (n < 100) == (step_px == 12.0) and (n >= 200) == (step_px == 1.0), n  # each branch covered
+
+
 @pytest.mark.parametrize("kind,arg", PERTURBATIONS)
 def test_synthetic_perturbed_pose_rejected(box_scene, kind, arg):
     m, cam, tr, mon, img, T = box_scene

@@ -31,7 +31,7 @@ from mst.pipeline.tracking.config import (
     scene_near_m,
     search_range_px,
 )
-from mst.pipeline.tracking.health import ORIENT_TOL_DEG, PoseEvidence, image_noise_sigma
+from mst.pipeline.tracking.health import EVIDENCE_SAMPLES, ORIENT_TOL_DEG, PoseEvidence, image_noise_sigma
 from mst.pipeline.tracking.klt_anchor import nearest_face_planes, reanchor_on_planes
 from mst.pipeline.tracking.moving_edges import _image
 
@@ -301,9 +301,9 @@ class EdgeTracker:
             np.ascontiguousarray(S.B_model, np.float64), np.ascontiguousarray(S.edge, np.int64),
             np.ascontiguousarray(T_cam_model, np.float64), float(K[0, 0]), float(K[1, 1]), float(K[0, 2]),
             float(K[1, 2]), float(2.0 * c.edge_threshold), float(np.cos(np.radians(ORIENT_TOL_DEG))))
-        # the moving-edge search (the costly part) on every 2nd sample beyond 200: a share and a
-        # median over >= 100 samples, well within their binomial / quantisation floors
-        sel = slice(None, None, 2) if len(uv) > 200 else slice(None)
+        # the moving-edge search (the costly part) on every k-th sample, k = n // EVIDENCE_SAMPLES: a
+        # share and a median over >= 100 samples, well within their binomial / quantisation floors
+        sel = slice(None, None, max(1, len(uv) // EVIDENCE_SAMPLES))
         normal, midx = canonical_normals(n[sel], c.n_masks)
         m = search_edges(gray, uv[sel], normal, None, search_range=int(c.search_range_px), threshold=c.edge_threshold,
                          mu1=c.mu1, mu2=c.mu2, size=c.mask_px, n_masks=c.n_masks, n_candidates=c.n_candidates,
