@@ -43,6 +43,7 @@ Units: metres (or the file's unit) for lengths, degrees for ``angle_tol_deg``.
 from __future__ import annotations
 
 import dataclasses
+import logging
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -66,6 +67,8 @@ from mst.meshtools.regions import (
     renumber,
     weld,
 )
+
+log = logging.getLogger(__name__)
 
 
 @dataclass
@@ -144,7 +147,9 @@ def convert_model(input_path: str | Path, output_path: str | Path, config: Conve
         raise InputError(out, f"unknown output format {out.suffix!r} (use .wrl, .cao or .obj)")
     t0 = time.perf_counter()
     step = progress or (lambda name: None)
-    V, F = load_triangles(input_path)
+    V, F = load_triangles(input_path, primitives=False)  # a .cao's cylinders and circles are not polygons
+    if model_suffix(Path(input_path)) == ".cao":
+        _warn_primitives(input_path)
     step("read")
     model, result = tin_to_polygons(V, F, cfg, path=str(input_path), progress=step)
     with atomic_output(out) as tmp:
@@ -152,6 +157,16 @@ def convert_model(input_path: str | Path, output_path: str | Path, config: Conve
     step("write")
     return dataclasses.replace(result, input=str(input_path), output=str(out),
                                elapsed_s=round(time.perf_counter() - t0, 4))
+
+
+def _warn_primitives(path) -> None:
+    """Log a warning when a ``.cao`` input has cylinders or circles: the conversion keeps its polygon faces only."""
+    from mst.meshtools.formats import load_model
+
+    m = load_model(path)
+    what = ", ".join(f"{n} {k}" for n, k in ((len(m.cylinders), "cylinder(s)"), (len(m.circles), "circle(s)")) if n)
+    if what:
+        log.warning(f"{Path(path).name}: {what} not converted: the output holds the polygon faces only")
 
 
 # ====================================================================== stage core

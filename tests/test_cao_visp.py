@@ -15,6 +15,7 @@ import pytest
 
 from mst import InputError
 from mst.meshtools.formats import load_model, load_triangles, save_model
+from mst.meshtools.solids import CYLINDER_SEGMENTS
 
 PART = """V1
 # a 10 mm square plate in its own frame
@@ -84,8 +85,9 @@ def test_load_with_semicolons_units_and_comments(visp_model):
     np.testing.assert_array_equal(m.lines, [[8, 12]])  # the line no face uses
     assert m.cylinders == [{"p1": 8, "p2": 12, "radius": 0.05, "name": "pole"}]
     assert m.circles == [{"radius": 0.5, "center": 8, "p1": 9, "p2": 10, "name": "ring"}]
-    V, F = load_triangles(visp_model)
-    assert len(F) == 2 + 2 + 2 + 1
+    assert len(load_triangles(visp_model, primitives=False)[1]) == 2 + 2 + 2 + 1
+    V, F = load_triangles(visp_model)  # with the cylinder's closed surface (tests/test_cao_cylinders.py)
+    assert len(F) == 2 + 2 + 2 + 1 + 4 * CYLINDER_SEGMENTS
 
 
 def test_units_deg_and_rad_agree(tmp_path):

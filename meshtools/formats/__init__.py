@@ -134,13 +134,18 @@ def load_tracking_model(path: str | os.PathLike) -> PolygonModel:
     if not p.is_file():
         raise InputError(p, "model file does not exist")
     model = load_model(p)
-    if not len(model.faces) and not len(getattr(model, "lines", [])):
+    if not len(model.faces) and not len(getattr(model, "lines", [])) and not model.cylinders:
         raise InputError(p, "model has no faces")
     model.check_finite(str(p))
     V = np.asarray(model.vertices, float).reshape(-1, 3)
     used = np.unique(np.concatenate([np.asarray(f, np.int64).ravel() for f in model.faces]
                                     + [np.asarray(getattr(model, "lines", []), np.int64).ravel()]))
     X = V[used[(used >= 0) & (used < len(V))]]
+    if model.cylinders:  # a cylinder spans its surface, not only its axis
+        from mst.meshtools.solids import cylinder_surface
+
+        X = np.concatenate([X] + [cylinder_surface(V[int(c["p1"])], V[int(c["p2"])], float(c["radius"]), 8)[0]
+                                  for c in model.cylinders])
     ext = float(np.ptp(X, axis=0).max()) if len(X) else 0.0
     # rank of the centred vertices: 0 = one point, 1 = one line (relative to the model's size)
     sv = np.linalg.svd(X - X.mean(0), compute_uv=False) if len(X) >= 2 else np.zeros(1)
@@ -149,19 +154,21 @@ def load_tracking_model(path: str | os.PathLike) -> PolygonModel:
     return model
 
 
-def load_triangles(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
+def load_triangles(path: str | os.PathLike, primitives: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """Read any supported model as a triangle mesh.
 
     Returns ``V`` (N, 3) float64 (model frame, file units, normally metres) and ``F`` (M, 3) int64.
-    Polygons (with holes) are triangulated with earcut; triangle files (OBJ/PLY/STL/OFF with only
+    Polygons (with holes) are triangulated with earcut, and a ``.cao``'s cylinders added as closed surfaces
+    (:func:`mst.meshtools.solids.model_triangles`); triangle files (OBJ/PLY/STL/OFF with only
     triangles) keep their vertices and faces exactly as stored (no welding, no reordering).
+    ``primitives=False``: the polygon faces only (a ``.cao``'s cylinders left out).
     """
     p = require_file(path, "mesh file")
     with np.errstate(all="ignore"):  # overflow to inf etc. is reported as an InputError
-        return _load_triangles(p, model_suffix(p))
+        return _load_triangles(p, model_suffix(p), primitives)
 
 
-def _load_triangles(p: Path, suf: str) -> tuple[np.ndarray, np.ndarray]:
+def _load_triangles(p: Path, suf: str, primitives: bool = True) -> tuple[np.ndarray, np.ndarray]:
     if suf in (".ply", ".stl"):
         try:
             V, F = read_ply_mesh(p) if suf == ".ply" else read_stl(p)
@@ -178,8 +185,10 @@ def _load_triangles(p: Path, suf: str) -> tuple[np.ndarray, np.ndarray]:
             V, F = fast
             _check_arrays(V, F, p)
             return V, F
+    from mst.meshtools.solids import model_triangles
+
     m = load_model(p)
-    V, F = m.triangulate()
+    V, F = model_triangles(m) if primitives else m.triangulate()  # with a .cao's cylinders' surfaces, or not
     _check_arrays(V, F, p)
     return V, F
 
@@ -242,6 +251,10 @@ def _validate(m: PolygonModel, path) -> None:
         raise InputError(path, f"face {short[0]} has {len(m.faces[short[0]])} vertices (need at least 3)")
     if len(m.lines) and (m.lines.min() < 0 or m.lines.max() >= n):
         raise InputError(path, f"line vertex index out of range (vertices: {n})")
+    for i, c in enumerate(m.cylinders):  # indices were checked by the reader
+        if not np.linalg.norm(m.vertices[int(c["p2"])] - m.vertices[int(c["p1"])]) > 0.0:
+            raise InputError(path, f"cylinder {i}: its two axis points {int(c['p1'])} and {int(c['p2'])} coincide "
+                                   "(a zero-length axis)")
 
 
 __all__ = ["MODEL_SUFFIXES", "WRITE_SUFFIXES", "load_model", "load_tracking_model", "load_triangles", "model_suffix",

@@ -94,9 +94,9 @@ def mesh_triangles(model, path=None) -> tuple[np.ndarray, np.ndarray]:
 
     Raises :class:`mst.InputError` when no triangle with an area is left.
     """
-    V, F = model.triangulate()
-    V = np.asarray(V, np.float64)
-    F = np.asarray(F, np.int64).reshape(-1, 3)
+    from mst.meshtools.solids import model_triangles
+
+    V, F = model_triangles(model)  # with a .cao's cylinders as closed surfaces
     if len(F):
         e1 = V[F[:, 1]] - V[F[:, 0]]
         e2 = V[F[:, 2]] - V[F[:, 0]]
@@ -142,6 +142,8 @@ def choose_edges(model, model_path, mode: str) -> str:
         return mode
     if mode != "auto":
         raise ConfigError("edge_source", f"must be one of auto, polygon, render, got {mode!r}")
+    if getattr(model, "cylinders", None):  # a .cao's cylinders: their limbs are the render's silhouettes
+        return "render"
     if Path(model_path).suffix.lower() in POLYGON_SUFFIXES:
         return "polygon"
     faces = model.faces
@@ -524,14 +526,44 @@ def edge_tracker_for(model, model_path, cam, config, T0: np.ndarray | None = Non
     from mst.pipeline.tracking.edge_tracker import EdgeTracker
 
     t0 = time.process_time()
-    merged = merge_polyhedral_tin(model, model_path, config.edge_source)
+    mode = config.edge_source
+    if getattr(model, "cylinders", None) or getattr(model, "circles", None):
+        model, mode = _with_curved_primitives(model, model_path, mode)
+    merged = merge_polyhedral_tin(model, model_path, mode)
     if merged is None:
         tracker = EdgeTracker(model, cam, config)
-        return tracker, attach_render_edges(tracker, model, model_path, config.edge_source, T0)
+        return tracker, attach_render_edges(tracker, model, model_path, mode, T0)
     tracker = EdgeTracker(merged, cam, config)
     tracker.merge_stats = {"triangles": len(model.faces), "polygons": merged.n_faces,
                            "merge_cpu_ms": round((time.process_time() - t0) * 1000.0, 1)}
     return tracker, "merged"
+
+
+def _with_curved_primitives(model, model_path, mode: str):
+    """``(model, edge source)`` to track when a ``.cao`` has cylinders or circles (ViSP primitives; see
+    :mod:`mst.meshtools.solids`). With render-based edges (``auto`` or ``render``) and cylinders: one triangle
+    model of the polygon faces and the cylinders' closed surfaces, so that the render has the cylinders'
+    limbs (the contours ViSP tracks) and their end rims, and they hide what lies behind them (hidden lines,
+    KLT depths, surface points); a circle that is not a cylinder's end rim is not tracked (logged). With
+    polygon edges (or circles without cylinders) the model as it is: its primitives are not tracked (a
+    warning names them), and ``mode`` unchanged."""
+    from mst.meshtools.model import PolygonModel
+    from mst.meshtools.solids import circle_on_cylinder_end
+
+    name = Path(model_path).name
+    cyl, circ = model.cylinders, model.circles
+    if not cyl or mode == "polygon":
+        what = ", ".join(f"{n} {k}" for n, k in ((len(cyl), "cylinder(s)"), (len(circ), "circle(s)")) if n)
+        log.warning(f"{name}: {what} not tracked with polygon edges: mst tracks cylinders by render-based edges "
+                    "(--edges auto or render) and circles as a cylinder's end rim")
+        return model, mode
+    loose = [i for i, c in enumerate(circ) if not circle_on_cylinder_end(model, c)]
+    if loose:
+        log.warning(f"{name}: circle(s) {', '.join(map(str, loose))} not tracked (not the end rim of a cylinder)")
+    V, F = mesh_triangles(model, model_path)
+    log.info(f"{name}: {len(cyl)} cylinder(s) tracked by their limbs and end rims in render-based edges of the "
+             f"whole model ({len(model.faces)} polygon faces and the cylinders as {len(F)} triangles)")
+    return PolygonModel(V, list(F)), "render"
 
 
 def attach_render_edges(tracker, model, model_path, mode: str, T0: np.ndarray | None = None) -> str:
