@@ -536,7 +536,8 @@ def run_autoinit(model_path, camera_path, out, nav_path, image_path, *, nav_time
         raise InputError(image_path, f"automatic initialisation refused: {res.reason}")
     with atomic_outputs(out, overlay_path) as (tmp, tmp_ov):
         write_pose_file(tmp, res.T_cam_model, t=t_row)
-        if tmp_ov is not None and not cv2.imwrite(str(tmp_ov), draw_model(img, model, res.T_cam_model, cam.K)):
+        if tmp_ov is not None and not cv2.imwrite(str(tmp_ov), draw_model(img, model, res.T_cam_model, cam.K,
+                                                                          model_path=model_path)):
             raise InputError(overlay_path, "could not write the overlay (use .png)")
     return {"source": "from-nav", "nav_time": t_row, "T_cam_model_guess": T_guess.tolist(), **res.to_json(),
             "config": cfg.to_dict()}

@@ -321,23 +321,38 @@ def pose_from_gps(position_m: np.ndarray, yaw_deg: float, pitch_deg: float, roll
 
 
 def draw_model(bgr: np.ndarray, model, T_cam_model: np.ndarray, K: np.ndarray, near: float = 1e-3,
-               color=(0, 255, 0), points: np.ndarray | None = None, numbers: bool = False, clicks: np.ndarray | None = None) -> np.ndarray:
-    """Draw the model's edges (clipped at the near plane) and optional numbered points."""
+               color=(0, 255, 0), points: np.ndarray | None = None, numbers: bool = False, clicks: np.ndarray | None = None,
+               model_path=None) -> np.ndarray:
+    """Draw the model's edges (clipped at the near plane) and optional numbered points. With ``model_path``, a model
+    that ``mst track --edges auto`` follows by render-based edges (a curved or many-faced mesh, a ``.cao`` with
+    cylinders) is drawn as the contour points of its render at the pose instead
+    (:func:`mst.pipeline.tracking.render_edges.contour_uv`)."""
     import cv2
 
     from mst.pipeline.tracking.visibility import _clip_near_far
 
     out = bgr.copy()
-    E = model.edges()
-    V = np.asarray(model.vertices)
-    A = transform_points(T_cam_model, V[E[:, 0]])
-    B = transform_points(T_cam_model, V[E[:, 1]])
-    A, B, keep, _, _ = _clip_near_far(A, B, near, 1e12)
-    A, B = A[keep], B[keep]
-    pa, pb = _pinhole(K).project(A), _pinhole(K).project(B)
-    lim = 1e5
-    for a, b in zip(np.clip(pa, -lim, lim), np.clip(pb, -lim, lim)):
-        cv2.line(out, (int(a[0]), int(a[1])), (int(b[0]), int(b[1])), color, 1, cv2.LINE_AA)
+    uv = None
+    if model_path is not None:
+        from mst.core.camera import Camera
+        from mst.pipeline.tracking.render_edges import contour_uv
+
+        H, W = out.shape[:2]
+        uv = contour_uv(model, model_path, T_cam_model, Camera(K[0, 0], K[1, 1], K[0, 2], K[1, 2], W, H))
+    if uv is not None:
+        for p in np.rint(uv[np.isfinite(uv).all(1)]).astype(np.int64):
+            cv2.circle(out, (int(p[0]), int(p[1])), 1, color, -1, cv2.LINE_AA)
+    else:
+        E = model.edges()
+        V = np.asarray(model.vertices)
+        A = transform_points(T_cam_model, V[E[:, 0]])
+        B = transform_points(T_cam_model, V[E[:, 1]])
+        A, B, keep, _, _ = _clip_near_far(A, B, near, 1e12)
+        A, B = A[keep], B[keep]
+        pa, pb = _pinhole(K).project(A), _pinhole(K).project(B)
+        lim = 1e5
+        for a, b in zip(np.clip(pa, -lim, lim), np.clip(pb, -lim, lim)):
+            cv2.line(out, (int(a[0]), int(a[1])), (int(b[0]), int(b[1])), color, 1, cv2.LINE_AA)
     if points is not None:
         pp = project(T_cam_model, K, points)
         for i, p in enumerate(pp):
@@ -381,7 +396,7 @@ def _read_image(path) -> np.ndarray:
     raise InputError(path, "no frame could be read")
 
 
-def _write_points_picture(out, model, cam, img, clicks_path, points_path, summary: dict) -> dict:
+def _write_points_picture(out, model, cam, img, clicks_path, points_path, summary: dict, model_path=None) -> dict:
     """``--show-points``: the model with its numbered points, drawn with the clicked pose on the image
     (when clicks and the image are given) or from a default view on white, written to ``out``."""
     import cv2
@@ -403,7 +418,7 @@ def _write_points_picture(out, model, cam, img, clicks_path, points_path, summar
         canvas = np.full((cam.height, cam.width, 3), 255, np.uint8)
     else:
         canvas = img
-    pic = draw_model(canvas, model, T, K, color=(200, 80, 0), points=pts, numbers=True)
+    pic = draw_model(canvas, model, T, K, color=(200, 80, 0), points=pts, numbers=True, model_path=model_path)
     with atomic_output(out) as tmp:
         if not cv2.imwrite(str(tmp), pic):
             raise InputError(out, "could not write the picture (use .png)")
@@ -446,7 +461,7 @@ def run_init(model_path, camera_path, out, *, clicks_path=None, points_path=None
     summary: dict = {"camera": cam.to_dict(), "residual_px": None, "config": cfg.to_dict()}
 
     if show_points:
-        return _write_points_picture(out, model, cam, img, clicks_path, points_path, summary)
+        return _write_points_picture(out, model, cam, img, clicks_path, points_path, summary, model_path)
 
     if from_pose is not None:
         if clicks_path:
@@ -477,7 +492,7 @@ def run_init(model_path, camera_path, out, *, clicks_path=None, points_path=None
     with atomic_outputs(out, overlay_path) as (tmp, tmp_ov):
         write_pose_file(tmp, T)
         if tmp_ov is not None:
-            pic = draw_model(img, model, T, K, points=summary.get("X_model"), clicks=summary.get("uv"))
+            pic = draw_model(img, model, T, K, points=summary.get("X_model"), clicks=summary.get("uv"), model_path=model_path)
             if not cv2.imwrite(str(tmp_ov), pic):
                 raise InputError(overlay_path, "could not write the overlay (use .png)")
     return summary

@@ -164,3 +164,34 @@ def test_cylinder_only_model_is_tracked(tmp_path_factory, mst):
     assert js["edges"] == "render" and js["tracked"] == js["frames"] == 12
     dt, dr = _error_modulo_z_symmetry(est, gt)
     assert dt.mean() <= 0.003 * dist and dr.mean() <= 0.3, (dt.mean() / dist, dr.mean())
+
+
+def test_init_overlay_draws_the_cylinders_contour(tmp_path_factory, mst):
+    """``mst init --overlay`` of a cylinder model draws the contour of its render at the pose (its limbs and rims),
+    where a polygon model's edges would be drawn: the contour points lie on the image's edges (Canny, median
+    distance <= 1 px), and a box without a cylinder gets no render contour (its polygon edges are drawn)."""
+    import cv2
+
+    from mst.core.camera import read_camera
+    from mst.core.trajectory import read_pose_file
+    from mst.pipeline.tracking.render_edges import contour_uv
+
+    d, cao, _ = _orbit(tmp_path_factory, "can_overlay", False)
+    seq = d / "seq"
+    ov = d / "overlay.png"
+    mst("init", "--model", cao, "--camera", seq / "camera.json", "--clicks", seq / "clicks.txt", "-o", d / "p0.txt",
+        "--image", seq / "rgb" / "000000.png", "--overlay", ov, "-q")
+    img = cv2.imread(str(seq / "rgb" / "000000.png"))
+    pic = cv2.imread(str(ov))
+    drawn = (pic[..., 1] == 255) & (pic[..., 0] < 100) & (pic[..., 2] < 100)  # pure green: the contour's dots
+    assert drawn.sum() > 200
+    uv = contour_uv(load_model(cao), cao, read_pose_file(d / "p0.txt"), read_camera(seq / "camera.json"))
+    edges = cv2.Canny(cv2.cvtColor(img, cv2.COLOR_BGR2GRAY), 50, 150)
+    dist = cv2.distanceTransform((edges == 0).astype(np.uint8), cv2.DIST_L2, 3)
+    ij = np.rint(uv).astype(int)
+    assert len(uv) > 200 and np.median(dist[ij[:, 1], ij[:, 0]]) <= 1.0
+    from mst.meshtools.generate import box_model
+
+    box = tmp_path_factory.mktemp("box") / "box.cao"
+    save_model(box, box_model((R_M, R_M, H_M)))
+    assert contour_uv(load_model(box), box, read_pose_file(d / "p0.txt"), read_camera(seq / "camera.json")) is None

@@ -566,6 +566,22 @@ def _with_curved_primitives(model, model_path, mode: str):
     return PolygonModel(V, list(F)), "render"
 
 
+def contour_uv(model, model_path, T_cam_model: np.ndarray, camera, budget: int = 3000) -> np.ndarray | None:
+    """(N, 2) px: the contour points (edgelets: silhouettes, self-occlusions, creases) of a render of ``model``
+    at ``T_cam_model`` seen by ``camera``, for drawing it (``mst init --overlay`` / ``--show-points``); None when
+    ``--edges auto`` tracks the model by its polygon edges (those are drawn instead)."""
+    if choose_edges(model, model_path, "auto") != "render":
+        return None
+    V, F = mesh_triangles(model, model_path)
+    prov = RenderEdgeProvider(V, F, camera, budget=budget, border_px=0, near_m=1e-3)
+    e = prov.render(np.asarray(T_cam_model, np.float64))
+    T = np.asarray(T_cam_model, np.float64)
+    Xc = e.X_model @ T[:3, :3].T + T[:3, 3]
+    Xc = Xc[Xc[:, 2] > 1e-6]
+    K = prov.K
+    return np.stack([K[0, 0] * Xc[:, 0] / Xc[:, 2] + K[0, 2], K[1, 1] * Xc[:, 1] / Xc[:, 2] + K[1, 2]], 1)
+
+
 def attach_render_edges(tracker, model, model_path, mode: str, T0: np.ndarray | None = None) -> str:
     """Resolve ``--edges mode``; for ``render`` give ``tracker`` a :class:`RenderEdgeProvider` and two edge
     passes per frame. Returns the mode used. Raises :class:`mst.InputError` for meshes it cannot use."""
