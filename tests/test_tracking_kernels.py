@@ -500,3 +500,52 @@ def test_frustum_cull_kernel_matches_numpy():
                 assert np.array_equal(a, b)
                 kept += int(a.sum())
     assert 0 < kept < 20 * 4 * len(g.faces)
+
+
+def _contour_inputs(rng, dtype, N=300, C=2):
+    """A textured image with a bright disc and random contour samples near it, candidates within 2 px (20 % none)."""
+    H, W = 120, 160
+    yy, xx = np.mgrid[:H, :W]
+    img = 60.0 + 40.0 * rng.random((H, W)) + 120.0 * (((xx - 80.0) ** 2 + (yy - 60.0) ** 2) < 40.0 ** 2)
+    img = np.clip(img, 0, 255).astype(dtype)
+    ang = rng.uniform(0, 2 * np.pi, N)
+    n_out = np.stack([np.cos(ang), np.sin(ang)], 1)
+    uv = np.array([80.0, 60.0]) + (40.0 + rng.normal(0, 1.0, (N, 1))) * n_out
+    uv[: N // 10] = rng.uniform(-3, 165, (N // 10, 2))  # some near and beyond the image border
+    normal = n_out * rng.choice([-1.0, 1.0], (N, 1))
+    offset = rng.uniform(-2, 2, (N, C))
+    offset[rng.random((N, C)) < 0.2] = np.nan
+    return img, uv, n_out, offset, normal
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.float32, np.float64])
+def test_contour_crossing_kernel_is_the_numpy_formulation(dtype):
+    """render_edges.crossing_offsets (one kernel) gives crossing_offsets_numpy's offsets to the bit, on 8-bit and
+    float images, with candidates missing and samples at the border; most candidates near the disc cross."""
+    from mst.pipeline.tracking.render_edges import crossing_offsets, crossing_offsets_numpy
+
+    rng = np.random.default_rng(11)
+    for _ in range(5):
+        args = _contour_inputs(rng, dtype)
+        a, b = crossing_offsets(*args), crossing_offsets_numpy(*args)
+        assert np.array_equal(a, b, equal_nan=True)
+        assert np.isfinite(a).sum() > 0.3 * a.size
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.float32])
+def test_contour_side_kernel_is_the_numpy_formulation(dtype):
+    """render_edges.contour_side_test (one kernel) is contour_side_test_numpy to the bit: a reference frame of the
+    same disc 1 px away, and the candidates of both outcomes."""
+    from mst.pipeline.tracking.render_edges import contour_side_test, contour_side_test_numpy
+
+    rng = np.random.default_rng(12)
+    K = np.array([[500.0, 0, 80.0], [0, 500.0, 60.0], [0, 0, 1]])
+    for _ in range(5):
+        img, uv, n_out, offset, normal = _contour_inputs(rng, dtype)
+        ref = np.roll(img, 1, axis=1)
+        T = np.eye(4)
+        T[:3, 3] = [0.001, 0.0, 0.0]
+        X = np.column_stack([(uv - K[:2, 2]) / 500.0, np.ones(len(uv))])  # the samples' rays at 1 m
+        a = contour_side_test(img, K, uv, n_out, X, offset, normal, ref, T)
+        b = contour_side_test_numpy(img, K, uv, n_out, X, offset, normal, ref, T)
+        assert np.array_equal(a, b) and 0 < a.mean() < 1

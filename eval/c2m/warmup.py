@@ -112,6 +112,14 @@ def warm_tracking() -> None:
     for use_buf in (True, False):
         surface_values(img, S.X_model, S.edge % len(geom.faces), fv, Tl, 500.0, 500.0, 40.0, 30.0, 0.005,
                        np.zeros((30, 40), np.float32), 0.5, use_buf)
+    # render-based edges' contour tests (render_edges.crossing_offsets, contour_side_test) on 8-bit frames
+    from mst.pipeline.tracking.render_edges import contour_side_test, crossing_offsets
+
+    n2 = np.array([[1.0, 0.0], [0.0, 1.0]])
+    uv2, off2 = np.array([[30.0, 20.0], [40.0, 30.0]]), np.array([[0.5, np.nan], [-1.0, 0.0]])
+    crossing_offsets(img, uv2, n2, off2, n2)
+    contour_side_test(img, np.array([[500.0, 0, 40.0], [0, 500.0, 30.0], [0, 0, 1]]), uv2, n2,
+                      np.array([[-0.02, -0.02, 1.0], [0.0, 0.0, 1.0]]), off2, n2, img, np.eye(4))
     # the KLT front end (mst.core.klt_kernels: the tracker's and the SLAM's forward-backward LK)
     from mst.core.klt import KltConfig, track_forward_backward
 

@@ -1345,3 +1345,117 @@ def frustum_cull(center, radius, sel, R, t, planes, near, far, out):
             if ok and (c0 * planes[p, 0] + c1 * planes[p, 1]) + c2 * planes[p, 2] < -r:
                 ok = False
         out[f] = ok
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _running_sum(a, n):
+    """``a[0] + a[1] + ... + a[n - 1]`` left to right (numpy's add.reduce over a strided axis)."""
+    s = a[0]
+    for k in range(1, n):
+        s += a[k]
+    return s
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def contour_crossings(img, uv, n_out, offset, normal, sgn, t, ramp_idx, tc_ramp, den, tm, bg_idx, win_idx, step,
+                      side_tol_min, out):
+    """The sub-pixel contour crossings of :func:`mst.pipeline.tracking.render_edges.crossing_offsets` (its
+    docstring), its numpy formulation's operations in their order (the bilinear profile of ``edgelets._bilinear``
+    on the float32 image; its sums over the profile run one term after the other, as numpy reduces the strided
+    last axis of a fancy-indexed array): ``out`` (N, C) the moved offsets, NaN where none.
+
+    ``img`` (H, W) uint8 or float32; ``uv``, ``n_out``, ``normal`` (N, 2); ``offset`` (N, C) (NaN: no candidate); ``sgn``
+    (N,) the sign of ``n_out . normal``; ``t`` (T,) the profile's abscissae (px along ``n_out``), ``ramp_idx``,
+    ``bg_idx``, ``win_idx`` the indices of its ramp, background and crossing window; ``tc_ramp`` the ramp's
+    ``t - tm`` (``tm`` their mean) and ``den`` the sum of their squares."""
+    H, W = img.shape
+    N, C = offset.shape
+    T = t.shape[0]
+    hi_u, hi_v = W - 1.001, H - 1.001
+    prof = np.empty(T)
+    buf = np.empty(T)
+    nr, nb, nw = ramp_idx.shape[0], bg_idx.shape[0], win_idx.shape[0]
+    d = np.empty(nw)
+    for i in range(N):
+        for c in range(C):
+            off = offset[i, c]
+            if not np.isfinite(off):
+                out[i, c] = np.nan
+                continue
+            cu = uv[i, 0] + off * normal[i, 0]
+            cv = uv[i, 1] + off * normal[i, 1]
+            for k in range(T):
+                u = min(max(cu + t[k] * n_out[i, 0], 0.0), hi_u)
+                v = min(max(cv + t[k] * n_out[i, 1], 0.0), hi_v)
+                i0 = int(np.floor(v))
+                j0 = int(np.floor(u))
+                a = v - i0
+                b = u - j0
+                prof[k] = ((((1 - a) * (1 - b)) * np.float64(img[i0, j0]) + ((1 - a) * b) * np.float64(img[i0, j0 + 1]))
+                           + (a * (1 - b)) * np.float64(img[i0 + 1, j0])) + (a * b) * np.float64(img[i0 + 1, j0 + 1])
+            for k in range(nr):
+                buf[k] = prof[ramp_idx[k]]
+            mp = _running_sum(buf, nr) / nr
+            for k in range(nr):
+                buf[k] = (buf[k] - mp) * tc_ramp[k]
+            bb = _running_sum(buf, nr) / den
+            aa = mp - bb * tm
+            for k in range(nb):
+                buf[k] = prof[bg_idx[k]]
+            g = _running_sum(buf, nb) / nb
+            for k in range(nw):
+                d[k] = prof[win_idx[k]] - 0.5 * ((aa + bb * t[win_idx[k]]) + g)
+            changes = 0
+            j = -1
+            for k in range(nw - 1):
+                if np.sign(d[k + 1]) != np.sign(d[k]):
+                    changes += 1
+                    if j < 0:
+                        j = k
+            if changes == 1 and abs(aa - g) > side_tol_min:
+                p0, p1 = d[j], d[j + 1]
+                out[i, c] = off + sgn[i] * (t[win_idx[j]] + step * p0 / (p0 - p1))
+            else:
+                out[i, c] = np.nan
+    return out
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _bilinear_at(img, u, v):
+    """``edgelets._bilinear`` at one point: ``img`` (H, W) read in float64, ``u, v`` clipped to the image."""
+    H, W = img.shape
+    u = min(max(u, 0.0), W - 1.001)
+    v = min(max(v, 0.0), H - 1.001)
+    i0 = int(np.floor(v))
+    j0 = int(np.floor(u))
+    a = v - i0
+    b = u - j0
+    return ((((1 - a) * (1 - b)) * np.float64(img[i0, j0]) + ((1 - a) * b) * np.float64(img[i0, j0 + 1]))
+            + (a * (1 - b)) * np.float64(img[i0 + 1, j0])) + (a * b) * np.float64(img[i0 + 1, j0 + 1])
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def contour_sides(img, ref_img, uv, uv_ref, n_out, offset, normal, side_px, side_tol, side_tol_min, ok):
+    """The object-side test of :func:`mst.pipeline.tracking.render_edges.contour_side_test` (its docstring), its
+    numpy formulation's operations in their order: ``ok`` (N, C) bool. ``uv_ref`` (N, 2) the samples projected at
+    the reference pose, ``side_px`` the two read-in distances (px), ``offset`` (N, C) (read through
+    ``numpy.nan_to_num``)."""
+    N, C = offset.shape
+    d0, d1 = side_px[0], side_px[1]
+    for i in range(N):
+        nx, ny = n_out[i, 0], n_out[i, 1]
+        ru, rv = uv_ref[i, 0], uv_ref[i, 1]
+        ref_in = (_bilinear_at(ref_img, ru - d0 * nx, rv - d0 * ny) + _bilinear_at(ref_img, ru - d1 * nx, rv - d1 * ny)) / 2
+        ref_out = (_bilinear_at(ref_img, ru + d0 * nx, rv + d0 * ny) + _bilinear_at(ref_img, ru + d1 * nx, rv + d1 * ny)) / 2
+        tol = max(side_tol * abs(ref_in - ref_out), side_tol_min)
+        for c in range(C):
+            off = offset[i, c]
+            if np.isnan(off):  # numpy.nan_to_num's
+                off = 0.0
+            elif np.isinf(off):
+                off = 1.7976931348623157e308 if off > 0 else -1.7976931348623157e308
+            cu = uv[i, 0] + off * normal[i, 0]
+            cv = uv[i, 1] + off * normal[i, 1]
+            g_in = (_bilinear_at(img, cu - d0 * nx, cv - d0 * ny) + _bilinear_at(img, cu - d1 * nx, cv - d1 * ny)) / 2
+            ok[i, c] = abs(g_in - ref_in) <= tol
+    return ok

@@ -470,7 +470,40 @@ def crossing_offsets(img, uv, n_out, offset, normal) -> np.ndarray:
     is pulled toward the ramp's bright side (measured at the true poses of the vase orbit, by edge normal sector:
     -0.16..-0.23 px where the object is brighter than the floor, +0.10..+0.19 px where it is darker; after:
     within +-0.1 px). Kept only with exactly one crossing within ``CROSS_PX`` and a step above ``SIDE_TOL_MIN``.
+
+    One numba kernel (:func:`mst.pipeline.tracking.kernels.contour_crossings`: the operations of
+    :func:`crossing_offsets_numpy` in their order, the same bits; issue #14: 1.9 ms a call on the box-and-cylinder
+    orbit's ~250 contour samples x 2 candidates, two calls a frame).
     """
+    from mst.pipeline.tracking.kernels import contour_crossings
+
+    t, ramp, bg, win = _profile_layout()
+    ti = t[ramp]
+    tm = ti.mean()
+    tc = ti - tm
+    sgn = np.sign((n_out * normal).sum(1))
+    out = np.empty(np.shape(offset))
+    # 8-bit gray levels are read as they are (exact in float64, as through the formulation's float32 copy)
+    im = np.ascontiguousarray(img) if img.dtype == np.uint8 else np.ascontiguousarray(img, np.float32)
+    return contour_crossings(im, np.ascontiguousarray(uv, np.float64),
+                             np.ascontiguousarray(n_out, np.float64), np.ascontiguousarray(offset, np.float64),
+                             np.ascontiguousarray(normal, np.float64), sgn, t, ramp, tc, float((tc ** 2).sum()),
+                             float(tm), bg, win, float(PROFILE_STEP_PX), float(SIDE_TOL_MIN), out)
+
+
+def _profile_layout():
+    """``(t, ramp, bg, win)``: the abscissae of :func:`crossing_offsets`'s profile (px along the outward normal) and
+    the indices of its object ramp (``RAMP_PX`` inside), its background (``BG_PX`` outside) and its crossing window
+    (``CROSS_PX``)."""
+    t = np.arange(-4.0, 4.0 + 1e-9, PROFILE_STEP_PX)
+    ramp = np.flatnonzero((t >= -RAMP_PX[1] - 1e-9) & (t <= -RAMP_PX[0] + 1e-9))
+    bg = np.flatnonzero((t >= BG_PX[0] - 1e-9) & (t <= BG_PX[1] + 1e-9))
+    win = np.flatnonzero(np.abs(t) <= CROSS_PX + 1e-9)
+    return t, ramp, bg, win
+
+
+def crossing_offsets_numpy(img, uv, n_out, offset, normal) -> np.ndarray:
+    """The numpy formulation of :func:`crossing_offsets` (the reference of its kernel's test)."""
     t = np.arange(-4.0, 4.0 + 1e-9, PROFILE_STEP_PX)
     sgn = np.sign((n_out * normal).sum(1))[:, None]  # offsets are along the search normal: +-n_out
     c = uv[:, None, :] + np.nan_to_num(offset)[..., None] * normal[:, None, :]  # (N, C, 2)
@@ -506,6 +539,28 @@ def contour_side_test(img, K, uv, n_out, X_model, offset, normal, ref_img, ref_T
     background edge's inner side is background, ``|contrast|`` away. Blob orbit at the true pose (640x480):
     21 % of silhouette candidates > 1 px off before.
     """
+    from mst.pipeline.tracking.kernels import contour_sides
+
+    Xc = X_model @ ref_T[:3, :3].T + ref_T[:3, 3]
+    z = np.maximum(Xc[:, 2], 1e-9)
+    uvp = np.stack([K[0, 0] * Xc[:, 0] / z + K[0, 2], K[1, 1] * Xc[:, 1] / z + K[1, 2]], 1)
+    # the reads and the test in one kernel (the operations of contour_side_test_numpy in their order, the same bits)
+    ok = np.empty(np.shape(offset), np.bool_)
+    return contour_sides(_kernel_image(img), _kernel_image(ref_img), np.ascontiguousarray(uv, np.float64), uvp,
+                         np.ascontiguousarray(n_out, np.float64), np.ascontiguousarray(offset, np.float64),
+                         np.ascontiguousarray(normal, np.float64), np.asarray(SIDE_PX, np.float64), float(SIDE_TOL),
+                         float(SIDE_TOL_MIN), ok)
+
+
+def _kernel_image(img: np.ndarray) -> np.ndarray:
+    """The image as the contour kernels read it: C-contiguous uint8, float32 or float64 (others as float64)."""
+    if img.dtype in (np.uint8, np.float32, np.float64):
+        return np.ascontiguousarray(img)
+    return np.ascontiguousarray(img, np.float64)
+
+
+def contour_side_test_numpy(img, K, uv, n_out, X_model, offset, normal, ref_img, ref_T) -> np.ndarray:
+    """The numpy formulation of :func:`contour_side_test` (the reference of its kernel's test)."""
     Xc = X_model @ ref_T[:3, :3].T + ref_T[:3, 3]
     z = np.maximum(Xc[:, 2], 1e-9)
     uvp = np.stack([K[0, 0] * Xc[:, 0] / z + K[0, 2], K[1, 1] * Xc[:, 1] / z + K[1, 2]], 1)
