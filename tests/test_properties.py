@@ -64,9 +64,11 @@ def polygon_models(draw, with_primitives: bool = False):
                      np.int64).reshape(-1, 2)
     cyl, circ = [], []
     if with_primitives:
-        for _ in range(draw(st.integers(0, 2))):
-            cyl.append({"p1": draw(st.integers(0, n - 1)), "p2": draw(st.integers(0, n - 1)),
-                        "radius": draw(st.floats(1e-3, 10)), "name": draw(names)})
+        # a cylinder's axis has a length (two coincident axis points are refused as bad input)
+        distinct = [(i, j) for i in range(n) for j in range(n) if np.any(V[i] != V[j])]
+        for _ in range(draw(st.integers(0, 2)) if distinct else 0):
+            p1, p2 = draw(st.sampled_from(distinct))
+            cyl.append({"p1": p1, "p2": p2, "radius": draw(st.floats(1e-3, 10)), "name": draw(names)})
         for _ in range(draw(st.integers(0, 2))):
             circ.append({"radius": draw(st.floats(1e-3, 10)), "center": draw(st.integers(0, n - 1)),
                          "p1": draw(st.integers(0, n - 1)), "p2": draw(st.integers(0, n - 1)), "name": draw(names)})

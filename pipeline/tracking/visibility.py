@@ -86,22 +86,24 @@ class ModelGeometry:
         faces = [np.asarray(f, np.int64) for f in model.faces]
         holes = [list(h) for h in model.holes] if model.holes else [[] for _ in faces]
         N = model.face_normals()
-        P = np.array([V[f].mean(axis=0) for f in faces]) if faces else np.zeros((0, 3))
         lens = np.array([len(f) for f in faces], np.int64)
         loop_vid = np.concatenate(faces) if faces else np.zeros(0, np.int64)
         loop_start = np.concatenate([[0], np.cumsum(lens)[:-1]]) if faces else np.zeros(0, np.int64)
-        # directed edges of every loop (outer + holes) -> face id
-        segs, fid = [], []
-        for i, f in enumerate(faces):
-            for lp in [f, *holes[i]]:
-                lp = np.asarray(lp, np.int64)
-                segs.append(np.stack([lp, np.roll(lp, -1)], 1))
-                fid.append(np.full(len(lp), i))
+        P = _loop_means(V, loop_vid, loop_start, lens)
+        rings = [np.asarray(lp, np.int64) for i, f in enumerate(faces) for lp in [f, *holes[i]]]
+        ring_len = np.array([len(r) for r in rings], np.int64)
+        ring_vid = np.concatenate(rings) if rings else np.zeros(0, np.int64)
+        ring_start = np.concatenate([[0], np.cumsum(ring_len)[:-1]]).astype(np.int64) if rings else np.zeros(0, np.int64)
+        face_nring = np.array([1 + len(holes[i]) for i in range(len(faces))], np.int64)
+        # directed edges of every loop (outer + holes, in face order) -> face id, and the free lines (-1)
+        nxt = np.arange(1, len(ring_vid) + 1)
+        nxt[ring_start + ring_len - 1] = ring_start  # the last vertex of a ring closes it
+        nxt = nxt[: len(ring_vid)]
+        S = np.stack([ring_vid, ring_vid[nxt]], 1) if len(ring_vid) else np.zeros((0, 2), np.int64)
+        fid = np.repeat(np.repeat(np.arange(len(faces)), face_nring), ring_len)
         if len(getattr(model, "lines", [])):
-            segs.append(np.asarray(model.lines, np.int64))
-            fid.append(np.full(len(model.lines), -1))
-        S = np.concatenate(segs) if segs else np.zeros((0, 2), np.int64)
-        fid = np.concatenate(fid) if fid else np.zeros(0, np.int64)
+            S = np.concatenate([S, np.asarray(model.lines, np.int64).reshape(-1, 2)])
+            fid = np.concatenate([fid, np.full(len(model.lines), -1)])
         S_sorted = np.sort(S, axis=1)
         keep = S_sorted[:, 0] != S_sorted[:, 1]
         S_sorted, fid = S_sorted[keep], fid[keep]
@@ -134,11 +136,6 @@ class ModelGeometry:
             convex = bool((d <= 1e-6 * size).all())
         else:
             convex = not len(faces)
-        rings = [np.asarray(lp, np.int64) for i, f in enumerate(faces) for lp in [f, *holes[i]]]
-        ring_len = np.array([len(r) for r in rings], np.int64)
-        ring_vid = np.concatenate(rings) if rings else np.zeros(0, np.int64)
-        ring_start = np.concatenate([[0], np.cumsum(ring_len)[:-1]]).astype(np.int64) if rings else np.zeros(0, np.int64)
-        face_nring = np.array([1 + len(holes[i]) for i in range(len(faces))], np.int64)
         face_ring0 = (np.concatenate([[0], np.cumsum(face_nring)[:-1]]).astype(np.int64) if len(faces)
                       else np.zeros(0, np.int64))
         if len(faces):
@@ -169,6 +166,18 @@ class ModelGeometry:
             if self.index is not None else self.face_vertices(faces)
         Xc[vid] = _mat3(self.vertices[vid], R, t)
         return Xc
+
+
+def _loop_means(V: np.ndarray, loop_vid: np.ndarray, loop_start: np.ndarray, lens: np.ndarray) -> np.ndarray:
+    """(F, 3) the mean of each loop's vertices: each loop's ``V[loop].mean(axis=0)`` to the bit (its rows added
+    one after the other, then divided by the count), for all loops at once, one vertex position at a time."""
+    if not len(lens):
+        return np.zeros((0, 3))
+    acc = np.zeros((len(lens), 3))
+    for j in range(int(lens.max())):  # from +0.0, as numpy's add.reduce (a -0.0 coordinate gives +0.0)
+        sel = np.flatnonzero(lens > j)
+        acc[sel] += V[loop_vid[loop_start[sel] + j]]
+    return acc / lens[:, None]
 
 
 @dataclass
