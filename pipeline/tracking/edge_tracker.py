@@ -287,9 +287,15 @@ class EdgeTracker:
 
         c = self.cfg
         H, W = gray.shape
-        if S is None:
+        prov = self.sample_provider
+        if S is None and prov is not None:  # render-based: the contour of a render at this very pose
+            kept, prov.cache = prov.cache, None  # (the tracker's cached render is left as it was)
             S = self._samples(T_cam_model, self.K, W, H)
-        if len(S) == 0 or S.model_edge is None:
+            prov.cache = kept
+        elif S is None:
+            S = self._samples(T_cam_model, self.K, W, H)
+        edgelets = S.model_edge is None and prov is not None  # render-based: no model edges
+        if len(S) == 0 or (S.model_edge is None and not edgelets):
             z = np.zeros(0)
             return PoseEvidence(z.astype(np.int64), z.astype(np.int8), z.astype(bool), z)
         from mst.pipeline.tracking.kernels import pose_gradients
@@ -312,6 +318,8 @@ class EdgeTracker:
         n_me = len(uv[sel])
         off = np.where(np.isfinite(off), off, np.inf).min(1) if off.ndim == 2 and off.shape[1] else np.full(n_me, np.inf)
         off = np.where(np.isfinite(off), off, np.nan)
+        if edgelets:  # no model edge, no surface visibility of the render's samples: edges' signals only
+            return PoseEvidence(np.full(len(sign), -1, np.int64), sign, good, off)
         ti, tv = self._surface_values(gray, T_cam_model, S.face_visible)
         return PoseEvidence(S.model_edge[S.edge], sign, good, off, ti, tv)
 

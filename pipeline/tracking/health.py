@@ -44,7 +44,9 @@ class PoseEvidence:
 
     tex_idx / tex_val: the model's fixed surface points (:attr:`EdgeTracker.surf_X`) seen at this
     pose and the image there (3x3 mean, gray levels).
-    edge (N,) model edge index (into ``ModelGeometry.edges``) of each visible sample; sign (N,) int8
+    edge (N,) model edge index (into ``ModelGeometry.edges``) of each visible sample, -1 for a sample of no
+    model edge (a render-based edgelet, re-sampled at each render: not checked for a learned polarity, and
+    counted in clusters of :data:`EDGELET_CLUSTER` as the independent units of a share); sign (N,) int8
     polarity of the image gradient along the projected model normal at the best position within
     +-1 px (0: no gradient of at least the moving-edge contrast there); oriented (N,) that gradient is
     within ``ORIENT_TOL_DEG`` of the model normal; offset_px (M,) distance along the normal to the
@@ -80,6 +82,11 @@ class PoseEvidence:
 #: number far fewer; RESIDUAL_FLOOR_PX). Every 2nd beyond 200 samples was 0.13 ms of the L-building orbit's
 #: 1.45 ms per frame at ~430 samples (issue #14)
 EVIDENCE_SAMPLES = 100
+
+#: render-based edgelets (no model edge) count as one independent unit of a share per this many: they are
+#: spaced about one sampling bucket apart along the contour (render_edges: contour length / budget), so ten
+#: of them span a contour stretch that shares its background and blur like a polygon edge's samples
+EDGELET_CLUSTER = 10
 
 #: spread floor of the moving-edge residual: whole-pixel positions along the normal, std 1/sqrt(12) px
 RESIDUAL_FLOOR_PX = 0.29
@@ -132,8 +139,10 @@ class HealthMonitor:
 
     def features(self, ev: PoseEvidence, klt_agree: float | None = None, n_klt: int = 0) -> dict:
         """The signal values of one frame (and the sample counts behind them)."""
-        known = self.pol_n[ev.edge] >= 2
-        p = np.where(known, self.pol_sum[ev.edge] / np.maximum(self.pol_n[ev.edge], 1), 0.0)
+        has = ev.edge >= 0  # render-based edgelets (-1) have no learned polarity
+        eid = np.where(has, ev.edge, 0)
+        known = has & (self.pol_n[eid] >= 2)
+        p = np.where(known, self.pol_sum[eid] / np.maximum(self.pol_n[eid], 1), 0.0)
         checked = known & (np.abs(p) >= 0.5)  # a stable polarity
         pol_ok = ~checked | (ev.sign == np.sign(p))
         match = float((ev.oriented & (ev.sign != 0) & pol_ok).mean()) if ev.n else 0.0
@@ -149,7 +158,8 @@ class HealthMonitor:
                     tex = float(((a - a.mean()) * (b - b.mean())).mean() / (sa * sb)) if sa > 1e-6 else 0.0
         return {"match": match, "found": ev.found, "residual": -res if np.isfinite(res) else -np.inf,
                 "klt": float(klt_agree) if klt_agree is not None and n_klt > 0 else float("nan"),
-                "texture": tex, "n": ev.n, "n_edges": int(len(np.unique(ev.edge))), "n_klt": n_klt, "n_tex": n_tex}
+                "texture": tex, "n": ev.n, "n_klt": n_klt, "n_tex": n_tex,
+                "n_edges": int(len(np.unique(ev.edge[has]))) + int(np.count_nonzero(~has)) // EDGELET_CLUSTER}
 
     def score(self, f: dict) -> tuple[float, str]:
         """``(score, worst signal)`` of a frame's features (score 1 with no history yet)."""
@@ -183,7 +193,7 @@ class HealthMonitor:
         for k in self.SIGNALS:
             if np.isfinite(f[k]):
                 self.hist[k].append(f[k])
-        s = ev.sign != 0
+        s = (ev.sign != 0) & (ev.edge >= 0)
         np.add.at(self.pol_sum, ev.edge[s], ev.sign[s].astype(float))
         np.add.at(self.pol_n, ev.edge[s], 1.0)
         if len(ev.tex_idx):
