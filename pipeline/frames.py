@@ -126,6 +126,58 @@ class FrameSource:
             cap.release()
 
 
+def prefetched(frames, depth: int = 3) -> Iterator:
+    """Iterate ``frames`` (any iterable, e.g. a :class:`FrameSource`) with its items produced ahead in a
+    background thread, at most ``depth`` of them waiting: a video's decoding (OpenCV releases the GIL while it
+    reads) overlaps the caller's work on the previous frame. The same items in the same order; an exception
+    raised while producing one is raised here at that item; stopping early (``break``, an exception in the
+    caller) stops the thread and releases the source."""
+    import queue
+    import threading
+
+    q: queue.Queue = queue.Queue(maxsize=max(1, int(depth)))
+    stop = threading.Event()
+    done = object()
+
+    def put(item) -> bool:
+        while not stop.is_set():
+            try:
+                q.put(item, timeout=0.05)
+                return True
+            except queue.Full:
+                continue
+        return False
+
+    def produce() -> None:
+        it = iter(frames)
+        try:
+            for item in it:
+                if not put((item, None)):
+                    break
+            else:
+                put((done, None))
+        except BaseException as e:  # handed to the consumer, raised there
+            put((done, e))
+        finally:
+            close = getattr(it, "close", None)
+            if close is not None:
+                close()  # a generator's finally (the video capture's release) runs in this thread
+
+    th = threading.Thread(target=produce, name="mst-frames", daemon=True)
+    th.start()
+    try:
+        while True:
+            item, err = q.get()
+            if item is done:
+                if err is not None:
+                    raise err
+                return
+            yield item
+    finally:
+        stop.set()
+        th.join()
+
+
 def _printf_files(spec: str) -> list[Path]:
     files = []
     k0 = 0

@@ -76,3 +76,64 @@ def test_image_folder_order_is_natural_and_matches_fuse(tmp_path):
     assert [f.name for f in list_image_frames(tmp_path)] == ["img0.png", "img1.png", "img2.png", "img10.png", "img11.png"]
     vals_glob = [int(img[0, 0, 0]) for _, _, img in open_frames(str(tmp_path / "img*.png"))]
     assert vals_glob == vals
+
+
+def test_prefetched_frames_same_items_errors_and_early_stop(tmp_path):
+    """``prefetched`` gives the source's items in order; an error raised while producing item k is raised at
+    item k (after the k items before it); breaking off stops the producer and runs the source's cleanup."""
+    import threading
+
+    from mst.pipeline.frames import prefetched
+
+    assert list(prefetched(range(50))) == list(range(50))
+    assert list(prefetched([])) == []
+
+    def failing():
+        yield from range(5)
+        raise InputError(tmp_path / "frame_5.png", "image could not be read")
+
+    got = []
+    with pytest.raises(InputError, match="frame_5.png: image could not be read"):
+        for x in prefetched(failing(), depth=2):
+            got.append(x)
+    assert got == list(range(5))
+
+    closed = threading.Event()
+
+    def endless():
+        try:
+            k = 0
+            while True:
+                yield k
+                k += 1
+        finally:
+            closed.set()
+
+    for x in prefetched(endless(), depth=2):
+        if x == 3:
+            break
+    assert closed.wait(2.0)
+    assert not any(t.name == "mst-frames" and t.is_alive() for t in threading.enumerate())
+
+
+def test_track_reads_a_video_ahead_with_the_same_poses(shared_data, tmp_path, mst):
+    """`mst track` of the real tea box reads its frames through the prefetching thread: the trajectory is the one
+    the plain frame iterator gives (the session's steps are unchanged)."""
+    from mst.pipeline import frames as F
+    from mst.pipeline.tracking import TrackConfig, run_track
+    from mst.pipeline.tracking.config import read_tracker_xml
+
+    t = shared_data / "visp-teabox"
+    cfg = read_tracker_xml(t / "teabox.xml").replace(aid="off")
+    p0 = tmp_path / "p0.txt"
+    mst("init", "--model", t / "teabox.cao", "--camera", t / "teabox.xml", "--clicks", t / "teabox.clicks", "--points",
+        t / "teabox.init", "-o", p0, "-q")
+    a, b = tmp_path / "a.txt", tmp_path / "b.txt"
+    run_track(t / "teabox.mp4", t / "teabox.cao", t / "teabox.xml", p0, a, cfg, frames="0:12")
+    orig = F.prefetched
+    F.prefetched = lambda frames, depth=3: iter(frames)  # the plain iterator
+    try:
+        run_track(t / "teabox.mp4", t / "teabox.cao", t / "teabox.xml", p0, b, cfg, frames="0:12")
+    finally:
+        F.prefetched = orig
+    assert a.read_bytes() == b.read_bytes() and len(a.read_text().splitlines()) >= 12

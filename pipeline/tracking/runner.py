@@ -401,8 +401,10 @@ def _track_frames(session: TrackingSession, src, undistort_maps, ov, progress) -
 
     records: list[FrameRecord] = []
     bar = progress(len(src)) if progress is not None else contextlib.nullcontext(lambda n=1: None)
+    from mst.pipeline.frames import prefetched
+
     with bar as advance:
-        for idx, t_s, bgr in src:
+        for idx, t_s, bgr in prefetched(src):  # the next frames decoded while this one is tracked
             if undistort_maps is not None:
                 bgr = cv2.remap(bgr, *undistort_maps, cv2.INTER_LINEAR)
             rec = session.step(idx, t_s, cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY))
