@@ -120,7 +120,7 @@ def test_track_reads_a_video_ahead_with_the_same_poses(shared_data, tmp_path, ms
     """`mst track` of the real tea box reads its frames through the prefetching thread: the trajectory is the one
     the plain frame iterator gives (the session's steps are unchanged)."""
     from mst.pipeline import frames as F
-    from mst.pipeline.tracking import TrackConfig, run_track
+    from mst.pipeline.tracking import run_track
     from mst.pipeline.tracking.config import read_tracker_xml
 
     t = shared_data / "visp-teabox"
