@@ -582,3 +582,14 @@ def test_model_geometry_build_is_the_per_face_loop():
         gk = g.edges[:, 0] * len(m.vertices) + g.edges[:, 1]
         assert all(first[k] == f for k, f in zip(gk.tolist(), g.edge_faces[:, 0].tolist()))
         assert len(g.edges) > 0 and (m.n_holes == 0 or (g.face_nring > 1).any())
+
+
+def test_sorted_unique_of_sample_edges_is_numpy_unique():
+    """The frame result's edge list: np.unique's ids, from the runs of the samplers' non-decreasing ids (and by
+    np.unique itself when they are not in order)."""
+    from mst.pipeline.tracking.edge_tracker import _sorted_unique
+
+    rng = np.random.default_rng(5)
+    for e in (np.sort(rng.integers(0, 40, 300)), rng.integers(0, 40, 300), np.zeros(0, np.int64), np.array([7]),
+              np.arange(12)):
+        assert np.array_equal(_sorted_unique(e), np.unique(e))

@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from mst.core.poses import inv_T, transform_points
+from mst.pipeline.tracking.depth_buffer import _mat3
 from mst.errors import SolveStatus
 from mst.pipeline.tracking.config import (
     TrackConfig,
@@ -88,6 +89,17 @@ def _surface_points(model, n_points: int = 400, seed: int = 0) -> tuple[np.ndarr
     r1, r2 = np.where(flip, 1 - r1, r1), np.where(flip, 1 - r2, r2)
     X = V[F[t, 0]] + r1[:, None] * (V[F[t, 1]] - V[F[t, 0]]) + r2[:, None] * (V[F[t, 2]] - V[F[t, 0]])
     return X, fid[t]
+
+
+def _sorted_unique(e: np.ndarray) -> np.ndarray:
+    """``np.unique(e)`` of the samples' edge ids, which the samplers emit edge by edge (non-decreasing): the first
+    of each run, without a sort (``np.unique`` when they are not in order)."""
+    if len(e) < 2:
+        return np.unique(e)
+    step = e[1:] != e[:-1]
+    if (e[1:] < e[:-1]).any():
+        return np.unique(e)
+    return e[np.concatenate(([True], step))]
 
 
 class EdgeTracker:
@@ -173,7 +185,7 @@ class EdgeTracker:
         normal, midx = canonical_normals(S.normal, c.n_masks)
         ref = None
         if ref_img is not None:
-            Xc = transform_points(ref_T, S.X_model, elementwise=True)
+            Xc = _mat3(S.X_model, ref_T[:3, :3], ref_T[:3, 3])  # transform_points(elementwise=True)'s bits, one kernel
             z = np.maximum(Xc[:, 2], 1e-9)
             uvp = np.stack([K[0, 0] * Xc[:, 0] / z + K[0, 2], K[1, 1] * Xc[:, 1] / z + K[1, 2]], 1)
             ref = reference_contrast(ref_img, uvp, normal, midx, c.mask_px, c.n_masks)
@@ -448,7 +460,7 @@ class EdgeTracker:
         prov = self.sample_provider
         cov = res.cov if prov is None else prov.gauge_cov(T, res.W, res.cov, res.rms_px, res.jk_inputs)
         out = FrameResult(T, healthy, n_s, n_in, res.rms_px, proj_err, res.W, cov, uv, res.inlier,
-                          S.edge_uv[np.unique(S.edge)], np.zeros((0, 2)) if klt is None else klt[1], reason, support)
+                          S.edge_uv[_sorted_unique(S.edge)], np.zeros((0, 2)) if klt is None else klt[1], reason, support)
         out.n_visible = int((getattr(S, "stats", None) or {}).get("visible", n_s))
         if self.health_score:
             out.evidence = self.evidence(img, T, S)  # the last pass's samples, re-projected at T
