@@ -23,7 +23,6 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from mst.core.poses import inv_T, transform_points
-from mst.pipeline.tracking.depth_buffer import _mat3
 from mst.errors import SolveStatus
 from mst.pipeline.tracking.config import (
     TrackConfig,
@@ -32,6 +31,7 @@ from mst.pipeline.tracking.config import (
     scene_near_m,
     search_range_px,
 )
+from mst.pipeline.tracking.depth_buffer import _mat3
 from mst.pipeline.tracking.health import EVIDENCE_SAMPLES, ORIENT_TOL_DEG, PoseEvidence, image_noise_sigma
 from mst.pipeline.tracking.klt_anchor import nearest_face_planes, reanchor_on_planes
 from mst.pipeline.tracking.moving_edges import _image
