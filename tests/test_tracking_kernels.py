@@ -593,3 +593,16 @@ def test_sorted_unique_of_sample_edges_is_numpy_unique():
     for e in (np.sort(rng.integers(0, 40, 300)), rng.integers(0, 40, 300), np.zeros(0, np.int64), np.array([7]),
               np.arange(12)):
         assert np.array_equal(_sorted_unique(e), np.unique(e))
+
+
+def test_health_median_is_numpy_median():
+    """The health score's window median (sorted Python floats) is np.median's value to the bit, odd and even
+    lengths, and so is the MAD built on it."""
+    from mst.pipeline.tracking.health import _median
+
+    rng = np.random.default_rng(6)
+    for n in range(1, 52):
+        v = list(rng.normal(size=n) * rng.choice([1e-3, 1.0, 1e3]))
+        r = _median(v)
+        assert r == float(np.median(np.asarray(v)))
+        assert _median([abs(x - r) for x in v]) == float(np.median(np.abs(np.asarray(v) - r)))
