@@ -58,7 +58,8 @@ CONFIG_CLASSES["mst track"] = "mst.pipeline.tracking.config:TrackConfig"  # --sh
               help="Edges to track (default auto): polygon = the model's polygon edges; render = contours and creases from CPU renders "
                    "of the mesh (curved objects, raw TINs); auto = polygon for .cao/.wrl and small planar meshes, "
                    "the polygon edges of its planar faces (merged) for a closed polyhedral triangle mesh with many "
-                   "faces (a box or building TIN), render for curved or open triangle meshes with many faces.")
+                   "faces (a box or building TIN), render for curved or open triangle meshes with many faces and "
+                   "for a .cao with cylinders (their limbs and end rims come from the render).")
 @config_options(presets=True)
 @json_option
 @quiet_option
