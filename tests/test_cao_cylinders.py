@@ -195,3 +195,16 @@ def test_init_overlay_draws_the_cylinders_contour(tmp_path_factory, mst):
     box = tmp_path_factory.mktemp("box") / "box.cao"
     save_model(box, box_model((R_M, R_M, H_M)))
     assert contour_uv(load_model(box), box, read_pose_file(d / "p0.txt"), read_camera(seq / "camera.json")) is None
+
+
+def test_circles_alone_are_named_in_the_error(tmp_path, mst):
+    """A .cao of circles only cannot be tracked: `mst init` says so in one line naming the file, exit 1."""
+    p = tmp_path / "rings.cao"
+    p.write_text("V1\n3\n0 0 0\n0 0 1\n1 0 0\n0\n0\n0\n0\n1\n0.05 0 1 2\n")
+    cam = tmp_path / "cam.json"
+    cam.write_text(json.dumps({"model": "pinhole", "width": 640, "height": 480, "fx": 500.0, "fy": 500.0, "cx": 319.5,
+                               "cy": 239.5, "dist": []}))
+    r = mst("init", "--model", p, "--camera", cam, "--from-pose", "0", "-2", "0.5", "90", "0", "0", "-o",
+            tmp_path / "p.txt", check=False)
+    assert r.returncode == 1 and "rings.cao: model has no faces" in r.stderr and "1 circle(s)" in r.stderr
+    assert not (tmp_path / "p.txt").exists()

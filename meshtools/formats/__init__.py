@@ -135,7 +135,9 @@ def load_tracking_model(path: str | os.PathLike) -> PolygonModel:
         raise InputError(p, "model file does not exist")
     model = load_model(p)
     if not len(model.faces) and not len(getattr(model, "lines", [])) and not model.cylinders:
-        raise InputError(p, "model has no faces")
+        extra = (f" (its {len(model.circles)} circle(s) alone are not tracked: a circle is tracked as the end rim of a "
+                 "cylinder)") if model.circles else ""
+        raise InputError(p, "model has no faces" + extra)
     model.check_finite(str(p))
     V = np.asarray(model.vertices, float).reshape(-1, 3)
     used = np.unique(np.concatenate([np.asarray(f, np.int64).ravel() for f in model.faces]
