@@ -1356,6 +1356,20 @@ def _running_sum(a, n):
     return s
 
 
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _bilinear_at(img, u, v):
+    """``edgelets._bilinear`` at one point: ``img`` (H, W) read in float64, ``u, v`` clipped to the image."""
+    H, W = img.shape
+    u = min(max(u, 0.0), W - 1.001)
+    v = min(max(v, 0.0), H - 1.001)
+    i0 = int(np.floor(v))
+    j0 = int(np.floor(u))
+    a = v - i0
+    b = u - j0
+    return ((((1 - a) * (1 - b)) * np.float64(img[i0, j0]) + ((1 - a) * b) * np.float64(img[i0, j0 + 1]))
+            + (a * (1 - b)) * np.float64(img[i0 + 1, j0])) + (a * b) * np.float64(img[i0 + 1, j0 + 1])
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
 def contour_crossings(img, uv, n_out, offset, normal, sgn, t, ramp_idx, tc_ramp, den, tm, bg_idx, win_idx, step,
                       side_tol_min, out):
@@ -1368,10 +1382,8 @@ def contour_crossings(img, uv, n_out, offset, normal, sgn, t, ramp_idx, tc_ramp,
     (N,) the sign of ``n_out . normal``; ``t`` (T,) the profile's abscissae (px along ``n_out``), ``ramp_idx``,
     ``bg_idx``, ``win_idx`` the indices of its ramp, background and crossing window; ``tc_ramp`` the ramp's
     ``t - tm`` (``tm`` their mean) and ``den`` the sum of their squares."""
-    H, W = img.shape
     N, C = offset.shape
     T = t.shape[0]
-    hi_u, hi_v = W - 1.001, H - 1.001
     prof = np.empty(T)
     buf = np.empty(T)
     nr, nb, nw = ramp_idx.shape[0], bg_idx.shape[0], win_idx.shape[0]
@@ -1385,14 +1397,7 @@ def contour_crossings(img, uv, n_out, offset, normal, sgn, t, ramp_idx, tc_ramp,
             cu = uv[i, 0] + off * normal[i, 0]
             cv = uv[i, 1] + off * normal[i, 1]
             for k in range(T):
-                u = min(max(cu + t[k] * n_out[i, 0], 0.0), hi_u)
-                v = min(max(cv + t[k] * n_out[i, 1], 0.0), hi_v)
-                i0 = int(np.floor(v))
-                j0 = int(np.floor(u))
-                a = v - i0
-                b = u - j0
-                prof[k] = ((((1 - a) * (1 - b)) * np.float64(img[i0, j0]) + ((1 - a) * b) * np.float64(img[i0, j0 + 1]))
-                           + (a * (1 - b)) * np.float64(img[i0 + 1, j0])) + (a * b) * np.float64(img[i0 + 1, j0 + 1])
+                prof[k] = _bilinear_at(img, cu + t[k] * n_out[i, 0], cv + t[k] * n_out[i, 1])
             for k in range(nr):
                 buf[k] = prof[ramp_idx[k]]
             mp = _running_sum(buf, nr) / nr
@@ -1418,20 +1423,6 @@ def contour_crossings(img, uv, n_out, offset, normal, sgn, t, ramp_idx, tc_ramp,
             else:
                 out[i, c] = np.nan
     return out
-
-
-@njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _bilinear_at(img, u, v):
-    """``edgelets._bilinear`` at one point: ``img`` (H, W) read in float64, ``u, v`` clipped to the image."""
-    H, W = img.shape
-    u = min(max(u, 0.0), W - 1.001)
-    v = min(max(v, 0.0), H - 1.001)
-    i0 = int(np.floor(v))
-    j0 = int(np.floor(u))
-    a = v - i0
-    b = u - j0
-    return ((((1 - a) * (1 - b)) * np.float64(img[i0, j0]) + ((1 - a) * b) * np.float64(img[i0, j0 + 1]))
-            + (a * (1 - b)) * np.float64(img[i0 + 1, j0])) + (a * b) * np.float64(img[i0 + 1, j0 + 1])
 
 
 @njit(cache=True, nogil=True, error_model="numpy")

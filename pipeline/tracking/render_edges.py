@@ -483,9 +483,10 @@ def crossing_offsets(img, uv, n_out, offset, normal) -> np.ndarray:
     tc = ti - tm
     sgn = np.sign((n_out * normal).sum(1))
     out = np.empty(np.shape(offset))
+    from mst.pipeline.tracking.moving_edges import _image
+
     # 8-bit gray levels are read as they are (exact in float64, as through the formulation's float32 copy)
-    im = np.ascontiguousarray(img) if img.dtype == np.uint8 else np.ascontiguousarray(img, np.float32)
-    return contour_crossings(im, np.ascontiguousarray(uv, np.float64),
+    return contour_crossings(_image(img), np.ascontiguousarray(uv, np.float64),
                              np.ascontiguousarray(n_out, np.float64), np.ascontiguousarray(offset, np.float64),
                              np.ascontiguousarray(normal, np.float64), sgn, t, ramp, tc, float((tc ** 2).sum()),
                              float(tm), bg, win, float(PROFILE_STEP_PX), float(SIDE_TOL_MIN), out)
