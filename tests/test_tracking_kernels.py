@@ -606,3 +606,35 @@ def test_health_median_is_numpy_median():
         r = _median(v)
         assert r == float(np.median(np.asarray(v)))
         assert _median([abs(x - r) for x in v]) == float(np.median(np.abs(np.asarray(v) - r)))
+
+
+def test_edge_pass_helper_kernels_are_the_numpy_steps():
+    """The edge pass's small kernels give the bits of the numpy steps they replaced: the reference
+    projection (depth floored at 1e-9 m, NaN kept), the strongest response (np.argmax of |conv|: first of
+    ties, first NaN) and the candidates' pixels (numpy's broadcast)."""
+    from mst.pipeline.tracking.depth_buffer import _mat3
+    from mst.pipeline.tracking.kernels import candidates_uv_kernel, project_uv, strongest
+
+    rng = np.random.default_rng(7)
+    T = se3_exp(rng.normal(0, 0.3, 6))
+    T[2, 3] = 1.0
+    X = rng.normal(0, 2, (300, 3))
+    c = np.array([[0.1, 0.2, -1.0], [0.3, 0.1, 0.0], [0.2, 0.2, 1e-12], [0.0, 0.0, np.nan], [1.0, 1.0, 3.0]])
+    X[:5] = (c - T[:3, 3]) @ T[:3, :3]  # camera depths behind, on and near the camera plane, NaN
+    Xc = _mat3(X, T[:3, :3], T[:3, 3])
+    z = np.maximum(Xc[:, 2], 1e-9)
+    ref = np.stack([K[0, 0] * Xc[:, 0] / z + K[0, 2], K[1, 1] * Xc[:, 1] / z + K[1, 2]], 1)
+    got = project_uv(X, np.ascontiguousarray(T[:3, :3]), np.ascontiguousarray(T[:3, 3]), K[0, 0], K[1, 1], K[0, 2], K[1, 2])
+    np.testing.assert_array_equal(got, ref)
+    assert np.isnan(got[3]).all() and (Xc[:5, 2] < 1e-9).sum() >= 3
+
+    conv = rng.integers(-40, 40, (200, 5)).astype(np.float32)
+    conv[0] = [3, -7, 7, 1, 0]  # a tie of magnitudes: the first
+    conv[1] = [1, np.nan, 9, np.nan, 2]  # the first NaN
+    conv[2] = [np.nan, 1, 2, 3, 4]
+    np.testing.assert_array_equal(strongest(conv), conv[np.arange(len(conv)), np.argmax(np.abs(conv), axis=1)])
+
+    uv, nrm = rng.normal(300, 100, (200, 2)), rng.normal(0, 1, (200, 2))
+    off = rng.normal(0, 4, (200, 2))
+    off[::7, 1] = np.nan
+    np.testing.assert_array_equal(candidates_uv_kernel(uv, off, nrm), uv[:, None, :] + off[..., None] * nrm[:, None, :])

@@ -7,12 +7,16 @@ Frames and units: ``T_cam_model`` 4x4 model -> camera (x right, y down, z forwar
 
 from __future__ import annotations
 
+import struct
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 if TYPE_CHECKING:
     from mst.pipeline.tracking.visibility import ModelGeometry
+
+
+_NO_T = np.zeros(3)  #: the translation of _mat3 without one (never written)
 
 
 def _mat3(X: np.ndarray, M: np.ndarray, t=None) -> np.ndarray:
@@ -26,7 +30,10 @@ def _mat3(X: np.ndarray, M: np.ndarray, t=None) -> np.ndarray:
         from mst.pipeline.tracking.kernels import mat3_kernel
 
         out = np.empty((len(X), 3))
-        tt = np.zeros(3) if t is None else np.broadcast_to(np.asarray(t, np.float64), (3,))
+        # t as a C-contiguous (3,) vector, one kernel signature (np.broadcast_to took ~5 us a call)
+        tt = _NO_T if t is None else np.ascontiguousarray(t, np.float64)
+        if tt.shape != (3,):  # a scalar or (1,): broadcast
+            tt = np.ascontiguousarray(np.broadcast_to(tt, (3,)))
         mat3_kernel(X, M, tt, t is not None, out)
         return out
     return _mat3_numpy(X, M, t)
@@ -90,13 +97,13 @@ def inverse_depth_buffer(geom: ModelGeometry, T_cam_model: np.ndarray, K: np.nda
 
 
 class _Buffer:
-    """One rendered buffer and its key (the pose, intrinsics, image size, faces, near plane and scale
+    """One rendered buffer and its key (the pose, intrinsics, image size, near plane, scale and faces
     it was rendered for); ``eroded``: its 3x3 erosion once computed (:func:`eroded_buffer`)."""
 
-    __slots__ = ("key", "faces", "buf", "eroded")
+    __slots__ = ("key", "buf", "eroded")
 
-    def __init__(self, key: bytes, faces: np.ndarray, buf: np.ndarray):
-        self.key, self.faces, self.buf, self.eroded = key, faces, buf, None
+    def __init__(self, key: bytes, buf: np.ndarray):
+        self.key, self.buf, self.eroded = key, buf, None
 
 
 #: rendered buffers kept per model (the last ones): the evidence of a frame's final pose renders the
@@ -104,24 +111,26 @@ class _Buffer:
 CACHE_SIZE = 2
 
 
-def _key(T_cam_model, K, width, height, near, scale) -> bytes:
+def _key(T_cam_model, K, width, height, near, scale, faces) -> bytes:
+    """Every bit of the inputs a buffer depends on, faces (F,) bool included (one bytes comparison per
+    cached buffer: issue #14, the arrays' comparisons were ~10 us a lookup)."""
     return b"".join((np.ascontiguousarray(T_cam_model, np.float64).tobytes(), np.ascontiguousarray(K, np.float64).tobytes(),
-                     np.array([width, height], np.int64).tobytes(), np.array([near, scale], np.float64).tobytes()))
+                     struct.pack("<qqddq", int(width), int(height), float(near), float(scale), len(faces)), faces.tobytes()))
 
 
 def _buffer_entry(geom, T_cam_model, K, width, height, faces, near, scale) -> _Buffer:
     """The cache entry of the buffer for exactly these inputs (every bit of the pose, intrinsics,
     near plane and scale, the same face set): the kept one, else rendered now and kept (read-only,
     the last :data:`CACHE_SIZE` per model)."""
-    key = _key(T_cam_model, K, width, height, near, scale)
     f = np.asarray(faces, bool)
+    key = _key(T_cam_model, K, width, height, near, scale, f)
     cache = geom.__dict__.setdefault("_zbuffer_cache", [])
     for e in cache:
-        if e.key == key and e.faces.shape == f.shape and np.array_equal(e.faces, f):
+        if e.key == key:
             return e
     buf = _render_buffer(geom, T_cam_model, K, width, height, faces, near, scale, None, False)
     buf.flags.writeable = False  # shared by every caller that asks for the same buffer
-    e = _Buffer(key, f.copy(), buf)
+    e = _Buffer(key, buf)
     cache.insert(0, e)
     del cache[CACHE_SIZE:]
     return e
@@ -141,20 +150,28 @@ def eroded_buffer(geom: ModelGeometry, T_cam_model: np.ndarray, K: np.ndarray, w
     return e.buf, e.eroded, scale
 
 
-#: ``numpy.linalg.inv`` of the buffers' intrinsics, by their bytes (issue #14: the LAPACK call was ~40 us
-#: of each render; the same inverse, to the bit, for the same matrix)
-_K_INV: dict[bytes, np.ndarray] = {}
+#: the buffers' intrinsics and their ``numpy.linalg.inv``, by the image intrinsics' bytes and the scale
+#: (issue #14: the LAPACK call was ~40 us of each render, the scaling ~10 us of numpy calls; the same
+#: matrices, to the bit, for the same inputs)
+_K_SCALED: dict[bytes, tuple[np.ndarray, np.ndarray]] = {}
 
 
-def _inverse_K(Ks: np.ndarray) -> np.ndarray:
-    key = Ks.dtype.str.encode() + Ks.tobytes()
-    Kinv = _K_INV.get(key)
-    if Kinv is None:
-        if len(_K_INV) >= 64:  # a few cameras and scales in a process
-            _K_INV.clear()
-        Kinv = _K_INV[key] = np.linalg.inv(Ks)
+def _scaled_K(K: np.ndarray, scale: float) -> tuple[np.ndarray, np.ndarray]:
+    """``(Ks, Kinv)``: ``K`` (3, 3) for a buffer at ``scale`` x the image's pixels (pixel centres kept)
+    and its inverse (never written by the callers)."""
+    key = K.dtype.str.encode() + K.tobytes() + struct.pack("<d", scale)
+    out = _K_SCALED.get(key)
+    if out is None:
+        Ks = K.copy()
+        Ks[:2] *= scale
+        Ks[0, 2] = (K[0, 2] + 0.5) * scale - 0.5
+        Ks[1, 2] = (K[1, 2] + 0.5) * scale - 0.5
+        Kinv = np.linalg.inv(Ks)
         Kinv.flags.writeable = False
-    return Kinv
+        if len(_K_SCALED) >= 64:  # a few cameras and scales in a process
+            _K_SCALED.clear()
+        out = _K_SCALED[key] = (Ks, Kinv)
+    return out
 
 
 def _render_buffer(geom, T_cam_model, K, width, height, faces, near, scale, Xc_all, _numpy_reference) -> np.ndarray:
@@ -165,11 +182,7 @@ def _render_buffer(geom, T_cam_model, K, width, height, faces, near, scale, Xc_a
 
     W, H = max(1, int(round(width * scale))), max(1, int(round(height * scale)))
     buf = np.zeros((H, W), np.float32)
-    Ks = K.copy()
-    Ks[:2] *= scale
-    Ks[0, 2] = (K[0, 2] + 0.5) * scale - 0.5
-    Ks[1, 2] = (K[1, 2] + 0.5) * scale - 0.5
-    Kinv = _inverse_K(Ks)
+    Ks, Kinv = _scaled_K(K, scale)
     R, t = T_cam_model[:3, :3], T_cam_model[:3, 3]
     sel = np.flatnonzero(faces)
     if not len(sel):
@@ -191,7 +204,7 @@ def _render_buffer(geom, T_cam_model, K, width, height, faces, near, scale, Xc_a
     else:  # the same operations in their order, in one kernel
         from mst.pipeline.tracking.kernels import zbuffer_planes
 
-        d = zbuffer_planes(geom.face_normals, geom.face_point, sel.astype(np.int64), np.ascontiguousarray(R, np.float64),
+        d = zbuffer_planes(geom.face_normals, geom.face_point, sel.astype(np.int64, copy=False), np.ascontiguousarray(R, np.float64),
                            np.ascontiguousarray(t, np.float64), Kinv, coef)
     if _numpy_reference:  # the numpy formulation (the reference of the kernel's test)
         # depth range of each face's outer loop
@@ -217,7 +230,7 @@ def _render_buffer(geom, T_cam_model, K, width, height, faces, near, scale, Xc_a
         if loop_end is None:
             loop_end = geom.__dict__["_loop_end"] = np.append(geom.loop_start[1:], len(geom.loop_vid)).astype(np.int64)
         inside, crossing = zbuffer_faces(geom.vertices, np.ascontiguousarray(R), np.ascontiguousarray(t), Ks, float(near),
-                                         sel.astype(np.int64), np.ascontiguousarray(d, np.float64), geom.loop_vid,
+                                         sel.astype(np.int64, copy=False), np.ascontiguousarray(d, np.float64), geom.loop_vid,
                                          geom.loop_start, loop_end, geom.ring_vid, geom.face_vstart, uu, vv)
     if len(inside):
         fill_faces(buf, uu, vv, geom.ring_vid, geom.ring_start, geom.ring_len, geom.face_ring0, geom.face_nring,

@@ -31,7 +31,6 @@ from mst.pipeline.tracking.config import (
     scene_near_m,
     search_range_px,
 )
-from mst.pipeline.tracking.depth_buffer import _mat3
 from mst.pipeline.tracking.health import EVIDENCE_SAMPLES, ORIENT_TOL_DEG, PoseEvidence, image_noise_sigma
 from mst.pipeline.tracking.klt_anchor import nearest_face_planes, reanchor_on_planes
 from mst.pipeline.tracking.moving_edges import _image
@@ -173,6 +172,7 @@ class EdgeTracker:
         return explain_no_samples(S.stats, self.near_m or 0.0, self.cfg.far_clip_m, self.lod)
 
     def _edge_pass(self, img, K, T, search_range, ref_img, ref_T, klt=None, min_mad_px=None):
+        from mst.pipeline.tracking.kernels import project_uv
         from mst.pipeline.tracking.moving_edges import canonical_normals, reference_contrast, search_edges
         from mst.pipeline.tracking.vvs import solve_pose
 
@@ -185,9 +185,10 @@ class EdgeTracker:
         normal, midx = canonical_normals(S.normal, c.n_masks)
         ref = None
         if ref_img is not None:
-            Xc = _mat3(S.X_model, ref_T[:3, :3], ref_T[:3, 3])  # transform_points(elementwise=True)'s bits, one kernel
-            z = np.maximum(Xc[:, 2], 1e-9)
-            uvp = np.stack([K[0, 0] * Xc[:, 0] / z + K[0, 2], K[1, 1] * Xc[:, 1] / z + K[1, 2]], 1)
+            # the samples in the reference frame (transform_points(elementwise=True)'s bits), one kernel
+            uvp = project_uv(np.ascontiguousarray(S.X_model, np.float64), np.ascontiguousarray(ref_T[:3, :3], np.float64),
+                             np.ascontiguousarray(ref_T[:3, 3], np.float64), float(K[0, 0]), float(K[1, 1]),
+                             float(K[0, 2]), float(K[1, 2]))
             ref = reference_contrast(ref_img, uvp, normal, midx, c.mask_px, c.n_masks)
         m = search_edges(img, S.uv, normal, ref, search_range=int(search_range), threshold=c.edge_threshold,
                          mu1=c.mu1, mu2=c.mu2, size=c.mask_px, n_masks=c.n_masks, n_candidates=c.n_candidates,

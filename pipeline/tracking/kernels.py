@@ -1064,6 +1064,20 @@ def face_angles(V, N, loop_vid, loop_start, loop_end, sel, c_model):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
+def face_visibility_kernel(V, N, loop_vid, loop_start, loop_end, sel, c_model, prev, has_prev, appear_deg,
+                           disappear_deg, F):
+    """(F,) bool :func:`mst.pipeline.tracking.visibility.face_visibility`: of the faces ``sel`` (K,), those
+    at a :func:`face_angles` angle below ``appear_deg``, or below ``disappear_deg`` when visible in
+    ``prev`` (F,) bool (``has_prev``); the others False."""
+    ang = face_angles(V, N, loop_vid, loop_start, loop_end, sel, c_model)
+    vis = np.zeros(F, np.bool_)
+    for j in range(sel.shape[0]):
+        a = ang[j]
+        vis[sel[j]] = (a < appear_deg) or (has_prev and prev[sel[j]] and a < disappear_deg)
+    return vis
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
 def surface_values(img, X, face, face_visible, T, fx, fy, cx, cy, near, buf, sc, use_buf):
     """The surface part of ``EdgeTracker.evidence`` (``_surface_values``) at the pose ``T``: of the
     surface points ``X (M, 3)`` (model frame) on faces ``face (M,)``, those on a visible face, in
@@ -1126,6 +1140,122 @@ def samples_unhidden(buf, uv, iz, sc):
                 m = min(m, buf[y, x])
         out[i] = iz[i] >= np.float64(m * f - eps)
     return out
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def candidate_edges(edges, edge_faces, e_sel, fv, fv_big):
+    """The candidate edges of :func:`~mst.pipeline.tracking.visibility.visible_samples` among ``e_sel``
+    (K,) edge ids, in their order: those with an adjacent face in ``fv`` (F,) bool, and the free lines
+    (no adjacent face). Returns ``(eid (E',), E (E', 2) vertex ids, small_face (E',) bool: no adjacent
+    face in fv_big)`` (issue #14: the numpy formulation's ten calls, ~25 us a frame)."""
+    n = 0
+    keep = np.zeros(e_sel.shape[0], np.bool_)
+    for k in range(e_sel.shape[0]):
+        e = e_sel[k]
+        f0, f1 = edge_faces[e, 0], edge_faces[e, 1]
+        keep[k] = (f0 >= 0 and fv[f0]) or (f1 >= 0 and fv[f1]) or (f0 < 0 and f1 < 0)
+        if keep[k]:
+            n += 1
+    eid = np.empty(n, np.int64)
+    E = np.empty((n, 2), np.int64)
+    small = np.empty(n, np.bool_)
+    j = 0
+    for k in range(e_sel.shape[0]):
+        if not keep[k]:
+            continue
+        e = e_sel[k]
+        f0, f1 = edge_faces[e, 0], edge_faces[e, 1]
+        eid[j] = e
+        E[j, 0], E[j, 1] = edges[e, 0], edges[e, 1]
+        small[j] = not ((f0 >= 0 and fv_big[f0]) or (f1 >= 0 and fv_big[f1]) or (f0 < 0 and f1 < 0))
+        j += 1
+    return eid, E, small
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def project_uv(X, R, t, fx, fy, cx, cy):
+    """(N, 2) pixels of the model points ``X (N, 3)`` at the pose ``R, t``: the camera-frame point as
+    :func:`mat3_kernel` sums it, its depth floored at 1e-9 m (``np.maximum``: NaN stays NaN), ``u = fx
+    x / z + cx``, ``v = fy y / z + cy`` (numpy's order of operations: the same bits as the numpy steps
+    of :meth:`mst.pipeline.tracking.edge_tracker.EdgeTracker._edge_pass`, one call instead of six)."""
+    out = np.empty((X.shape[0], 2))
+    for i in range(X.shape[0]):
+        x0, x1, x2 = X[i, 0], X[i, 1], X[i, 2]
+        c0 = ((x0 * R[0, 0] + x1 * R[0, 1]) + x2 * R[0, 2]) + t[0]
+        c1 = ((x0 * R[1, 0] + x1 * R[1, 1]) + x2 * R[1, 2]) + t[1]
+        z = ((x0 * R[2, 0] + x1 * R[2, 1]) + x2 * R[2, 2]) + t[2]
+        if z < 1e-9:
+            z = 1e-9
+        out[i, 0] = fx * c0 / z + cx
+        out[i, 1] = fy * c1 / z + cy
+    return out
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def strongest(conv):
+    """``conv[i, argmax_m |conv[i, m]|]`` (N,) of a float32 ``conv (N, M)``: ``np.argmax``'s choice
+    (the first of equal maxima, the first NaN when there is one)."""
+    n, m = conv.shape
+    out = np.empty(n, conv.dtype)
+    for i in range(n):
+        j = 0
+        best = abs(conv[i, 0])
+        if best == best:
+            for k in range(1, m):
+                a = abs(conv[i, k])
+                if a != a:
+                    j = k
+                    break
+                if a > best:
+                    best = a
+                    j = k
+        out[i] = conv[i, j]
+    return out
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def candidates_uv_kernel(uv, offset, normal):
+    """(N, C, 2) ``uv[i] + offset[i, c] * normal[i]`` (numpy's broadcast: the same bits)."""
+    n, C = offset.shape
+    out = np.empty((n, C, 2))
+    for i in range(n):
+        for c in range(C):
+            o = offset[i, c]
+            out[i, c, 0] = uv[i, 0] + o * normal[i, 0]
+            out[i, c, 1] = uv[i, 1] + o * normal[i, 1]
+    return out
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def unhidden_samples(buf, uv, iz, sc, nrm, Xc, edge_id, R, t):
+    """The samples that pass :func:`samples_unhidden` (in order) and their model-frame points, in one
+    pass (issue #14: four boolean gathers and the model transform were ~30 us of numpy calls a frame):
+    ``(n_hidden, uv (K, 2), nrm (K, 2), Xc (K, 3), edge_id (K,), X_model (K, 3))`` with ``X_model =
+    (Xc - t) @ R`` summed as :func:`mst.pipeline.tracking.depth_buffer._mat3` sums ``_mat3(Xc - t,
+    R.T)`` (``(d0 R0j + d1 R1j) + d2 R2j``): the same bits as the numpy steps."""
+    vis = samples_unhidden(buf, uv, iz, sc)
+    n = 0
+    for i in range(vis.shape[0]):
+        if vis[i]:
+            n += 1
+    uv_o = np.empty((n, 2))
+    nrm_o = np.empty((n, 2))
+    xc_o = np.empty((n, 3))
+    id_o = np.empty(n, edge_id.dtype)
+    xm_o = np.empty((n, 3))
+    k = 0
+    for i in range(vis.shape[0]):
+        if not vis[i]:
+            continue
+        uv_o[k, 0], uv_o[k, 1] = uv[i, 0], uv[i, 1]
+        nrm_o[k, 0], nrm_o[k, 1] = nrm[i, 0], nrm[i, 1]
+        d0, d1, d2 = Xc[i, 0] - t[0], Xc[i, 1] - t[1], Xc[i, 2] - t[2]
+        xc_o[k, 0], xc_o[k, 1], xc_o[k, 2] = Xc[i, 0], Xc[i, 1], Xc[i, 2]
+        id_o[k] = edge_id[i]
+        for j in range(3):
+            xm_o[k, j] = (d0 * R[0, j] + d1 * R[1, j]) + d2 * R[2, j]
+        k += 1
+    return vis.shape[0] - n, uv_o, nrm_o, xc_o, id_o, xm_o
 
 
 @njit(cache=True, nogil=True, error_model="numpy")

@@ -113,8 +113,11 @@ class EdgeMatches:
     conv: np.ndarray
 
     def candidates_uv(self, uv: np.ndarray) -> np.ndarray:
-        """(N, C, 2) candidate pixel positions."""
-        return uv[:, None, :] + self.offset[..., None] * self.normal[:, None, :]
+        """(N, C, 2) candidate pixel positions (one kernel: numpy's broadcast's bits)."""
+        from mst.pipeline.tracking.kernels import candidates_uv_kernel
+
+        return candidates_uv_kernel(np.ascontiguousarray(uv, np.float64), np.ascontiguousarray(self.offset, np.float64),
+                                    np.ascontiguousarray(self.normal, np.float64))
 
 
 def _image(img: np.ndarray) -> np.ndarray:
@@ -144,10 +147,11 @@ def reference_contrast(img_prev: np.ndarray, uv_prev: np.ndarray, normal: np.nda
                        size: int, n_masks: int, reach: int = 2) -> np.ndarray:
     """Convolution of the strongest response within ``+-reach`` px of each sample in the previous image."""
     masks, moff = make_masks(size, n_masks)
+    from mst.pipeline.tracking.kernels import strongest
+
     conv, _ = _convolve(img_prev, uv_prev, normal, np.arange(-reach, reach + 1, dtype=np.float64), mask_idx, masks,
                         moff)
-    j = np.argmax(np.abs(conv), axis=1)
-    return conv[np.arange(len(conv)), j]
+    return strongest(conv)  # np.argmax(np.abs(conv), axis=1)'s pick, one kernel
 
 
 def reference_contrast_numpy(img_prev: np.ndarray, uv_prev: np.ndarray, normal: np.ndarray, mask_idx: np.ndarray,

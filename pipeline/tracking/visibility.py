@@ -211,8 +211,20 @@ def face_visibility(geom: ModelGeometry, T_cam_model: np.ndarray, prev: np.ndarr
                     appear_deg: float, disappear_deg: float, among: np.ndarray | None = None) -> np.ndarray:
     """(F,) bool: faces seen from the front at less than the appear/disappear angle (hysteresis).
     ``among`` (F,) bool: test only these faces (e.g. those in the view frustum); the others are False.
-    The angles come from one numba kernel (:func:`mst.pipeline.tracking.kernels.face_angles`)."""
-    return _face_visibility(geom, T_cam_model, prev, appear_deg, disappear_deg, among, _face_angles_kernel)
+    The angles and the hysteresis in one numba kernel (:func:`mst.pipeline.tracking.kernels.face_visibility_kernel`,
+    the angles of :func:`mst.pipeline.tracking.kernels.face_angles`; issue #14: the numpy steps around
+    it were ~15 us of each of the two calls a frame)."""
+    from mst.pipeline.tracking.kernels import face_visibility_kernel
+
+    R, t = T_cam_model[:3, :3], T_cam_model[:3, 3]
+    c_model = -R.T @ t  # camera centre in the model frame (as _face_visibility)
+    F = len(geom.faces)
+    sel = _all_faces(geom) if among is None else np.flatnonzero(among)
+    has_prev = prev is not None and len(prev) == F
+    return face_visibility_kernel(geom.vertices, geom.face_normals, geom.loop_vid, geom.loop_start, _loop_end(geom),
+                                  np.ascontiguousarray(sel, np.int64), np.ascontiguousarray(c_model, np.float64),
+                                  np.ascontiguousarray(prev, np.bool_) if has_prev else np.zeros(0, np.bool_), has_prev,
+                                  float(appear_deg), float(disappear_deg), F)
 
 
 def face_visibility_numpy(geom: ModelGeometry, T_cam_model: np.ndarray, prev: np.ndarray | None,
@@ -240,19 +252,28 @@ def _face_visibility(geom, T_cam_model, prev, appear_deg, disappear_deg, among, 
     return vis
 
 
+def _all_faces(geom: ModelGeometry) -> np.ndarray:
+    """(F,) int64 ids of every face (computed once per geometry)."""
+    ids = geom.__dict__.get("_all_faces")
+    if ids is None:
+        ids = geom.__dict__["_all_faces"] = np.arange(len(geom.faces), dtype=np.int64)
+    return ids
+
+
+def _all_edges(geom: ModelGeometry) -> np.ndarray:
+    """(E,) int64 ids of every edge (computed once per geometry)."""
+    ids = geom.__dict__.get("_all_edges")
+    if ids is None:
+        ids = geom.__dict__["_all_edges"] = np.arange(len(geom.edges), dtype=np.int64)
+    return ids
+
+
 def _loop_end(geom: ModelGeometry) -> np.ndarray:
     """(F,) int64 end of each face's outer loop in ``geom.loop_vid`` (computed once per geometry)."""
     loop_end = geom.__dict__.get("_loop_end")
     if loop_end is None:
         loop_end = geom.__dict__["_loop_end"] = np.append(geom.loop_start[1:], len(geom.loop_vid)).astype(np.int64)
     return loop_end
-
-
-def _face_angles_kernel(geom: ModelGeometry, sel: np.ndarray, c_model: np.ndarray, all_faces: bool) -> np.ndarray:
-    from mst.pipeline.tracking.kernels import face_angles
-
-    return face_angles(geom.vertices, geom.face_normals, geom.loop_vid, geom.loop_start, _loop_end(geom), sel,
-                       np.ascontiguousarray(c_model, np.float64))
 
 
 def _face_angles_numpy(geom: ModelGeometry, sel: np.ndarray, c_model: np.ndarray, all_faces: bool) -> np.ndarray:
@@ -459,24 +480,24 @@ def visible_samples(geom: ModelGeometry, T_cam_model: np.ndarray, K: np.ndarray,
     Xv = geom.to_camera(T_cam_model, np.flatnonzero(fv)) if indexed and fv_all is fv else _mat3(geom.vertices, R, t)
     # candidate edges: with an index those adjacent to a front face in view (and the free lines),
     # in edge order; the others cannot pass the test below
-    e_sel = geom.index.edges_of(np.flatnonzero(fv)) if indexed else slice(None)
-    ef = geom.edge_faces[e_sel]
+    e_sel = geom.index.edges_of(np.flatnonzero(fv)) if indexed else _all_edges(geom)
     fv_big = fv
     if lod_min_face_px2 > 0 and len(fv):
         fv_big = fv & (projected_face_area_px2(geom, T_cam_model, K, near, Xv, fv) >= lod_min_face_px2)
-    ev = ((ef[:, 0] >= 0) & fv[np.maximum(ef[:, 0], 0)]) | ((ef[:, 1] >= 0) & fv[np.maximum(ef[:, 1], 0)])
-    ev |= (ef[:, 0] < 0) & (ef[:, 1] < 0)  # free lines: always candidates
-    ev_big = ((ef[:, 0] >= 0) & fv_big[np.maximum(ef[:, 0], 0)]) | ((ef[:, 1] >= 0) & fv_big[np.maximum(ef[:, 1], 0)])
-    ev_big |= (ef[:, 0] < 0) & (ef[:, 1] < 0)
-    eid = np.flatnonzero(ev) if not indexed else e_sel[ev]
-    E = geom.edges[eid]
-    small_face = ~ev_big[ev]
+    if _numpy_reference:
+        from mst.pipeline.tracking.visibility_numpy import _candidate_edges_numpy as candidate_edges
+    else:  # one kernel
+        from mst.pipeline.tracking.kernels import candidate_edges
+    # the edges with a front face in view (the free lines too); small_face: none of them big enough
+    eid, E, small_face = candidate_edges(geom.edges, geom.edge_faces, np.ascontiguousarray(e_sel, np.int64),
+                                         np.ascontiguousarray(fv, np.bool_), np.ascontiguousarray(fv_big, np.bool_))
     stats = {"candidates": int(len(E)) + sum(culled.values())}
     use_lod = bool(lod_min_line_px > 0 or lod_min_face_px2 > 0)
     bounds = (float(border_px), float(border_px), float(width - 1 - border_px), float(height - 1 - border_px))
+    R_c, t_c = np.ascontiguousarray(R, np.float64), np.ascontiguousarray(t, np.float64)
     args = (np.ascontiguousarray(Xv, np.float64), np.ascontiguousarray(E, np.int64), np.ascontiguousarray(small_face),
-            float(near), float(far), np.ascontiguousarray(K, np.float64), np.ascontiguousarray(R, np.float64),
-            np.ascontiguousarray(t, np.float64), *bounds, float(step), use_lod, float(lod_min_line_px))
+            float(near), float(far), np.ascontiguousarray(K, np.float64), R_c, t_c, *bounds, float(step), use_lod,
+            float(lod_min_line_px))
     if _numpy_reference:
         from mst.pipeline.tracking.visibility_numpy import _edge_samples_numpy
 
@@ -494,27 +515,29 @@ def visible_samples(geom: ModelGeometry, T_cam_model: np.ndarray, K: np.ndarray,
         stats["lod"] = int(counts[2])
     stats["outside"] = int(counts[3]) + culled.get("outside", 0)
     stats["short"] = int(counts[4])
+    X_model = None
     if hidden_lines and not geom.convex and len(uv):
-        # the buffer and the farthest surface in each 3x3 neighbourhood (reused when the same pose and
-        # faces were rendered before: the previous frame's evidence at the pose this frame starts from)
+        # the buffer (reused when the same pose and faces were rendered before: the previous frame's
+        # evidence at the pose this frame starts from); the test, the kept samples and their model
+        # points in one kernel (the erosion read at the samples only), or the numpy steps (the erosion)
         if _numpy_reference:
-            buf, far_nb, sc = eroded_buffer(geom, T_cam_model, K, width, height, fv, near, zbuffer_scale)
-            ix = np.clip(np.round((uv[:, 0] + 0.5) * sc - 0.5).astype(np.int64), 0, buf.shape[1] - 1)
-            iy = np.clip(np.round((uv[:, 1] + 0.5) * sc - 0.5).astype(np.int64), 0, buf.shape[0] - 1)
-            vis = iz >= far_nb[iy, ix] * (1.0 - 2e-3) - 1e-9
-        else:  # the same test, the erosion read at the samples only (kernels.samples_unhidden)
-            from mst.pipeline.tracking.kernels import samples_unhidden
+            from mst.pipeline.tracking.visibility_numpy import _unhidden_samples_numpy as unhidden_samples
 
-            buf, sc = inverse_depth_buffer(geom, T_cam_model, K, width, height, fv, near, zbuffer_scale)
-            vis = samples_unhidden(buf, np.ascontiguousarray(uv, np.float64), np.ascontiguousarray(iz, np.float64),
-                                   float(sc))
-        stats["hidden"] = int((~vis).sum())
-        uv, nrm, Xc, edge_id = uv[vis], nrm[vis], Xc[vis], edge_id[vis]
+            buf = eroded_buffer(geom, T_cam_model, K, width, height, fv, near, zbuffer_scale)[1]
+        else:
+            from mst.pipeline.tracking.kernels import unhidden_samples
+
+            buf = inverse_depth_buffer(geom, T_cam_model, K, width, height, fv, near, zbuffer_scale)[0]
+        n_hidden, uv, nrm, Xc, edge_id, X_model = unhidden_samples(buf, uv, iz, float(zbuffer_scale), nrm, Xc, edge_id,
+                                                                   R_c, t_c)
+        stats["hidden"] = int(n_hidden)
     stats["visible"] = int(len(uv))  # before the cap: how much of the model the view holds
     if max_samples and len(uv) > max_samples:
         sel = np.linspace(0, len(uv) - 1, max_samples).round().astype(np.int64)
         uv, nrm, Xc, edge_id = uv[sel], nrm[sel], Xc[sel], edge_id[sel]
-    X_model = _mat3(Xc - t, R.T)
+        X_model = None if X_model is None else X_model[sel]
+    if X_model is None:
+        X_model = _mat3(Xc - t, R.T)
     stats["samples"] = int(len(uv))
     if len(uv) < 6 and fv_all.any():
         # a failure to explain: the nearest front-facing face, culled or not (rare, so exact)

@@ -1,6 +1,7 @@
-"""The numpy formulation of the edge sampling kernel (:func:`mst.pipeline.tracking.kernels.edge_samples`):
-the reference of its test (``visible_samples(..., _numpy_reference=True)``), kept apart from the
-visibility module that runs the kernel. Frames and units as :mod:`mst.pipeline.tracking.visibility`.
+"""The numpy formulations of the edge sampling kernels (:func:`mst.pipeline.tracking.kernels.edge_samples`,
+:func:`~mst.pipeline.tracking.kernels.candidate_edges`, :func:`~mst.pipeline.tracking.kernels.unhidden_samples`):
+the references of their tests (``visible_samples(..., _numpy_reference=True)``), kept apart from the
+visibility module that runs the kernels. Frames and units as :mod:`mst.pipeline.tracking.visibility`.
 """
 
 from __future__ import annotations
@@ -67,3 +68,26 @@ def _edge_samples_numpy(Xv, E, small_face, near, far, K, R, t, x0, y0, x1, y1, s
     xn = (uv - K[:2, 2]) / np.array([K[0, 0], K[1, 1]])
     Xc = np.column_stack([xn, np.ones(len(xn))]) / iz[:, None]
     return counts, z_min, eid, pa, pb, A_model, B_model, uv, nrm, iz, Xc, edge_id
+
+
+def _candidate_edges_numpy(edges, edge_faces, e_sel, fv, fv_big):
+    """The numpy formulation of :func:`mst.pipeline.tracking.kernels.candidate_edges` (its test's
+    reference): ``(eid, E, small_face)`` of the edges ``e_sel`` with an adjacent face in ``fv``, and
+    the free lines."""
+    ef = edge_faces[e_sel]
+    ev = ((ef[:, 0] >= 0) & fv[np.maximum(ef[:, 0], 0)]) | ((ef[:, 1] >= 0) & fv[np.maximum(ef[:, 1], 0)])
+    ev |= (ef[:, 0] < 0) & (ef[:, 1] < 0)  # free lines: always candidates
+    ev_big = ((ef[:, 0] >= 0) & fv_big[np.maximum(ef[:, 0], 0)]) | ((ef[:, 1] >= 0) & fv_big[np.maximum(ef[:, 1], 0)])
+    ev_big |= (ef[:, 0] < 0) & (ef[:, 1] < 0)
+    eid = e_sel[ev]
+    return eid, edges[eid], ~ev_big[ev]
+
+
+def _unhidden_samples_numpy(far_nb, uv, iz, sc, nrm, Xc, edge_id, R, t):
+    """The numpy formulation of :func:`mst.pipeline.tracking.kernels.unhidden_samples` on the eroded
+    buffer ``far_nb`` (the farthest surface in each 3x3 neighbourhood): ``(n_hidden, uv, nrm, Xc,
+    edge_id, X_model)`` of the samples not behind it."""
+    ix = np.clip(np.round((uv[:, 0] + 0.5) * sc - 0.5).astype(np.int64), 0, far_nb.shape[1] - 1)
+    iy = np.clip(np.round((uv[:, 1] + 0.5) * sc - 0.5).astype(np.int64), 0, far_nb.shape[0] - 1)
+    vis = iz >= far_nb[iy, ix] * (1.0 - 2e-3) - 1e-9
+    return int((~vis).sum()), uv[vis], nrm[vis], Xc[vis], edge_id[vis], _mat3(Xc[vis] - t, R.T)
