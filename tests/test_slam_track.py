@@ -184,12 +184,15 @@ def test_corridor_no_map_pose_beyond_the_budget(corridor, runs_dir, mode):
 #: that uncertainty; open: a more accurate pose at 320x240, not a looser bound. The x8 orbit passes since
 #: the VVS step test waits for the damping to relax (vvs.STOP_MU, session 8); the x10 orbit then
 #: loses 2 frames to the budget
+_FAST_AUTO = {10: pytest.mark.xfail(strict=True, reason="frames refused by the error budget (session 6: frame 22, "
+                                                        "2 sigma 1.32 %, error 0.81 %; session 8: 2 frames)")}
+
+
 @pytest.mark.parametrize("drop", [8, 10])
 @pytest.mark.parametrize("mode", ["rgbd", "mono", "auto"])
-def test_fast_orbit_every_frame_tracked(fast, runs_dir, drop, mode):
-    # auto at x10 was a strict xfail until session 15 (2 frames refused by the error budget, 2 sigma
-    # 1.32 %, error 0.81 %): the KLT corners of this untextured building were re-detected on most frames
-    # (2-6 each time); re-detected at most every 5 frames after a detection of few, every frame is output
+def test_fast_orbit_every_frame_tracked(fast, runs_dir, drop, mode, request):
+    if mode == "auto" and drop in _FAST_AUTO:
+        request.applymarker(_FAST_AUTO[drop])
     seq = fast[drop]
     summ, e = _track(seq, mode, runs_dir)
     assert summ["lost"] == 0 and summ["tracked"] == summ["frames"] == 30

@@ -40,9 +40,6 @@ log = logging.getLogger(__name__)
 #: fewer KLT points than this in a fit: no ``klt_agree`` for the health score (one cluster of the
 #: monitor's noise model, :class:`mst.pipeline.tracking.health.HealthMonitor`)
 KLT_SIGNAL_MIN = 10
-#: a KLT detection of fewer corners marks a textureless view: the next one waits 5 frames (an untextured
-#: building's orbit: 2-6 corners re-detected on 33 of 40 frames, ~2.4 ms each, half the edges+KLT frame)
-KLT_FEW_CORNERS = 20
 _NO_BUFFER = np.zeros((1, 1), np.float32)  # the surface kernel's buffer argument for a convex model (not read)
 
 
@@ -134,7 +131,7 @@ class EdgeTracker:
         self.prev_gray: np.ndarray | None = None
         self._pyramids = None  # the KLT pyramids of the last two frames (core.klt.PyramidCache)
         self._klt_next: tuple | None = None  # the last fit's KLT inliers (model points, px, planes)
-        self._klt_age = 30  # frames since the KLT corners were detected (none yet: the first accept detects)
+        self._klt_age = 0  # frames since the KLT corners were detected
         self._klt_n0 = 0  # corners at the last detection
         self._klt_n_mean = 1  # poses in the KLT points' running mean (klt.reanchor mean): the detection's
         self.klt_gate: tuple[np.ndarray, float] | None = None  #: texture gate of the last detection (g_min, noise sigma)
@@ -530,9 +527,7 @@ class EdgeTracker:
             self._klt_next = None
             self._klt_age += 1
             enough = nxt is not None and len(nxt[0]) >= max(20, 0.6 * self._klt_n0)
-            # re-detect when too few points survive or every 30 frames; in a textureless scene (a few points
-            # survive, or the last detection found few: KLT_FEW_CORNERS) at most every 5 frames
-            few = self._klt_n0 < KLT_FEW_CORNERS and self._klt_age < 5
+            # re-detect when too few points survive (at most every 5 frames: textureless scenes) or every 30
             if nxt is not None and len(nxt[0]) >= 4 and (enough or self._klt_age < 5) and self._klt_age < 30:
                 # keep tracking the surviving points (ViSP keeps its KLT set)
                 self.klt_X, self.klt_pts, self.klt_plane = nxt
@@ -540,8 +535,6 @@ class EdgeTracker:
                     X1 = reanchor_on_planes(self.klt_pts, self.klt_plane, T_cam_model, self.K, self.klt_X)
                     self._klt_n_mean += 1
                     self.klt_X = self.klt_X + (X1 - self.klt_X) / self._klt_n_mean
-            elif few:  # the last detection's few corners are lost: none until the next one
-                self.klt_pts = self.klt_X = self.klt_plane = None
             else:
                 self.klt_pts, self.klt_X, self.klt_plane = self._klt_points(gray, T_cam_model)
                 self._klt_n0 = 0 if self.klt_pts is None else len(self.klt_pts)
