@@ -16,12 +16,16 @@
   rounding and the same on every CPU.
 * :func:`sobel_at`: the Sobel gradient at sample positions; :func:`pose_health` and
   :func:`pose_gradients`: the health tests and the evidence gradients of a solved pose.
-* :func:`edge_samples`, :func:`face_angles`, :func:`zbuffer_planes`, :func:`zbuffer_faces`,
-  :func:`samples_unhidden`: the visibility pass (clipping and sampling of the candidate edges, the
-  face angle test, the depth buffer's plane and per-vertex set-up, the hidden-line test at the
-  samples), the numpy formulations' values to the bit (face angles: to an ulp).
-* :func:`canonical_normals_kernel`, :func:`vvs_inputs`: the per-call set-up of the moving-edge
-  search (normal flips, mask indices) and of the VVS (samples with a candidate), numpy's bits.
+* :func:`edge_samples`, :func:`candidate_edges`, :func:`face_angles`, :func:`face_visibility_kernel`,
+  :func:`zbuffer_planes`, :func:`zbuffer_faces`, :func:`samples_unhidden`, :func:`unhidden_samples`:
+  the visibility pass (the candidate edges, their clipping and sampling, the face angle test with its
+  hysteresis, the depth buffer's plane and per-vertex set-up, the hidden-line test at the samples and
+  the kept samples' model points), the numpy formulations' values to the bit (face angles: to an ulp).
+* :func:`canonical_normals_kernel`, :func:`vvs_inputs`, :func:`project_uv`, :func:`strongest`,
+  :func:`candidates_uv_kernel`: the per-call set-up of the moving-edge search (normal flips, mask
+  indices, the reference contrast's projection and strongest response) and of the VVS (samples with a
+  candidate, the candidates' pixels), numpy's bits (issue #14: each replaced numpy calls whose fixed
+  cost, a few microseconds each, was most of their time on a few hundred samples).
 
 No fastmath (reproducible bit for bit on every CPU), single-threaded (the tracker's one-core budget).
 Units: pixels, metres; ``R``, ``t`` the rotation and translation of ``T_cam_model``.
