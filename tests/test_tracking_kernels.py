@@ -367,12 +367,8 @@ def test_face_visibility_kernel_matches_numpy():
     # arccos differ by an ulp, which could move a face across the appear/disappear angle only when it
     # lies within ~1e-13 deg of it: over these random poses the face sets must be identical
     from mst.meshtools.generate import city_block_model, l_shape_model
-    from mst.pipeline.tracking.visibility import (
-        ModelGeometry,
-        face_visibility,
-        face_visibility_numpy,
-        view_faces,
-    )
+    from mst.pipeline.tracking.visibility import ModelGeometry, face_visibility, view_faces
+    from mst.pipeline.tracking.visibility_numpy import face_visibility_numpy
 
     rng = np.random.default_rng(4)
     n_vis = 0
@@ -624,7 +620,7 @@ def test_edge_pass_helper_kernels_are_the_numpy_steps():
     Xc = _mat3(X, T[:3, :3], T[:3, 3])
     z = np.maximum(Xc[:, 2], 1e-9)
     ref = np.stack([K[0, 0] * Xc[:, 0] / z + K[0, 2], K[1, 1] * Xc[:, 1] / z + K[1, 2]], 1)
-    got = project_uv(X, np.ascontiguousarray(T[:3, :3]), np.ascontiguousarray(T[:3, 3]), K[0, 0], K[1, 1], K[0, 2], K[1, 2])
+    got = project_uv(X, T, K[0, 0], K[1, 1], K[0, 2], K[1, 2])
     np.testing.assert_array_equal(got, ref)
     assert np.isnan(got[3]).all() and (Xc[:5, 2] < 1e-9).sum() >= 3
 

@@ -186,9 +186,8 @@ class EdgeTracker:
         ref = None
         if ref_img is not None:
             # the samples in the reference frame (transform_points(elementwise=True)'s bits), one kernel
-            uvp = project_uv(np.ascontiguousarray(S.X_model, np.float64), np.ascontiguousarray(ref_T[:3, :3], np.float64),
-                             np.ascontiguousarray(ref_T[:3, 3], np.float64), float(K[0, 0]), float(K[1, 1]),
-                             float(K[0, 2]), float(K[1, 2]))
+            uvp = project_uv(np.ascontiguousarray(S.X_model, np.float64), np.ascontiguousarray(ref_T, np.float64),
+                             float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]))
             ref = reference_contrast(ref_img, uvp, normal, midx, c.mask_px, c.n_masks)
         m = search_edges(img, S.uv, normal, ref, search_range=int(search_range), threshold=c.edge_threshold,
                          mu1=c.mu1, mu2=c.mu2, size=c.mask_px, n_masks=c.n_masks, n_candidates=c.n_candidates,

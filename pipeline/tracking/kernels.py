@@ -1146,6 +1146,13 @@ def samples_unhidden(buf, uv, iz, sc):
     return out
 
 
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _edge_of(edge_faces, e, faces):
+    """Edge ``e`` has an adjacent face in ``faces`` (F,) bool, or none at all (a free line)."""
+    f0, f1 = edge_faces[e, 0], edge_faces[e, 1]
+    return (f0 >= 0 and faces[f0]) or (f1 >= 0 and faces[f1]) or (f0 < 0 and f1 < 0)
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
 def candidate_edges(edges, edge_faces, e_sel, fv, fv_big):
     """The candidate edges of :func:`~mst.pipeline.tracking.visibility.visible_samples` among ``e_sel``
@@ -1155,9 +1162,7 @@ def candidate_edges(edges, edge_faces, e_sel, fv, fv_big):
     n = 0
     keep = np.zeros(e_sel.shape[0], np.bool_)
     for k in range(e_sel.shape[0]):
-        e = e_sel[k]
-        f0, f1 = edge_faces[e, 0], edge_faces[e, 1]
-        keep[k] = (f0 >= 0 and fv[f0]) or (f1 >= 0 and fv[f1]) or (f0 < 0 and f1 < 0)
+        keep[k] = _edge_of(edge_faces, e_sel[k], fv)
         if keep[k]:
             n += 1
     eid = np.empty(n, np.int64)
@@ -1168,26 +1173,22 @@ def candidate_edges(edges, edge_faces, e_sel, fv, fv_big):
         if not keep[k]:
             continue
         e = e_sel[k]
-        f0, f1 = edge_faces[e, 0], edge_faces[e, 1]
         eid[j] = e
         E[j, 0], E[j, 1] = edges[e, 0], edges[e, 1]
-        small[j] = not ((f0 >= 0 and fv_big[f0]) or (f1 >= 0 and fv_big[f1]) or (f0 < 0 and f1 < 0))
+        small[j] = not _edge_of(edge_faces, e, fv_big)
         j += 1
     return eid, E, small
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def project_uv(X, R, t, fx, fy, cx, cy):
-    """(N, 2) pixels of the model points ``X (N, 3)`` at the pose ``R, t``: the camera-frame point as
-    :func:`mat3_kernel` sums it, its depth floored at 1e-9 m (``np.maximum``: NaN stays NaN), ``u = fx
-    x / z + cx``, ``v = fy y / z + cy`` (numpy's order of operations: the same bits as the numpy steps
-    of :meth:`mst.pipeline.tracking.edge_tracker.EdgeTracker._edge_pass`, one call instead of six)."""
+def project_uv(X, T, fx, fy, cx, cy):
+    """(N, 2) pixels of the model points ``X (N, 3)`` at the pose ``T`` (4x4): the camera-frame point as
+    :func:`_xform` sums it (``mat3_kernel``'s order), its depth floored at 1e-9 m (``np.maximum``: NaN stays
+    NaN), ``u = fx x / z + cx``, ``v = fy y / z + cy`` (numpy's order of operations: the same bits as the numpy
+    steps of :meth:`mst.pipeline.tracking.edge_tracker.EdgeTracker._edge_pass`, one call instead of six)."""
     out = np.empty((X.shape[0], 2))
     for i in range(X.shape[0]):
-        x0, x1, x2 = X[i, 0], X[i, 1], X[i, 2]
-        c0 = ((x0 * R[0, 0] + x1 * R[0, 1]) + x2 * R[0, 2]) + t[0]
-        c1 = ((x0 * R[1, 0] + x1 * R[1, 1]) + x2 * R[1, 2]) + t[1]
-        z = ((x0 * R[2, 0] + x1 * R[2, 1]) + x2 * R[2, 2]) + t[2]
+        c0, c1, z = _xform(X, i, T)
         if z < 1e-9:
             z = 1e-9
         out[i, 0] = fx * c0 / z + cx

@@ -146,9 +146,9 @@ def _convolve(img: np.ndarray, uv: np.ndarray, normal: np.ndarray, ks: np.ndarra
 def reference_contrast(img_prev: np.ndarray, uv_prev: np.ndarray, normal: np.ndarray, mask_idx: np.ndarray,
                        size: int, n_masks: int, reach: int = 2) -> np.ndarray:
     """Convolution of the strongest response within ``+-reach`` px of each sample in the previous image."""
-    masks, moff = make_masks(size, n_masks)
     from mst.pipeline.tracking.kernels import strongest
 
+    masks, moff = make_masks(size, n_masks)
     conv, _ = _convolve(img_prev, uv_prev, normal, np.arange(-reach, reach + 1, dtype=np.float64), mask_idx, masks,
                         moff)
     return strongest(conv)  # np.argmax(np.abs(conv), axis=1)'s pick, one kernel

@@ -217,7 +217,7 @@ def face_visibility(geom: ModelGeometry, T_cam_model: np.ndarray, prev: np.ndarr
     from mst.pipeline.tracking.kernels import face_visibility_kernel
 
     R, t = T_cam_model[:3, :3], T_cam_model[:3, 3]
-    c_model = -R.T @ t  # camera centre in the model frame (as _face_visibility)
+    c_model = -R.T @ t  # camera centre in the model frame (as face_visibility_numpy)
     F = len(geom.faces)
     sel = _all_faces(geom) if among is None else np.flatnonzero(among)
     has_prev = prev is not None and len(prev) == F
@@ -225,31 +225,6 @@ def face_visibility(geom: ModelGeometry, T_cam_model: np.ndarray, prev: np.ndarr
                                   np.ascontiguousarray(sel, np.int64), np.ascontiguousarray(c_model, np.float64),
                                   np.ascontiguousarray(prev, np.bool_) if has_prev else np.zeros(0, np.bool_), has_prev,
                                   float(appear_deg), float(disappear_deg), F)
-
-
-def face_visibility_numpy(geom: ModelGeometry, T_cam_model: np.ndarray, prev: np.ndarray | None,
-                          appear_deg: float, disappear_deg: float, among: np.ndarray | None = None) -> np.ndarray:
-    """The numpy formulation of :func:`face_visibility` (the reference of its kernel's test)."""
-    return _face_visibility(geom, T_cam_model, prev, appear_deg, disappear_deg, among, _face_angles_numpy)
-
-
-def _face_visibility(geom, T_cam_model, prev, appear_deg, disappear_deg, among, angles) -> np.ndarray:
-    """:func:`face_visibility` with ``angles(geom, sel, c_model, all_faces) -> (K,) deg``, the smallest
-    angle between each selected face's normal and the rays from its outer-loop vertices to the camera
-    centre (``all_faces``: ``sel`` is every face, in order)."""
-    R, t = T_cam_model[:3, :3], T_cam_model[:3, 3]
-    c_model = -R.T @ t  # camera centre in the model frame
-    F = len(geom.faces)
-    sel = np.arange(F) if among is None else np.flatnonzero(among)
-    vis = np.zeros(F, bool)
-    if not len(sel):
-        return vis
-    ang = angles(geom, sel, c_model, among is None)
-    v = ang < appear_deg
-    if prev is not None and len(prev) == F:
-        v |= prev[sel] & (ang < disappear_deg)
-    vis[sel] = v
-    return vis
 
 
 def _all_faces(geom: ModelGeometry) -> np.ndarray:
@@ -274,16 +249,6 @@ def _loop_end(geom: ModelGeometry) -> np.ndarray:
     if loop_end is None:
         loop_end = geom.__dict__["_loop_end"] = np.append(geom.loop_start[1:], len(geom.loop_vid)).astype(np.int64)
     return loop_end
-
-
-def _face_angles_numpy(geom: ModelGeometry, sel: np.ndarray, c_model: np.ndarray, all_faces: bool) -> np.ndarray:
-    vid, start = (geom.loop_vid, geom.loop_start) if all_faces else _loops_of(geom, sel)
-    ray = c_model[None, :] - geom.vertices[vid]
-    ray /= np.maximum(np.sqrt(np.einsum("ij,ij->i", ray, ray)), 1e-12)[:, None]
-    fid = np.repeat(sel, np.diff(np.append(start, len(vid))))
-    cosv = np.einsum("ij,ij->i", ray, geom.face_normals[fid])
-    cos_best = np.maximum.reduceat(cosv, start)
-    return np.degrees(np.arccos(np.clip(cos_best, -1, 1)))
 
 
 def _clip_near_far(A: np.ndarray, B: np.ndarray, near: float, far: float):

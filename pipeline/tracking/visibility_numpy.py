@@ -1,6 +1,7 @@
 """The numpy formulations of the edge sampling kernels (:func:`mst.pipeline.tracking.kernels.edge_samples`,
-:func:`~mst.pipeline.tracking.kernels.candidate_edges`, :func:`~mst.pipeline.tracking.kernels.unhidden_samples`):
-the references of their tests (``visible_samples(..., _numpy_reference=True)``), kept apart from the
+:func:`~mst.pipeline.tracking.kernels.candidate_edges`, :func:`~mst.pipeline.tracking.kernels.unhidden_samples`,
+:func:`~mst.pipeline.tracking.kernels.face_visibility_kernel`): the references of their tests
+(``visible_samples(..., _numpy_reference=True)``, :func:`face_visibility_numpy`), kept apart from the
 visibility module that runs the kernels. Frames and units as :mod:`mst.pipeline.tracking.visibility`.
 """
 
@@ -8,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from mst.pipeline.tracking.depth_buffer import _mat3
+from mst.pipeline.tracking.depth_buffer import _loops_of, _mat3
 from mst.pipeline.tracking.visibility import _clip_near_far, _clip_rect
 
 
@@ -91,3 +92,28 @@ def _unhidden_samples_numpy(far_nb, uv, iz, sc, nrm, Xc, edge_id, R, t):
     iy = np.clip(np.round((uv[:, 1] + 0.5) * sc - 0.5).astype(np.int64), 0, far_nb.shape[0] - 1)
     vis = iz >= far_nb[iy, ix] * (1.0 - 2e-3) - 1e-9
     return int((~vis).sum()), uv[vis], nrm[vis], Xc[vis], edge_id[vis], _mat3(Xc[vis] - t, R.T)
+
+
+def face_visibility_numpy(geom, T_cam_model: np.ndarray, prev: np.ndarray | None, appear_deg: float,
+                          disappear_deg: float, among: np.ndarray | None = None) -> np.ndarray:
+    """The numpy formulation of :func:`mst.pipeline.tracking.visibility.face_visibility` (the reference of its
+    kernel's test): the smallest angle between each selected face's normal and the rays from its outer-loop
+    vertices to the camera centre, below ``appear_deg`` (or ``disappear_deg`` for a face visible in ``prev``)."""
+    R, t = T_cam_model[:3, :3], T_cam_model[:3, 3]
+    c_model = -R.T @ t  # camera centre in the model frame
+    F = len(geom.faces)
+    sel = np.arange(F) if among is None else np.flatnonzero(among)
+    vis = np.zeros(F, bool)
+    if not len(sel):
+        return vis
+    vid, start = (geom.loop_vid, geom.loop_start) if among is None else _loops_of(geom, sel)
+    ray = c_model[None, :] - geom.vertices[vid]
+    ray /= np.maximum(np.sqrt(np.einsum("ij,ij->i", ray, ray)), 1e-12)[:, None]
+    fid = np.repeat(sel, np.diff(np.append(start, len(vid))))
+    cosv = np.einsum("ij,ij->i", ray, geom.face_normals[fid])
+    ang = np.degrees(np.arccos(np.clip(np.maximum.reduceat(cosv, start), -1, 1)))
+    v = ang < appear_deg
+    if prev is not None and len(prev) == F:
+        v |= prev[sel] & (ang < disappear_deg)
+    vis[sel] = v
+    return vis
