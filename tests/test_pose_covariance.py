@@ -74,6 +74,42 @@ def test_bound_not_pessimistic_with_independent_errors():
     assert ratio <= r["classical"][0] * (1 + 1e-9), r  # floored by the classical one: never more optimistic
 
 
+def test_klt_points_are_no_evidence():
+    """KLT points in the fit leave the bound the edges': the points' model coordinates are lifted under
+    an earlier pose and carry its error. The steady view (issue 11's 250 m survey): the earlier pose
+    is this view's own edges-only fit, so the points (100 on the faces, seen at their true pixels +
+    0.1 px) agree with the edges' error and add none of their own. The KLT-aided fit's covariance
+    must still cover its error as the edges' does (the bands of
+    :func:`test_bound_covers_correlated_errors_along_edges`). Counted as evidence (their information
+    capped at the edges', ``klt_info_cap`` 1), they halved the variance while the error stayed:
+    ratio 2.09x, 56 % of the draws within 2 sigma; the edges' bound: 1.38x, 92 % (session 16)."""
+    from mst.pipeline.tracking.covariance import CHUNK_SAMPLES, edge_chunks
+
+    X, edge, A, B = _dense_cube()
+    run, n_runs = edge_chunks(edge, CHUNK_SAMPLES)
+    T = _true_pose()
+    nrm, uv0 = _normals(T, A, B, edge), _project(T, X)
+    rng = np.random.default_rng(1)
+    Xk = rng.uniform(-0.1, 0.1, (100, 3))
+    Xk[np.arange(100), rng.integers(0, 3, 100)] = rng.choice([-0.1, 0.1], 100)  # on the faces
+    Xk = Xk[(Xk @ T[:3, :3].T + T[:3, 3])[:, 2] < T[2, 3]]  # the faces towards the camera (roughly)
+    q = []
+    for _ in range(120):
+        off = rng.normal(0, 0.6, n_runs)[run] + rng.normal(0, 0.1, len(X))
+        cand = (uv0 + off[:, None] * nrm)[:, None, :]
+        T_e = solve_pose(_start(T), K, X, edge, A, B, cand, min_mad_px=0.3, iters=50).T_cam_model
+        Ti = inv_T(T_e)
+        Xk_model = (Xk @ T[:3, :3].T + T[:3, 3]) @ Ti[:3, :3].T + Ti[:3, 3]  # lifted under the edges' fit
+        uk = _project(T, Xk) + rng.normal(0, 0.1, (len(Xk), 2))
+        res = solve_pose(T_e, K, X, edge, A, B, cand, min_mad_px=0.3, iters=50, klt_X_model=Xk_model, klt_uv=uk,
+                         klt_info_cap=1.0)
+        assert res.has_pose and res.W_edges is not None
+        e = se3_log(T @ inv_T(res.T_cam_model))[:3]
+        q.append(float(e @ e / np.trace(res.cov[:3, :3])))
+    ratio, share = float(np.sqrt(np.mean(q))), float(np.mean(np.asarray(q) <= 4.0))
+    assert 0.5 <= ratio <= 2.0 and share >= 0.85, (ratio, share)
+
+
 def test_psd_max_is_the_larger_along_every_direction():
     """psd_max(Cf, Cj) against numpy's generalized eigen-decomposition: it contains both ellipsoids
     (out - Cf and out - Cj positive semi-definite) and equals the reference to rounding."""

@@ -6,8 +6,8 @@ rendering offset moves neighbouring samples of one model edge together (measured
 autocorrelation along an edge is 0.2-0.6 at the next sample and gone beyond 4-8 samples, see
 :data:`CHUNK_SAMPLES`), which an i.i.d. model cannot see.
 
-Clusters: runs of :data:`CHUNK_SAMPLES` consecutive samples of one model edge, and each KLT point (its
-two rows). With ``s_g = sum_{i in g} w_i r_i J_i``, ``H_g = sum_{i in g} w_i J_i J_i^T``, ``H = sum_g
+Clusters: runs of :data:`CHUNK_SAMPLES` consecutive samples of one model edge (the edge samples only: a
+hybrid fit's KLT points are not the pose's evidence, :mod:`mst.pipeline.tracking.vvs`). With ``s_g = sum_{i in g} w_i r_i J_i``, ``H_g = sum_{i in g} w_i J_i J_i^T``, ``H = sum_g
 H_g = L L^T`` and ``L^-1 H_g L^-T = U diag(l) U^T`` (``l`` the cluster's leverages), each cluster
 contributes ``D_g = L^-T U diag((1 - l)^-1/2) U^T L^-1 s_g`` and the covariance is ``sum_g D_g D_g^T``
 (Bell & McCaffrey's bias-reduced linearisation: exact for i.i.d. residuals, and the residuals of a
@@ -50,7 +50,7 @@ from mst.pipeline.tracking.kernels import _solve6  # x = A^-1 b, 6x6, the VVS so
 CHUNK_SAMPLES = 8
 
 #: a cluster whose leverages sum to less than this takes the power series of ``(1 - l)^-1/2`` (to a
-#: 1e-9 relative bound) instead of an eigen-decomposition (Jacobi, ~2 us): the KLT points and the runs
+#: 1e-9 relative bound) instead of an eigen-decomposition (Jacobi, ~2 us): the runs
 #: among many (kernel for 142 clusters 250 -> 49 us; teabox default, 228 clusters: 1.2 -> 0.6 ms a frame)
 SERIES_LEVERAGE = 0.5
 
@@ -64,21 +64,17 @@ MIN_CLUSTERS = 20
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def cluster_cov_kernel(X, e, nE, cl, nC, AB, Xk, uk, T, fx, fy, cx, cy, w, r, wk, kcap, gn, glam, cr2, C_out):
+def cluster_cov_kernel(X, e, nE, cl, nC, AB, T, fx, fy, w, r, gn, glam, cr2, C_out):
     """The cluster-robust covariance (module docstring; ``cr2`` False: the delete-one-cluster
     jackknife ``(G - 1) / G sum_g ((H - H_g)^-1 s_g) (...)^T``, kept for comparison) into ``C_out (6, 6)``.
     ``X (n, 3)`` model
     points of the samples with a candidate, ``e (n,)`` their edge, ``cl (n,)`` their cluster (``0 ..
     nC - 1``, :func:`edge_chunks`), ``AB (2 nE, 3)`` the edge end
-    points, ``w, r (n,)`` their last VVS weights and residuals (px), ``Xk (nk, 3)`` / ``uk (nk, 2)``
-    the KLT points and ``wk (2 nk,)`` their weights (``kcap`` > 0: scaled as the solve's KLT information
-    cap, ``edges.klt_info_cap``: to at most ``kcap`` x the edges' information, ``tr(H_e^-1 H_k) / 6``);
-    Jacobians at the pose ``T``; ``glam gn gn^T``
+    points, ``w, r (n,)`` their last VVS weights and residuals (px); Jacobians at the pose ``T``; ``glam gn gn^T``
     added to every information matrix (a gauge freedom ``gn`` (6,) fixed; ``glam`` 0: none). Returns
     ``(clusters, ok)``: ``ok`` False when ``H`` (CR2) or a fit without one cluster (CR3) is singular (one cluster alone
     pins a direction: no finite estimate)."""
     n = X.shape[0]
-    nk = Xk.shape[0]
     R00, R01, R02, t0 = T[0, 0], T[0, 1], T[0, 2], T[0, 3]
     R10, R11, R12, t1 = T[1, 0], T[1, 1], T[1, 2], T[1, 3]
     R20, R21, R22, t2 = T[2, 0], T[2, 1], T[2, 2], T[2, 3]
@@ -97,7 +93,7 @@ def cluster_cov_kernel(X, e, nE, cl, nC, AB, Xk, uk, T, fx, fy, cx, cy, w, r, wk
         ln = np.sqrt(du * du + dv * dv) + 1e-12
         lnx[k] = -dv / ln
         lny[k] = du / ln
-    G = nC + nk
+    G = nC
     S = np.zeros((G, 6))  # s_g
     Hg = np.zeros((G, 6, 6))  # H_g
     used = np.zeros(G, np.bool_)
@@ -127,61 +123,6 @@ def cluster_cov_kernel(X, e, nE, cl, nC, AB, Xk, uk, T, fx, fy, cx, cy, w, r, wk
             wp = w[i] * J[p]
             for c in range(6):
                 Hg[g, p, c] += wp * J[c]
-    for i in range(nk):
-        if wk[i] <= 0.0 and wk[nk + i] <= 0.0:
-            continue
-        g = nC + i
-        x0 = R00 * Xk[i, 0] + R01 * Xk[i, 1] + R02 * Xk[i, 2] + t0
-        x1 = R10 * Xk[i, 0] + R11 * Xk[i, 1] + R12 * Xk[i, 2] + t1
-        x2 = R20 * Xk[i, 0] + R21 * Xk[i, 1] + R22 * Xk[i, 2] + t2
-        q = 1.0 / x2
-        xk, yk = x0 * q, x1 * q
-        used[g] = True
-        for row in range(2):
-            if row == 0:
-                rr = fx * xk + cx - uk[i, 0]
-                ww = wk[i]
-                J[0], J[1], J[2] = fx * q, 0.0, -fx * xk * q
-                J[3], J[4], J[5] = -fx * xk * yk, fx * (1.0 + xk * xk), -fx * yk
-            else:
-                rr = fy * yk + cy - uk[i, 1]
-                ww = wk[nk + i]
-                J[0], J[1], J[2] = 0.0, fy * q, -fy * yk * q
-                J[3], J[4], J[5] = -fy * (1.0 + yk * yk), fy * xk * yk, fy * xk
-            for p in range(6):
-                S[g, p] += ww * rr * J[p]
-                wp = ww * J[p]
-                for c in range(6):
-                    Hg[g, p, c] += wp * J[c]
-    if kcap > 0.0 and nk > 0:  # the solve's KLT information cap (kernels.vvs_solve), at this pose
-        He = np.zeros((6, 6))
-        Hk = np.zeros((6, 6))
-        for g in range(G):
-            for p in range(6):
-                for c in range(6):
-                    if g < nC:
-                        He[p, c] += Hg[g, p, c]
-                    else:
-                        Hk[p, c] += Hg[g, p, c]
-        col = np.empty(6)
-        xc = np.empty(6)
-        rho = 0.0
-        solved = True
-        for j in range(6):
-            for i in range(6):
-                col[i] = Hk[i, j]
-            if not _solve6(He, col, xc):
-                solved = False
-                break
-            rho += xc[j]
-        rho /= 6.0
-        if solved and rho > kcap:
-            sc = kcap / rho
-            for g in range(nC, G):
-                for p in range(6):
-                    S[g, p] *= sc
-                    for c in range(6):
-                        Hg[g, p, c] *= sc
     H = np.zeros((6, 6))
     m = 0
     for g in range(G):
@@ -292,27 +233,23 @@ def cluster_cov_kernel(X, e, nE, cl, nC, AB, Xk, uk, T, fx, fy, cx, cy, w, r, wk
 
 
 def edge_cluster_cov(T: np.ndarray, K: np.ndarray, X: np.ndarray, e: np.ndarray, A: np.ndarray, B: np.ndarray,
-                       w: np.ndarray, r: np.ndarray, klt_X: np.ndarray | None = None, klt_uv: np.ndarray | None = None,
-                       wk: np.ndarray | None = None, klt_info_cap: float | None = None, gauge: np.ndarray | None = None,
-                       gauge_lambda: float = 0.0, cr2: bool = True) -> tuple[np.ndarray | None, int]:
-    """The cluster-robust covariance (6, 6) of the edge pose ``T`` (T_cam_model) from the samples of its last
-    VVS linearisation (``X`` model points, ``e`` edge ids, ``w`` weights, ``r`` residuals px; only
-    samples with a candidate) and its KLT points (``gauge``: a unit twist that no image sees, held
-    fixed with ``gauge_lambda``, see :meth:`RenderEdgeProvider.gauge_cov`); ``(None, clusters)`` when it has fewer than
+                     w: np.ndarray, r: np.ndarray, gauge: np.ndarray | None = None, gauge_lambda: float = 0.0,
+                     cr2: bool = True) -> tuple[np.ndarray | None, int]:
+    """The cluster-robust covariance (6, 6) of the edge pose ``T`` (T_cam_model) from the edge samples of its
+    last VVS linearisation (``X`` model points, ``e`` edge ids, ``w`` weights, ``r`` residuals px; only
+    samples with a candidate; a fit's KLT points are not its evidence, :mod:`mst.pipeline.tracking.vvs`)
+    (``gauge``: a unit twist that no image sees, held fixed with ``gauge_lambda``, see
+    :meth:`RenderEdgeProvider.gauge_cov`); ``(None, clusters)`` when it has fewer than
     :data:`MIN_CLUSTERS` clusters or a fit without one of them is singular (see
     :func:`cluster_cov_kernel`)."""
-    nk = 0 if klt_X is None else len(klt_X)
     C = np.empty((6, 6))
     cl, nC = edge_chunks(e)
     m, ok = cluster_cov_kernel(np.ascontiguousarray(X, np.float64), np.ascontiguousarray(e, np.int64), len(A), cl, nC,
-                             np.ascontiguousarray(np.concatenate([A, B]), np.float64),
-                             np.ascontiguousarray(klt_X, np.float64) if nk else np.zeros((0, 3)),
-                             np.ascontiguousarray(klt_uv, np.float64) if nk else np.zeros((0, 2)),
-                             np.ascontiguousarray(T, np.float64), float(K[0, 0]), float(K[1, 1]), float(K[0, 2]),
-                             float(K[1, 2]), np.ascontiguousarray(w, np.float64), np.ascontiguousarray(r, np.float64),
-                             np.ascontiguousarray(wk, np.float64) if nk else np.zeros(0), float(klt_info_cap or 0.0),
-                             np.zeros(6) if gauge is None else np.ascontiguousarray(gauge, np.float64),
-                             0.0 if gauge is None else float(gauge_lambda), bool(cr2), C)
+                               np.ascontiguousarray(np.concatenate([A, B]), np.float64),
+                               np.ascontiguousarray(T, np.float64), float(K[0, 0]), float(K[1, 1]),
+                               np.ascontiguousarray(w, np.float64), np.ascontiguousarray(r, np.float64),
+                               np.zeros(6) if gauge is None else np.ascontiguousarray(gauge, np.float64),
+                               0.0 if gauge is None else float(gauge_lambda), bool(cr2), C)
     if not ok or m < MIN_CLUSTERS:
         return None, int(m)
     return C, int(m)

@@ -529,7 +529,7 @@ def _normal_equations(J, wJ, w, r, H, g):
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def vvs_solve(X, e, AB, nE, cu, cv, Xk, uk, T0, fx, fy, cx, cy, iters, lm_mu, min_mad, tukey_c, klt_weight, stop_px,
-              stop_mu, spread, spread_k, T_out, H_out, w_out, r_out, wt_out, wk_out, klt_info_cap=0.0):
+              stop_mu, spread, spread_k, T_out, H_out, He_out, w_out, r_out, wt_out, wk_out, klt_info_cap=0.0):
     """The whole robust VVS of :func:`mst.pipeline.tracking.vvs.solve_pose` in one call (the loop of
     :func:`~mst.pipeline.tracking.vvs.solve_pose_numpy`: residuals, candidate choice, Tukey and
     edge-spread weights, the Levenberg-Marquardt step with undo, the stopping test), every sum and
@@ -537,7 +537,9 @@ def vvs_solve(X, e, AB, nE, cu, cv, Xk, uk, T0, fx, fy, cx, cy, iters, lm_mu, mi
     (~1e-15 relative), and the same on every CPU. ``X (n, 3)`` samples with a candidate, ``e`` their
     edge, ``AB (2 nE, 3)`` the edge end points, ``cu, cv (n, C)`` candidates (1e9: none), ``Xk (nk,
     3)`` / ``uk (nk, 2)`` KLT points (nk may be 0). Outputs in place: ``T_out`` the pose, ``H_out``
-    the last information matrix, ``w_out``, ``r_out``, ``wt_out`` the last edge weights, residuals,
+    the last information matrix, ``He_out`` its edge samples' part (``H_out`` without the KLT block: the
+    evidence of the pose, :attr:`~mst.pipeline.tracking.vvs.VVSResult.W_edges`), ``w_out``, ``r_out``,
+    ``wt_out`` the last edge weights, residuals,
     Tukey weights, ``wk_out (2 nk)`` the KLT weights (Tukey x ``klt_weight``, before the cap).
     ``klt_info_cap`` > 0: the KLT block's information is scaled down to at most this x the edge
     samples' (``tr(H_e^-1 H_k) / 6``, :func:`~mst.pipeline.tracking.vvs.klt_info_scale`). The step test
@@ -575,6 +577,7 @@ def vvs_solve(X, e, AB, nE, cu, cv, Xk, uk, T0, fx, fy, cx, cy, iters, lm_mu, mi
     pcost = 0.0
     have_prev = False
     H = np.zeros((6, 6))
+    He = np.zeros((6, 6))
     g = np.zeros(6)
     A = np.empty((6, 6))
     xi = np.empty(6)
@@ -639,6 +642,7 @@ def vvs_solve(X, e, AB, nE, cu, cv, Xk, uk, T0, fx, fy, cx, cy, iters, lm_mu, mi
         sigma = vvs_linearise(r_all, ch, r, w, wt, min_mad, tukey_c, e, nE, spread, spread_k, nx, ny, x, y, iz, fx,
                               fy, J, wJ)
         cost = _normal_equations(J, wJ, w, r, H, g)  # H = J^T wJ, g = wJ^T r, cost = sum w r^2
+        He[:, :] = H
         sc = 1.0  # the KLT block's information cap
         if nk:
             _tukey_into(rk, min_mad, tukey_c, wk)
@@ -713,6 +717,7 @@ def vvs_solve(X, e, AB, nE, cu, cv, Xk, uk, T0, fx, fy, cx, cy, iters, lm_mu, mi
             T[:, :] = pT
     T_out[:, :] = T
     H_out[:, :] = H
+    He_out[:, :] = He
     w_out[:] = w
     r_out[:] = r
     wt_out[:] = wt
