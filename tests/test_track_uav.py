@@ -199,7 +199,7 @@ def test_uav_survey_band_default_mode(survey):
     # edges' 2 sigma 0.8-1.2 % of the distance, frame to frame) every steady frame is output or refused
     # by the error budget, never lost otherwise
     limited = not all(o["status"].get(k) == "model" for k in np.flatnonzero(steady))
-    _assert_output_or_uncertain(d, np.flatnonzero(steady), "model", strict=not limited)
+    _assert_output_or_uncertain(d, np.flatnonzero(steady), ("model",), strict=not limited)
     # error budget: the edge covariance (5 sigma RMS, see the FPV test)
     assert d["ate_steady"] <= d["budget"], (d["ate_steady"], d["budget"])
     # the SLAM aid costs no accuracy there: within the comparison's noise (1 sigma = 0.2 x the budget)
@@ -321,7 +321,6 @@ def _assert_output_or_uncertain(run, frames, statuses, strict: bool) -> None:
     error budget (``pose uncertain``: its own evidence does not pin it), never lost otherwise."""
     from mst.pipeline.tracking.budget import REASON_UNCERTAIN
 
-    statuses = (statuses,) if isinstance(statuses, str) else statuses
     bad = {k: (run["status"].get(k), run["reason"].get(k)) for k in frames if run["status"].get(k) not in statuses
            and (strict or not str(run["reason"].get(k, "")).startswith(REASON_UNCERTAIN))}
     assert not bad, bad

@@ -186,11 +186,13 @@ def test_vvs_kernels_solve_the_numpy_pose(seed, klt):
         np.testing.assert_allclose(a.weights, b.weights, rtol=0, atol=1e-9)
         np.testing.assert_array_equal(a.inlier, b.inlier)
         np.testing.assert_allclose(a.W, b.W, rtol=1e-9, atol=0)
-        if klt:  # the edge samples' part (VVSResult.W_edges) and the covariance from it
-            np.testing.assert_allclose(a.W_edges, b.W_edges, rtol=1e-9, atol=0)
-            np.testing.assert_allclose(a.cov_classical, b.cov_classical, rtol=1e-6, atol=0)
+        # the edge samples' part (VVSResult.W_edges: W itself without KLT points) and the covariance from it
+        np.testing.assert_allclose(a.W_edges, b.W_edges, rtol=1e-9, atol=0)
+        np.testing.assert_allclose(a.cov_classical, b.cov_classical, rtol=1e-6, atol=0)
+        if klt:
+            assert not np.array_equal(a.W_edges, a.W)
         else:
-            assert a.W_edges is None and b.W_edges is None
+            assert np.array_equal(a.W_edges, a.W) and np.array_equal(b.W_edges, b.W)
         assert abs(a.rms_px - b.rms_px) <= 1e-9 * b.rms_px and abs(a.sigma_px - b.sigma_px) <= 1e-9 * b.sigma_px
         # and it is a real solve: the start was ~5 mm / 0.8 deg off the cube's true pose
         assert np.abs(se3_log(a.T_cam_model @ inv_T(T0))).max() > 1e-3

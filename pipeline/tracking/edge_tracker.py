@@ -458,8 +458,8 @@ class EdgeTracker:
         if klt is not None and res.klt_inlier is not None:
             self._klt_next = tuple(None if a is None else a[res.klt_inlier] for a in klt)
         prov = self.sample_provider
-        W_e = res.W if res.W_edges is None else res.W_edges  # the evidence's information (VVSResult.cov)
-        cov = res.cov if prov is None else prov.gauge_cov(T, W_e, res.cov, res.rms_px, res.jk_inputs)
+        # the gauge-fixed covariance from the evidence's information, as VVSResult.cov
+        cov = res.cov if prov is None else prov.gauge_cov(T, res.W_edges, res.cov, res.rms_px, res.jk_inputs)
         out = FrameResult(T, healthy, n_s, n_in, res.rms_px, proj_err, res.W, cov, uv, res.inlier,
                           S.edge_uv[_sorted_unique(S.edge)], np.zeros((0, 2)) if klt is None else klt[1], reason, support)
         out.n_visible = int((getattr(S, "stats", None) or {}).get("visible", n_s))

@@ -106,8 +106,9 @@ class VVSResult:
     #: the cluster covariance's inputs (T, K, X, e, A, B, w, r: the edge samples): a gauge-fixed one is computed
     #: from them (:meth:`mst.pipeline.tracking.render_edges.RenderEdgeProvider.gauge_cov`)
     jk_inputs: tuple | None = None
-    #: the edge samples' part of ``W`` (``W`` without the KLT block; None: ``W``, no KLT points): the
-    #: information of the pose's own evidence, which the covariances are computed from (module docstring)
+    #: the edge samples' part of ``W`` (``W`` without the KLT block: ``W`` itself in a fit without KLT
+    #: points): the information of the pose's own evidence, which the covariances are computed from
+    #: (module docstring)
     W_edges: np.ndarray | None = None
     _cov: np.ndarray | None = field(default=None, repr=False)
 
@@ -135,7 +136,7 @@ class VVSResult:
 def _no_pose(T0: np.ndarray, n: int, status: SolveStatus, min_mad_px: float) -> VVSResult:
     """The result of a solve that found no pose: the start pose, no information, no inliers."""
     return VVSResult(T0.copy(), np.zeros((6, 6)), np.full((6, 6), np.inf), np.zeros(n), np.full(n, np.nan),
-                     np.zeros(n, bool), min_mad_px, float("nan"), 0, None, status)
+                     np.zeros(n, bool), min_mad_px, float("nan"), 0, None, status, W_edges=np.zeros((6, 6)))
 
 
 def _median(a: np.ndarray) -> float:
@@ -248,8 +249,7 @@ def _vvs_result(T, H, He, w, r, w_tukey, wk, nk: int, klt_weight: float, has, n_
     R_full[has] = r
     if not np.isfinite(T).all():
         jk = None
-    return VVSResult(T, H, cov, W_full, R_full, Wt_full > 0.5, sigma, rms, it, klt_in, status, jk,
-                     He if nk else None)
+    return VVSResult(T, H, cov, W_full, R_full, Wt_full > 0.5, sigma, rms, it, klt_in, status, jk, He)
 
 
 def solve_pose(T0: np.ndarray, K: np.ndarray, X_model: np.ndarray, edge: np.ndarray, A_model: np.ndarray,
