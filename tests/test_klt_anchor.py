@@ -150,8 +150,9 @@ def test_the_tree_search_of_a_fine_mesh_finds_the_plane_under_each_point(monkeyp
 def test_the_tracker_averages_the_output_poses_only(reanchor):
     """``EdgeTracker.accept``: the kept KLT points of a fit move to the running mean of their casts under
     the poses output as the model's (``anchor=True``: 1/2 of the way at the first, 1/3 at the second),
-    never under a pose the error budget withheld or a map pose (``anchor=False``, the session's
-    withheld paths), and not at all with ``klt.reanchor off``."""
+    and not at all with ``klt.reanchor off``; a pose the error budget withheld or a map pose
+    (``anchor=False``, the session's withheld paths) drops them: the next fit is the edges' own, and
+    no point is lifted under it (the Rotterdam 120 m survey's return, 3-4.7 sigma off from them)."""
     from mst.core.camera import Camera
     from mst.pipeline.tracking import EdgeTracker, TrackConfig
 
@@ -172,10 +173,8 @@ def test_the_tracker_averages_the_output_poses_only(reanchor):
     def keep(anchor):  # the last fit kept every point (its KLT inliers), then the frame is accepted
         tr._klt_next = (tr.klt_X if tr.klt_X is not None and len(tr.klt_X) == len(X) else X_det, uv, planes)
         tr.accept(gray, T, anchor=anchor)
-        return tr.klt_X.copy()
+        return None if tr.klt_X is None else tr.klt_X.copy()
 
-    withheld = keep(False)
-    assert np.array_equal(withheld, X_det)  # a withheld pose moves nothing
     first = keep(True)
     second = keep(True)
     if reanchor == "off":
@@ -183,3 +182,4 @@ def test_the_tracker_averages_the_output_poses_only(reanchor):
     else:  # the casts at T are X itself: half-way, then two thirds of the way
         np.testing.assert_allclose(first, X_det + (X - X_det) / 2, atol=1e-12)
         np.testing.assert_allclose(second, X_det + 2 * (X - X_det) / 3, atol=1e-12)
+    assert keep(False) is None and tr.klt_pts is None  # a withheld pose: the points go

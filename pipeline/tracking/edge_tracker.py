@@ -527,11 +527,17 @@ class EdgeTracker:
             self._klt_next = None
             self._klt_age += 1
             enough = nxt is not None and len(nxt[0]) >= max(20, 0.6 * self._klt_n0)
+            if not anchor:
+                # a pose not output (withheld by the error budget, a map pose): the points go; kept or
+                # re-detected they tie the next fits to an unverified pose's error (README, tracking:
+                # the Rotterdam 120 m return 3-4.7 sigma off). The next fit is the edges' own.
+                self.klt_pts = self.klt_X = self.klt_plane = None
+                self._klt_n0, self._klt_age, self._klt_n_mean = 0, 0, 1
             # re-detect when too few points survive (at most every 5 frames: textureless scenes) or every 30
-            if nxt is not None and len(nxt[0]) >= 4 and (enough or self._klt_age < 5) and self._klt_age < 30:
+            elif nxt is not None and len(nxt[0]) >= 4 and (enough or self._klt_age < 5) and self._klt_age < 30:
                 # keep tracking the surviving points (ViSP keeps its KLT set)
                 self.klt_X, self.klt_pts, self.klt_plane = nxt
-                if anchor and self.klt_cfg.reanchor == "mean" and self.klt_plane is not None:  # over the output poses
+                if self.klt_cfg.reanchor == "mean" and self.klt_plane is not None:  # over the output poses
                     X1 = reanchor_on_planes(self.klt_pts, self.klt_plane, T_cam_model, self.K, self.klt_X)
                     self._klt_n_mean += 1
                     self.klt_X = self.klt_X + (X1 - self.klt_X) / self._klt_n_mean
