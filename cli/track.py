@@ -83,8 +83,9 @@ def track(frames_src, model_path, camera_path, init_path, out, settings_path, fr
     Outputs: traj.txt (TUM: t tx ty tz qx qy qz qw, camera pose in the model frame, tracked frames
     only), traj.csv (frame, time, status, samples, inliers, residual_px, health = mean gradient /
     model-normal angle in degrees, ms, score = calibrated health score: 1 typical, <= 0 rejected,
-    aid = SLAM aid on/standby, reason = why the edge pose was not used), traj.cov.csv (per model
-    frame the 6x6 pose covariance and the camera-position / rotation 1-sigma), traj.json with --json
+    aid = SLAM aid on/standby, reason = why the edge pose was not used), traj.cov.csv (per output
+    frame the 6x6 pose covariance: the edge fit's, or a slam frame's propagated drift covariance;
+    and the camera-position / rotation 1-sigma), traj.json with --json
     (also printed on stdout).
     """
     from pathlib import Path

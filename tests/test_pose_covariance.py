@@ -166,7 +166,9 @@ def test_written_covariance_is_positive_definite_or_absent():
     C = _row_cov(cov_row(6, "model", good, T))
     assert C is not None and np.array_equal(C, C.T) and np.linalg.eigvalsh(C).min() > 0
     np.testing.assert_allclose(C, good, rtol=1e-6)
-    assert _row_cov(cov_row(7, "slam", good, T)) is None  # not the edge pose: no covariance
+    # a map pose's row holds its propagated drift covariance; a lost frame has no pose, so no row
+    np.testing.assert_allclose(_row_cov(cov_row(7, "slam", good, T)), good, rtol=1e-6)
+    assert _row_cov(cov_row(8, "lost", good, T)) is None
 
 
 def test_non_finite_covariance_is_beyond_the_budget():

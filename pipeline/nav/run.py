@@ -76,7 +76,7 @@ def simulate_nav_files(gt_path, out_path, cfg: NavSimConfig) -> dict:
 
 
 def _is_track_cov(path: Path) -> bool:
-    """``mst track``'s ``.cov.csv`` (``frame,status,...,c00..c55``: the edge pose's twist covariance)."""
+    """``mst track``'s ``.cov.csv`` (``frame,status,...,c00..c55``: the output pose's twist covariance)."""
     with open(path, newline="") as f:
         for line in f:
             if line.strip() and not line.lstrip().startswith("#"):
@@ -92,8 +92,9 @@ def read_track_cov(cov_path: Path, traj_path, t_v: np.ndarray, T_v: np.ndarray, 
     The tracker's rows hold the covariance ``C`` of the left twist ``T_cam_model' = exp(v, w)
     T_cam_model`` (camera frame); then ``T_model_cam' = T_model_cam exp(-(v, w))``: the camera
     centre moves by ``-R_mc v`` and the rotation by ``exp(-R_mc w)`` on the left, so the fusion's
-    covariance is ``B C Bᵀ``, ``B = diag(R_mc, R_mc)``. Frames whose pose is not the edge pose (SLAM,
-    relocalised: empty rows) get ``cfg.vision_sigma_*`` x 3."""
+    covariance is ``B C Bᵀ``, ``B = diag(R_mc, R_mc)``. ``slam`` rows hold the aid's propagated drift
+    covariance (the same convention); rows without a covariance (a tracker older than that, or not
+    positive definite as written) get ``cfg.vision_sigma_*`` x 3."""
     status_csv = Path(traj_path).with_suffix(".csv")
     if not status_csv.is_file():
         raise InputError(cov_path, f"mst track's covariance rows are per frame; their times are in {status_csv.name}, "

@@ -190,6 +190,32 @@ class DriftBudget:
         budget when it competes with a map pose beyond it."""
         return 0.0, 0.0, self.cfg.anchor_sigma_scale**2 * np.asarray(cov_edges, float)
 
+    def map_pose_cov(self) -> np.ndarray | None:
+        """(6, 6) twist covariance of the last output map pose (None when the last output was no map
+        pose, or its uncertainty is not finite): :meth:`sig_cov` of its uncertainty."""
+        return None if self._out_sig is None else self.sig_cov(self._out_sig)
+
+    def sig_cov(self, sig: tuple) -> np.ndarray | None:
+        """(6, 6) covariance of the left twist ``(v, w)`` (m, rad; camera frame, the tracker's
+        ``traj.cov.csv`` convention) of a pose with the uncertainty ``sig`` (``(sm, sr, C, ...)``, see
+        :meth:`_pnp_sig`), consistent with its bound (:meth:`_bound_of`): the fit's covariance ``C``
+        plus an isotropic map part, sized so that ``sqrt(trace)`` of the centre block is the bound's
+        linear sum ``sm + sigma_centre(C)`` and that of the rotation block ``sr_map + sigma_rot(C)``
+        (``sr_map = sr + rigid part of sm / scene depth``). The map error moves every landmark of the
+        stretch alike, in no known direction, and a centre error ``dc`` (model frame) is the twist
+        ``v = -R dc``: isotropic in the model frame is isotropic in the camera's. None when not finite."""
+        sm, sr, C = sig[:3]
+        C = np.asarray(C, float)
+        sm_rigid = sm - (sig[4] if len(sig) > 4 else 0.0)
+        if not (math.isfinite(sm) and math.isfinite(sr) and math.isfinite(sm_rigid) and np.isfinite(C).all()):
+            return None
+        sc, sr_fit = pose_sigmas(C)
+        sr_map = sr + max(sm_rigid, 0.0) / max(self.scene_depth, 1e-9)
+        out = 0.5 * (C + C.T)
+        out[:3, :3] += np.eye(3) * (sm * sm + 2.0 * sm * sc) / 3.0
+        out[3:, 3:] += np.eye(3) * (sr_map * sr_map + 2.0 * sr_map * sr_fit) / 3.0
+        return out
+
     def drift_bound(self) -> tuple[float, float] | None:
         """The bound of the last map pose: ``drift_sigmas`` x (camera-centre sigma m, rotation sigma
         deg); None when the last output was no map pose."""

@@ -30,11 +30,13 @@ log = logging.getLogger(__name__)
 #: ``traj.csv`` columns (see :meth:`FrameRecord.csv_row`)
 CSV_HEADER = ["frame", "time", "status", "samples", "inliers", "residual_px", "health", "ms", "score", "aid", "reason"]
 
-#: ``<stem>.cov.csv``: per frame the 6x6 covariance of the edge (VVS) pose, for frames whose output
-#: pose is the edge pose (status ``model``; empty otherwise): the twist ``xi = (v, w)`` of the left
-#: perturbation ``T_cam_model' = exp(xi) T_cam_model`` (v metres, w radians, camera frame),
-#: the cluster-robust covariance of :mod:`mst.pipeline.tracking.covariance` (floored by ``sigma^2 (J^T W
-#: J)^-1``), only where it is symmetric positive definite as written; and derived 1-sigma values: the camera position in the model frame
+#: ``<stem>.cov.csv``: per frame the 6x6 covariance of the output pose (empty when lost): the twist
+#: ``xi = (v, w)`` of the left perturbation ``T_cam_model' = exp(xi) T_cam_model`` (v metres, w radians,
+#: camera frame). For an edge (VVS) pose (status ``model``, ``relocalised``) the cluster-robust covariance
+#: of :mod:`mst.pipeline.tracking.covariance` (floored by ``sigma^2 (J^T W J)^-1``); for a map pose
+#: (``slam``) the SLAM aid's propagated drift covariance, which grows away from the last model anchor
+#: (:meth:`mst.pipeline.slam.drift.DriftBudget.sig_cov`, the uncertainty its drift budget judges); only
+#: where it is symmetric positive definite as written; and derived 1-sigma values: the camera position in the model frame
 #: (``std_x_m .. std_z_m``, covariance ``R^T C_vv R``) and the rotation (``std_rot_deg``, the
 #: square root of the largest eigenvalue of ``C_ww``).
 COV_HEADER = (["frame", "status", "std_x_m", "std_y_m", "std_z_m", "std_rot_deg"]
@@ -77,10 +79,10 @@ def _psd_text(cov: np.ndarray) -> list[str] | None:
 
 
 def cov_row(idx: int, status: str, cov: np.ndarray | None, T_cam_model: np.ndarray | None) -> list:
-    """One ``.cov.csv`` row (see :data:`COV_HEADER`); empty where the frame's pose is not the edge pose,
-    or its covariance is not symmetric positive definite as written (:func:`_psd_text`: a singular fit
+    """One ``.cov.csv`` row (see :data:`COV_HEADER`); empty where the frame has no output pose or no
+    covariance, or its covariance is not symmetric positive definite as written (:func:`_psd_text`: a singular fit
     at a re-acquisition had been written with negative variances of 1e10, which ``mst nav fuse`` refuses)."""
-    txt = None if status != "model" or cov is None or T_cam_model is None else _psd_text(np.asarray(cov, float))
+    txt = None if status == "lost" or cov is None or T_cam_model is None else _psd_text(np.asarray(cov, float))
     if txt is None:
         return [idx, status] + [""] * (len(COV_HEADER) - 2)
     cov = np.array([float(x) for x in txt]).reshape(6, 6)
@@ -237,7 +239,7 @@ def _write_outputs(paths, records: list[FrameRecord], summary: TrackSummary, lan
         tmp_traj.write_text("# mst track: TUM 't tx ty tz qx qy qz qw' camera pose in model frame, tracked frames only\n"
                             + (format_tum(times, poses) if len(tracked) else ""))
         for tmp, header, rows in ((tmp_csv, CSV_HEADER, [r.csv_row() for r in records]),
-                                  (tmp_cov, COV_HEADER, [cov_row(r.index, r.status, r.result.cov, r.T_cam_model)
+                                  (tmp_cov, COV_HEADER, [cov_row(r.index, r.status, r.cov, r.T_cam_model)
                                                          for r in records])):
             buf = io.StringIO()
             w = csv.writer(buf, lineterminator="\n")

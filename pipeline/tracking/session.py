@@ -51,7 +51,10 @@ class FrameRecord:
     ``status``: ``model`` (the edge pose), ``slam`` (the aid's pose), ``relocalised``, ``lost``;
     ``T_cam_model``: the output pose (None when lost); ``result``: the edge tracker's result that
     was used (its pose, samples, health); ``aid_state``: ``''`` (no aid), ``standby``, ``on`` or
-    ``static-world-broken``; ``ms``: the frame's tracking time.
+    ``static-world-broken``; ``ms``: the frame's tracking time; ``cov``: the (6, 6) covariance of the
+    output pose's left twist ``(v, w)`` (m, rad, camera frame): the edge fit's for ``model`` and
+    ``relocalised``, the propagated drift covariance of a ``slam`` map pose
+    (:meth:`mst.pipeline.slam.drift.DriftBudget.map_pose_cov`); None when lost or not known.
     """
 
     index: int
@@ -61,6 +64,7 @@ class FrameRecord:
     result: FrameResult
     aid_state: str
     ms: float
+    cov: np.ndarray | None = None
 
     @property
     def reason(self) -> str:
@@ -273,6 +277,7 @@ class TrackingSession:
         # an edge pose refused by the error budget (uncertain, ambiguous) is not output, but it is the
         # image's best estimate: the sequence goes on from it as from a model frame (see _withhold_edge)
         withheld = not healthy and fr.T_cam_model is not None and is_refusal(fr.reason)
+        map_cov = None
         if aid is not None and relocalised:
             # a relocalised pose passed the health test on its own image after a loss: the map of
             # the lost stretch (the object may have been moved meanwhile) does not gate it
@@ -295,6 +300,7 @@ class TrackingSession:
             # (an aid of the plain hook contract takes the first six arguments only)
             kw = {"cov_edges": fr.cov, "distance_fn": lambda T: model_distance(tr, T)} if hasattr(aid, "within_budget") else {}
             T_out, status = aid.update(idx, gray, fr.T_cam_model, fr.W, healthy or withheld, weak_edge_pose=weak, **kw)
+            map_cov = getattr(aid, "map_pose_cov", lambda: None)() if status == "slam" else None
             if withheld and status != "slam":
                 return self._withhold_edge(idx, time_s, gray, fr, t0)
             if status == "slam" and T_out is not None and hasattr(aid, "within_budget"):
@@ -338,7 +344,8 @@ class TrackingSession:
         p.frame_done(fr)
         p.refusals.output(status, T_out)
         ms = (time.perf_counter() - t0) * 1000.0
-        return FrameRecord(idx, time_s, status, T_out, fr, self._aid_state(idx), ms)
+        cov = None if status == "lost" else map_cov if status == "slam" else fr.cov
+        return FrameRecord(idx, time_s, status, T_out, fr, self._aid_state(idx), ms, cov)
 
     def _withhold_edge(self, idx: int, time_s: float, gray: np.ndarray, fr: FrameResult, t0: float) -> FrameRecord:
         """An edge pose refused by the error budget: ``lost`` (its reason in the CSV, the frame in
