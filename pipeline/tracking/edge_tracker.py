@@ -493,9 +493,10 @@ class EdgeTracker:
         n_s = len(S)
         n_in = int(res.inlier.sum())
         ratio = n_in / max(n_s, 1)
-        # a recovery (after a loss) must be convincing: stricter projection error and inlier ratio
+        # a recovery (after a loss) must be convincing: stricter projection error (and inlier ratio:
+        # the tracking policy's, relative to the sequence's usual, TrackingPolicy.gate_recovery)
         max_pe = c.max_proj_error_deg * (0.6 if recover else 1.0)
-        min_ratio = max(c.min_inlier_ratio, 0.5) if recover else c.min_inlier_ratio
+        min_ratio = c.min_inlier_ratio
         healthy = bool(n_s >= c.min_samples and ratio >= min_ratio and proj_err <= max_pe
                        and support >= c.min_support and np.isfinite(T).all() and ok_z)
         reason = "" if healthy else ("the solved pose puts the model behind the camera" if not ok_z

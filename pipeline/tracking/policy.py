@@ -19,6 +19,13 @@ from mst.pipeline.tracking.health import HealthMonitor
 #: onto floor/texture edges 0.52-0.66; the real teabox: 0.66-0.73)
 REACQUIRE_SUPPORT_RATIO = 0.8
 
+#: after a loss an edge pose is healthy only with a robust inlier ratio of at least this (ViSP-era
+#: rule of thumb), or, in a sequence whose model frames usually have fewer inliers, at least
+#: :data:`REACQUIRE_SUPPORT_RATIO` x their running mean (the gradient support's rule): the procedural
+#: block at 40 m (model edges against textured ground, correct poses at 41-66 %) lost its last 36
+#: frames to a fixed 50 % (recovery fits 0.003-0.03 m off at 48-49 %)
+RECOVER_INLIER_RATIO = 0.5
+
 #: a map (``slam``) pose is checked against the image only where the model lies mostly in the view
 #: at that pose: at least this fraction of the usual number of visible edge samples of the accepted
 #: model frames (fewer: the model is leaving or out of the view, where the map must bridge and the
@@ -47,6 +54,7 @@ class TrackingPolicy:
         self.first_reason = ""
         self.prev_status = "model"
         self.support_ref: float | None = None
+        self.inlier_ref: float | None = None  #: running mean of the robust inlier ratio of model frames
         self.search_range_px = search_range_px
         self.constant_velocity = constant_velocity
         self.monitor = monitor
@@ -133,19 +141,30 @@ class TrackingPolicy:
         """Whether the frame's edge pose counts as healthy. After a re-acquisition or a loss (edges
         only, or the aid lost too), a pose found by the widened search on its first frame back has
         too little history for the health score (few edges in view: wide binomial floors) and can
-        lock onto texture edges: its gradient support must be near its usual value."""
+        lock onto texture edges: its gradient support must be near its usual value. After a loss its
+        robust inlier ratio too (:data:`RECOVER_INLIER_RATIO`)."""
         healthy = fr.healthy
         recovering = reacq or self.lost_streak > 0
         if healthy and recovering and self.support_ref is not None and fr.support < REACQUIRE_SUPPORT_RATIO * self.support_ref:
             healthy = False
             fr.reason = f"gradient support {fr.support:.0%} (usual {self.support_ref:.0%})"
+        if healthy and self.lost_streak > 0:
+            ratio = fr.n_inliers / max(fr.n_samples, 1)
+            need = RECOVER_INLIER_RATIO if self.inlier_ref is None else min(
+                RECOVER_INLIER_RATIO, REACQUIRE_SUPPORT_RATIO * self.inlier_ref)
+            if ratio < need:
+                healthy = False
+                fr.reason = f"inliers {ratio:.0%}" + ("" if self.inlier_ref is None else f" (usual {self.inlier_ref:.0%})")
         return healthy
 
     # -------------------------------------------------------------- after the output decision
-    def update_support(self, status: str, recovering: bool, support: float) -> None:
-        """The running mean of the gradient support over model frames (not recovering ones)."""
+    def update_support(self, status: str, recovering: bool, support: float, inliers: float | None = None) -> None:
+        """The running means of the gradient support and of the robust inlier ratio (``inliers``) over
+        model frames (not recovering ones)."""
         if status == "model" and not recovering:
             self.support_ref = support if self.support_ref is None else 0.9 * self.support_ref + 0.1 * support
+            if inliers is not None:
+                self.inlier_ref = inliers if self.inlier_ref is None else 0.9 * self.inlier_ref + 0.1 * inliers
 
     def learn(self, fr: FrameResult, status: str, healthy: bool) -> None:
         """An accepted model frame teaches the health monitor."""

@@ -326,7 +326,7 @@ class TrackingSession:
             return self._withhold_edge(idx, time_s, gray, fr, t0)
         else:
             T_out, status = (fr.T_cam_model, "model") if healthy else (None, "lost")
-        p.update_support(status, recovering, fr.support)
+        p.update_support(status, recovering, fr.support, fr.n_inliers / max(fr.n_samples, 1))
         if relocalised and status == "model":
             status = "relocalised"
         p.prev_status = status
