@@ -65,6 +65,31 @@ def test_reacquisition_and_the_support_gate():
     assert p.gate_recovery(_fr(support=0.1), reacq=False)  # not recovering: no gate
 
 
+def test_recovery_inlier_test_is_relative_to_the_sequence():
+    """After a loss a pose needs 50 % robust inliers, or 0.8 x the running mean of the sequence's model
+    frames where that is lower (textured ground around the model: correct poses at 41-66 %); never
+    stricter than 50 %, and not applied while not recovering."""
+    from mst.pipeline.tracking.policy import RECOVER_INLIER_RATIO
+
+    def fit(ratio):
+        return FrameResult(_pose(0.0), True, 100, int(round(100 * ratio)), 0.3, 5.0, np.eye(6), np.eye(6), support=0.9)
+
+    p = TrackingPolicy(_pose(0.0), search_range_px=8)
+    p.lost_streak = 1
+    assert not p.gate_recovery(fit(0.45), reacq=False) and p.gate_recovery(fit(0.5), reacq=False)  # no history
+    for _ in range(40):
+        p.update_support("model", False, 0.9, 0.55)
+    low = fit(0.40)
+    assert abs(p.inlier_ref - 0.55) < 1e-9 and REACQUIRE_SUPPORT_RATIO * 0.55 < RECOVER_INLIER_RATIO
+    assert p.gate_recovery(fit(0.45), reacq=False)  # 0.45 >= 0.8 x 0.55 = 0.44
+    assert not p.gate_recovery(low, reacq=False) and low.reason == "inliers 40% (usual 55%)"
+    for _ in range(80):
+        p.update_support("model", False, 0.9, 0.95)
+    assert not p.gate_recovery(fit(0.49), reacq=False)  # a clean scene: still 50 %
+    p.lost_streak = 0
+    assert p.gate_recovery(fit(0.3), reacq=False)  # not after a loss: the tracker's own minimum only
+
+
 def test_lost_frames_and_relocalisation_cadence():
     p = TrackingPolicy(_pose(0.0), search_range_px=8)
     _after_frames(p, [_pose(0.0)])
