@@ -126,6 +126,7 @@ class EdgeTracker:
         self.prev_T: np.ndarray | None = None
         self.prev_faces: np.ndarray | None = None
         self.klt_pts: np.ndarray | None = None  # (M,2) px in prev frame
+        self.recover_min_inlier_ratio = 0.5  #: a recovery fit's inlier ratio (the policy's, per sequence)
         self.klt_X: np.ndarray | None = None  # (M,3) model frame
         self.klt_plane: np.ndarray | None = None  # (M,4) the face plane (n, d: n.X = d) of each, model frame (klt.reanchor)
         self.prev_gray: np.ndarray | None = None
@@ -493,10 +494,9 @@ class EdgeTracker:
         n_s = len(S)
         n_in = int(res.inlier.sum())
         ratio = n_in / max(n_s, 1)
-        # a recovery (after a loss) must be convincing: stricter projection error (and inlier ratio:
-        # the tracking policy's, relative to the sequence's usual, TrackingPolicy.gate_recovery)
+        # a recovery (after a loss) must be convincing: stricter projection error and inlier ratio (the policy's)
         max_pe = c.max_proj_error_deg * (0.6 if recover else 1.0)
-        min_ratio = c.min_inlier_ratio
+        min_ratio = max(c.min_inlier_ratio, self.recover_min_inlier_ratio) if recover else c.min_inlier_ratio
         healthy = bool(n_s >= c.min_samples and ratio >= min_ratio and proj_err <= max_pe
                        and support >= c.min_support and np.isfinite(T).all() and ok_z)
         reason = "" if healthy else ("the solved pose puts the model behind the camera" if not ok_z

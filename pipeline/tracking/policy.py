@@ -141,21 +141,22 @@ class TrackingPolicy:
         """Whether the frame's edge pose counts as healthy. After a re-acquisition or a loss (edges
         only, or the aid lost too), a pose found by the widened search on its first frame back has
         too little history for the health score (few edges in view: wide binomial floors) and can
-        lock onto texture edges: its gradient support must be near its usual value. After a loss its
-        robust inlier ratio too (:data:`RECOVER_INLIER_RATIO`)."""
+        lock onto texture edges: its gradient support must be near its usual value."""
         healthy = fr.healthy
         recovering = reacq or self.lost_streak > 0
         if healthy and recovering and self.support_ref is not None and fr.support < REACQUIRE_SUPPORT_RATIO * self.support_ref:
             healthy = False
             fr.reason = f"gradient support {fr.support:.0%} (usual {self.support_ref:.0%})"
-        if healthy and self.lost_streak > 0:
-            ratio = fr.n_inliers / max(fr.n_samples, 1)
-            need = RECOVER_INLIER_RATIO if self.inlier_ref is None else min(
-                RECOVER_INLIER_RATIO, REACQUIRE_SUPPORT_RATIO * self.inlier_ref)
-            if ratio < need:
-                healthy = False
-                fr.reason = f"inliers {ratio:.0%}" + ("" if self.inlier_ref is None else f" (usual {self.inlier_ref:.0%})")
         return healthy
+
+    @property
+    def recover_inlier_ratio(self) -> float:
+        """The robust inlier ratio a fit of the edge tracker's recovery mode (after a loss) needs:
+        :data:`RECOVER_INLIER_RATIO`, or :data:`REACQUIRE_SUPPORT_RATIO` x the running mean over this
+        sequence's model frames where that is lower (set on the tracker by the session each frame)."""
+        if self.inlier_ref is None:
+            return RECOVER_INLIER_RATIO
+        return min(RECOVER_INLIER_RATIO, REACQUIRE_SUPPORT_RATIO * self.inlier_ref)
 
     # -------------------------------------------------------------- after the output decision
     def update_support(self, status: str, recovering: bool, support: float, inliers: float | None = None) -> None:

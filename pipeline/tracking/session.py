@@ -257,6 +257,7 @@ class TrackingSession:
         """Track one 8-bit gray frame (H, W); the frame's record (its output pose and status)."""
         t0 = time.perf_counter()
         tr, p, aid, reloc = self.tracker, self.policy, self.aid, self.reloc
+        tr.recover_min_inlier_ratio = p.recover_inlier_ratio
         T_pred = aid.predict(idx, gray, p.T_prev) if aid is not None else None
         T_start = p.start_pose(T_pred, aid is not None, lambda T: _shift_px(tr, T, p.T_prev))
         reacq = p.reacquiring(aid is not None)
