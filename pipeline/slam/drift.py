@@ -204,13 +204,11 @@ class DriftBudget:
         (``sr_map = sr + rigid part of sm / scene depth``). The map error moves every landmark of the
         stretch alike, in no known direction, and a centre error ``dc`` (model frame) is the twist
         ``v = -R dc``: isotropic in the model frame is isotropic in the camera's. None when not finite."""
-        sm, sr, C = sig[:3]
-        C = np.asarray(C, float)
-        sm_rigid = sm - (sig[4] if len(sig) > 4 else 0.0)
-        if not (math.isfinite(sm) and math.isfinite(sr) and math.isfinite(sm_rigid) and np.isfinite(C).all()):
+        sm, sr, sc, sr_fit, sr_depth = self._sig_parts(sig)
+        C = np.asarray(sig[2], float)
+        if not (math.isfinite(sm) and math.isfinite(sr) and math.isfinite(sr_depth) and np.isfinite(C).all()):
             return None
-        sc, sr_fit = pose_sigmas(C)
-        sr_map = sr + max(sm_rigid, 0.0) / max(self.scene_depth, 1e-9)
+        sr_map = sr + max(sr_depth, 0.0)
         out = 0.5 * (C + C.T)
         out[:3, :3] += np.eye(3) * (sm * sm + 2.0 * sm * sc) / 3.0
         out[3:, 3:] += np.eye(3) * (sr_map * sr_map + 2.0 * sr_map * sr_fit) / 3.0
@@ -227,18 +225,25 @@ class DriftBudget:
         b = self._bound_of(sig)
         return b[0] <= self.cfg.drift_budget_rel * distance_m and b[1] <= self.cfg.drift_budget_deg
 
-    def _bound_of(self, sig: tuple) -> tuple[float, float]:
-        """``drift_sigmas`` x (camera-centre sigma m, rotation sigma deg) of a pose uncertainty ``sig``."""
+    def _sig_parts(self, sig: tuple) -> tuple[float, float, float, float, float]:
+        """``(sm, sr, sc, sr_fit, sr_depth)`` of a pose uncertainty ``sig``: its map parts, its fit's
+        centre and rotation sigmas (:func:`pose_sigmas`) and the rigid part of ``sm`` (without the
+        common scale error, which moves the camera but does not turn it) over the scene depth (rad)."""
         sm, sr, C = sig[:3]
         sm_rigid = sm - (sig[4] if len(sig) > 4 else 0.0)
         sc, sr_fit = pose_sigmas(C)
+        return sm, sr, sc, sr_fit, sm_rigid / max(self.scene_depth, 1e-9)
+
+    def _bound_of(self, sig: tuple) -> tuple[float, float]:
+        """``drift_sigmas`` x (camera-centre sigma m, rotation sigma deg) of a pose uncertainty ``sig``."""
+        sm, sr, sc, sr_fit, sr_depth = self._sig_parts(sig)
         k = self.cfg.drift_sigmas
         # rotation: the views' rotation passed on, the fit's, and the landmarks' common error seen
         # across the scene depth (errors that differ over the image turn the camera: on the 40 m
         # UAV pass the map poses were 0.2 deg off with an anchor rotation sigma of 0.05 deg); a
         # common scale error moves the camera but does not turn it (mono corridor: the bound had
         # been 30-250x the measured rotation error)
-        return k * (sm + sc), k * math.degrees(sr + sr_fit + sm_rigid / max(self.scene_depth, 1e-9))
+        return k * (sm + sc), k * math.degrees(sr + sr_fit + sr_depth)
 
     def within_budget(self, k: int, distance_m: float) -> bool:
         """Whether the map pose of frame ``k`` (the last output) is within the drift budget at

@@ -278,7 +278,6 @@ class TrackingSession:
         # an edge pose refused by the error budget (uncertain, ambiguous) is not output, but it is the
         # image's best estimate: the sequence goes on from it as from a model frame (see _withhold_edge)
         withheld = not healthy and fr.T_cam_model is not None and is_refusal(fr.reason)
-        map_cov = None
         if aid is not None and relocalised:
             # a relocalised pose passed the health test on its own image after a loss: the map of
             # the lost stretch (the object may have been moved meanwhile) does not gate it
@@ -301,7 +300,6 @@ class TrackingSession:
             # (an aid of the plain hook contract takes the first six arguments only)
             kw = {"cov_edges": fr.cov, "distance_fn": lambda T: model_distance(tr, T)} if hasattr(aid, "within_budget") else {}
             T_out, status = aid.update(idx, gray, fr.T_cam_model, fr.W, healthy or withheld, weak_edge_pose=weak, **kw)
-            map_cov = getattr(aid, "map_pose_cov", lambda: None)() if status == "slam" else None
             if withheld and status != "slam":
                 return self._withhold_edge(idx, time_s, gray, fr, t0)
             if status == "slam" and T_out is not None and hasattr(aid, "within_budget"):
@@ -345,7 +343,8 @@ class TrackingSession:
         p.frame_done(fr)
         p.refusals.output(status, T_out)
         ms = (time.perf_counter() - t0) * 1000.0
-        cov = None if status == "lost" else map_cov if status == "slam" else fr.cov
+        # a map pose's propagated drift covariance (the aid's state is this frame's until its next update)
+        cov = None if status == "lost" else getattr(aid, "map_pose_cov", lambda: None)() if status == "slam" else fr.cov
         return FrameRecord(idx, time_s, status, T_out, fr, self._aid_state(idx), ms, cov)
 
     def _withhold_edge(self, idx: int, time_s: float, gray: np.ndarray, fr: FrameResult, t0: float) -> FrameRecord:
