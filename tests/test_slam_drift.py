@@ -46,6 +46,45 @@ def test_drift_budget_is_a_config_field_with_bounds():
         SlamConfig.from_dict({"drift_sigmas": 0})
 
 
+def test_rgbd_landmarks_keep_the_most_certain_model_anchor(tmp_path):
+    """Under a model pose the rgbd map is re-lifted from depth (the RGB-D paper's reset), but a
+    landmark that an earlier model pose placed more certainly keeps that place and record: the last
+    model pose before a gap is often the weakest (the model leaving the view; 640x480 corridor: its
+    sigma 5x the others'), and re-lifting the whole map under it had passed its uncertainty to
+    every map pose of the gap. A landmark anchored under a map pose, or less certainly, is re-lifted."""
+    from test_slam import CAM, TexturedScene, look_at
+
+    from mst.pipeline import slam
+
+    T = look_at([3.0, 0.4, 1.3])
+    _, depth = TexturedScene().render(T)
+    (tmp_path / "d").mkdir()
+    for k in range(4):
+        np.save(tmp_path / "d" / f"{k:06d}.npy", depth)
+    aid = slam.ModelAidedSlam("rgbd", CAM, {}, tmp_path / "d", None, None)
+    aid.pts = np.array([[60.0 + 20 * i, 60.0 + 12 * i] for i in range(10)], np.float32)
+    aid.tid = np.arange(10, dtype=np.int64)
+    aid._pose_c = -T[:3, :3].T @ T[:3, 3]
+
+    def lift(k, sigma, model_pose=True):
+        aid._pose_sig = (0.0, 0.0, np.eye(6) * sigma**2, 0.0, 0.0)
+        aid._lift_depth(k, T, model_pose)
+        return {t: aid.lm_sig[t][0] for t in sorted(aid.lm_sig)}
+
+    good = lift(0, 0.002)
+    ids = sorted(good)
+    assert len(ids) >= 6                            # the pixels with depth (edges of the cube dropped)
+    X0 = {t: aid.lm[t].copy() for t in ids}
+    assert lift(1, 0.05) == good                   # a weaker model pose: nothing re-lifted
+    assert all(np.array_equal(aid.lm[t], X0[t]) for t in ids)
+    for t in ids[2:4]:
+        aid.lm_model[t] = False                     # as if anchored under a map pose
+    weak = lift(2, 0.05)
+    assert [t for t in ids if weak[t] != good[t]] == ids[2:4] and weak[ids[2]] > good[ids[2]]
+    better = lift(3, 0.001)                         # a more certain model pose takes every landmark
+    assert all(better[t] < good[t] for t in ids)
+
+
 # ---------------------------------------------------------------------------- sequences
 def _synth(tmp_path_factory, name, **kw):
     from mst.pipeline.synth import SynthConfig, synthesize
