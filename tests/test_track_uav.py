@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import csv
 import json
+import re
 
 import numpy as np
 import pytest
@@ -464,6 +465,8 @@ def test_first_frame_is_judged_by_the_error_budget(shared_data, tmp_path):
         run = _run(seq, tmp_path, m, "auto", 30.0)
     except InputError as e:
         assert "frame 0: pose uncertain" in str(e) and "error budget" in str(e), e
+        # with the evidence the first fit had (issue 11: the message names the real cause)
+        assert re.search(r"\(\d+ of \d+ model edge samples matched\)", str(e)), e
         assert not list(tmp_path.glob("traj_auto*")), "a refused run left output behind"
         return
     _assert_within_budget(run, load_model(m).vertices, ("model", "slam"))

@@ -299,9 +299,12 @@ def _no_frame_tracked(records: list[FrameRecord], policy: TrackingPolicy, init_p
         hint = "the model is too far or too small for this camera"
     elif is_refusal(reason):
         # the first frame is judged by the error budget as every other: a pose its image does not
-        # pin is no start to output from (Delft at 250 m, 640x480: frame 0 was 8 % off as `model`)
-        hint = ("this image does not pin the pose within the error budget: a nearer view, a higher "
-                "resolution, or a wider budget (slam.drift_budget_rel)")
+        # pin is no start to output from (Delft at 250 m, 640x480: frame 0 was 8 % off as `model`);
+        # the evidence it had: its edge samples, and how many of them matched an image edge
+        fr = records[0].result
+        hint = (f"this image does not pin the pose within the error budget ({fr.n_inliers} of {fr.n_samples} "
+                "model edge samples matched): a nearer view, a higher resolution, or a wider budget "
+                "(slam.drift_budget_rel)")
     else:
         hint = "check the pose, the camera and the model units"
     return InputError(init_pose_path, f"no frame could be tracked from this initial pose (frame {k}: {reason}); {hint}")
