@@ -19,7 +19,6 @@ the gap is bridged below the GPS.
 
 from __future__ import annotations
 
-import csv
 import shutil
 
 import numpy as np
@@ -64,9 +63,10 @@ def _valid_cov_only(src, dst):
 
 def _fuse_seed(seq, tmp, seed, gap: bool = False):
     """Simulate the log (seed), fuse the track with and without the vision reference; the errors.
-    ``gap``: the poses of the frames where the model is out of view (``frames.csv``) removed first."""
+    ``gap``: the poses of the frames where the model is out of view (:func:`out_of_view`) removed first."""
     from mst.core.poses import inv_T, so3_log
     from mst.core.trajectory import read_tum
+    from mst.eval.bench.slam import out_of_view
     from mst.pipeline.nav.fusion import FusionConfig
     from mst.pipeline.nav.log import NavSimConfig, interpolate_poses, simulate_nav, write_sim_outputs
     from mst.pipeline.nav.run import fuse_nav_files
@@ -77,13 +77,13 @@ def _fuse_seed(seq, tmp, seed, gap: bool = False):
                         ahrs_yaw_bias_deg=0.0)
     sim = simulate_nav(t_gt, T_gt, scfg)
     write_sim_outputs(sim, tmp / "nav.csv", None)
-    shutil.copy(seq / "traj.txt", tmp / "traj.txt")
     if gap:
-        with open(seq / "frames.csv", newline="") as f:
-            hidden = {int(r["frame"]) for r in csv.DictReader(f) if int(r["model_px"]) == 0}
+        hidden = out_of_view(seq)
         rows = [ln for ln in (seq / "traj.txt").read_text().splitlines()
-                if ln.startswith("#") or round(float(ln.split()[0]) * FPS) not in hidden]
+                if ln.startswith("#") or not hidden[round(float(ln.split()[0]) * FPS)]]
         (tmp / "traj.txt").write_text("\n".join(rows) + "\n")
+    else:
+        shutil.copy(seq / "traj.txt", tmp / "traj.txt")
     shutil.copy(seq / "traj.csv", tmp / "traj.csv")
     _valid_cov_only(seq / "traj.cov.csv", tmp / "traj.cov.csv")
     np.savetxt(tmp / "m2w.txt", M2W)

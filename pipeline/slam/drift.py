@@ -103,6 +103,13 @@ class DriftBudget:
     ``min(|c' - c| / z, 1)`` (``z`` the landmark's distance from ``c``): a common one scales that
     stretch of the map about ``c``."""
 
+    def _landmark_sigs(self, tids: np.ndarray, model_only: bool = False) -> np.ndarray:
+        """(N, :data:`LM_SIG_COLS`) uncertainty records of the landmarks ``tids`` (inf where a track has
+        none; with ``model_only`` also where its landmark was anchored under a map pose)."""
+        lm_sig, lm_model = self.lm_sig, self.lm_model
+        return np.array([lm_sig.get(int(t), _INF_LM) if not model_only or lm_model.get(int(t), False) else _INF_LM
+                         for t in tids], float).reshape(-1, LM_SIG_COLS)
+
     def _model_pose_sig(self, W: np.ndarray | None) -> tuple:
         """``(0, 0, C, 0, 0)`` of an edge pose with information ``W``: ``C = edge_sigma_px^2 W^-1`` (0 without W)."""
         if W is None:
@@ -121,7 +128,7 @@ class DriftBudget:
         n = len(tids)
         if n == 0:
             return math.inf, math.inf, np.full((6, 6), np.inf), math.inf, math.inf
-        s = np.array([self.lm_sig.get(int(t), _INF_LM) for t in tids], float).reshape(-1, LM_SIG_COLS)
+        s = self._landmark_sigs(tids)
         scl, ind = s[:, 3], s[:, 1]
         if T is None:
             reach = np.full(n, np.inf)

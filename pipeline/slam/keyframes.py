@@ -89,9 +89,7 @@ class KeyframeMap:
                     j = np.argmin(d2, axis=1)
                     near = d2[np.arange(len(uv)), j] < 9.0
                     Xk[near] = X[has[j[near]]]
-                    inf_lm = (np.inf,) * LM_SIG_COLS
-                    Sk[near] = np.array([self.lm_sig.get(int(t), inf_lm)
-                                         for t in self.tid[has[j[near]]]]).reshape(-1, LM_SIG_COLS)
+                    Sk[near] = self._landmark_sigs(self.tid[has[j[near]]])
             ok = np.isfinite(Xk[:, 0])
             if ok.sum() >= self.cfg.reloc_min_inliers:
                 kf.desc, kf.X_desc, kf.sig_desc = desc[ok], Xk[ok].astype(np.float32), Sk[ok]

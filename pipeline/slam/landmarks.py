@@ -13,7 +13,6 @@ import numpy as np
 
 from mst.core.poses import inv_T, transform_points
 from mst.pipeline.depth_io import read_depth
-from mst.pipeline.slam.drift import _INF_LM, LM_SIG_COLS
 from mst.pipeline.slam.geometry import triangulate_two_view
 
 
@@ -69,8 +68,7 @@ class Landmarks:
             # weakest (the model leaving the view), and re-lifting the whole map under it passed its
             # uncertainty to every map pose of the gap (640x480 corridor: 2 sigma 1.1-1.6 % of the
             # distance, 71 of 76 map poses withheld, measured error <= 0.07 %)
-            old = np.array([self.lm_sig.get(int(t), _INF_LM) if self.lm_model.get(int(t), False) else _INF_LM
-                            for t in self.tid[idx[ok]]], float).reshape(-1, LM_SIG_COLS)
+            old = self._landmark_sigs(self.tid[idx[ok]], model_only=True)
             better = np.hypot(sig[:, 0], sig[:, 1]) < np.hypot(old[:, 0], old[:, 1])
             ok[np.flatnonzero(ok)[~better]] = False
             sig = sig[better]
