@@ -44,13 +44,19 @@ class AidPolicy:
 
         ``over_budget``: the map pose of this frame is beyond its drift budget (:mod:`.drift`): a map
         that could not be output cannot refuse a healthy edge pose either (as weak, by the gate, as
-        contradicting it); the edge pose is output and the map re-anchored onto it."""
+        contradicting it): where it would, the edge pose is output and the map re-anchored onto it;
+        a strong edge pose that it agrees with is gated and fused as usual."""
         v = Verdict(edge_ok)
-        if edge_ok and slam_ok and over_budget and not self.moving_hold:
+        if (edge_ok and slam_ok and over_budget and not self.moving_hold
+                and not (self._strong_enough(W) and self._consistent(T_edges, W, st))):
             # after an occluder the map (its landmarks tracked on the occluder) had drifted 100-270 %
             # beyond its budget and refused 27 healthy edge poses as weak (trace(W) 0.4 x its
             # running mean, its KLT points seeded at the map's pose); on the demo's UAV pass a map
-            # re-observing its stale landmarks of the turn gated a right edge pose, lost to the end
+            # re-observing its stale landmarks of the turn gated a right edge pose, lost to the end.
+            # Only a map that would refuse it: one that agrees with a strong edge pose is fused as
+            # usual (a mono map's bound, far above its error, is beyond the budget on nearly every
+            # frame; re-anchored unfused onto each edge pose, the explicit mono map of the 640x480
+            # corridor was 0.05 m off at frame 30 against 0.005 m fused, 0.9 m at the return)
             v.over_budget = True
             self._disagree_streak = 0
             self.n_rejects = 0
