@@ -6,8 +6,9 @@ made from:
 
 * ``corr`` (m): the error it inherits from the poses it was made under: each view's own error at
   the point (``J C J^T`` with ``J = [I, -[X]x]``, so the correlation of a pose's translation and
-  rotation counts) plus the view's inherited map error, the larger of the two views. It is common
-  to the landmarks of one stretch, so it does **not** average out in a PnP pose.
+  rotation counts) and the view's inherited map error, independent of each other, so added in
+  quadrature (root-sum-square), the larger of the two views. It is common to the landmarks of one
+  stretch, so it does **not** average out in a PnP pose.
 * ``scale`` (m, mono): the two views' *relative* error over the sine of the parallax,
   ``(sigma_centre + z sigma_rot) / sin(parallax)``, a depth error along the rays of ``c`` common to
   every landmark of that baseline (the mono scale drift), plus the relative scale error inherited
@@ -17,7 +18,8 @@ made from:
 * ``rot`` (rad): the rotation error of the views it was made under.
 
 A map pose found by PnP on ``n`` landmarks at the camera centre ``c'`` inherits
-``sm = mean(corr + scale min(|c' - c| / z, 1)) + sqrt(mean(ind^2) / n)`` (a mono landmark's depth error
+``sm = hypot(mean(corr), sqrt(mean(ind^2) / n)) + mean(scale min(|c' - c| / z, 1))`` (the landmarks' own
+noise, averaged by the fit, is independent of the error they inherited; a mono landmark's depth error
 along the rays of the view ``c`` it was triangulated from, at distance ``z``, moves no camera at ``c``)
 and ``sr = mean(rot)``, and adds its fit's covariance ``rms^2 (J^T J)^-1`` (``rms`` its reprojection RMS:
 the inlier count and their spread in the image count); a model pose anchors with the edge tracker's
@@ -148,7 +150,10 @@ class DriftBudget:
         # reach-scaled noise came to 0.24 % (the edge tracker's covariance is 3.8x optimistic there,
         # RMS against the truth; 0.5-2x elsewhere): the full noise term is what covers it
         e_ind = ind
-        sm = float(s[:, 0].mean() + sm_scale + math.sqrt(float(np.mean(e_ind**2)) / n))
+        # the inherited common error and the fit's share of the landmarks' own noise are independent:
+        # root-sum-square (their linear sum, the bound of fully correlated errors, accumulated over every
+        # generation of landmarks: the rgbd corridor's bound was 5-15x its measured error, session 19)
+        sm = float(math.hypot(s[:, 0].mean(), math.sqrt(float(np.mean(e_ind**2)) / n)) + sm_scale)
         sig = self.cfg.slam_sigma_px if rms_px is None else max(float(rms_px), KLT_FLOOR_PX)
         if T is None:
             ss = math.inf if np.any(scl > 0) else 0.0
@@ -176,7 +181,7 @@ class DriftBudget:
         r1 = np.einsum("nii->n", first_C[:, 3:, 3:])
         c2, r2 = float(np.trace(C[:3, :3])), float(np.trace(C[3:, 3:]))
         base = (np.sqrt(np.maximum(c1 + c2, 0.0)) + z * np.sqrt(np.maximum(r1 + r2, 0.0))) / np.sin(ang)
-        corr = np.maximum(first_sig[:, 0] + point_sigmas(X_first, first_C), sm + point_sigmas(X_cur, C))
+        corr = np.maximum(np.hypot(first_sig[:, 0], point_sigmas(X_first, first_C)), np.hypot(sm, point_sigmas(X_cur, C)))
         rot = np.maximum(first_sig[:, 1] + np.sqrt(np.maximum(r1, 0.0)), sr + math.sqrt(max(r2, 0.0)))
         ind = z * (self.cfg.slam_sigma_px / self.K[0, 0]) * math.sqrt(2.0) / np.sin(ang)
         scale = ss * z + base
@@ -188,7 +193,7 @@ class DriftBudget:
         X = np.asarray(X_cam, float).reshape(-1, 3)
         n = len(X)
         rot = sr + math.sqrt(max(float(np.trace(C[3:, 3:])), 0.0))
-        return np.c_[sm + point_sigmas(X, C), np.abs(X[:, 2]) * RGBD_DEPTH_SIGMA_REL, np.full(n, rot),
+        return np.c_[np.hypot(sm, point_sigmas(X, C)), np.abs(X[:, 2]) * RGBD_DEPTH_SIGMA_REL, np.full(n, rot),
                      ss * np.linalg.norm(X, axis=1), np.broadcast_to(self._pose_c, (n, 3))]
 
     def _anchor_sig(self, cov_edges: np.ndarray) -> tuple[float, float, np.ndarray]:
