@@ -129,8 +129,24 @@ def track(frames_src, model_path, camera_path, init_path, out, settings_path, fr
          f"{sc['relocalised']}, lost {sc['lost']}; {summary.health_score_rejects} edge poses rejected by the health "
          f"score" + (f"; SLAM aid switched on {wakes}x" if wakes else "") + "), median "
          f"{summary.median_ms:.1f} ms/frame, mean residual {'-' if res is None else f'{res:.2f}'} px -> {out}", quiet)
+    why = withheld_line(summary.optional, sc["lost"], cfg.slam.drift_budget_rel, cfg.slam.drift_budget_deg)
+    if why:
+        info(why, quiet)
     if as_json:
         emit_json(summary.to_json())
+
+
+def withheld_line(optional: dict, n_lost: int, budget_rel: float, budget_deg: float) -> str:
+    """The lost frames that the error budgets and the image checks withheld (a pose existed, but it was
+    not certain or not supported enough to be output), by cause, for the summary; empty when none.
+    ``optional``: the run's ``TrackSummary.optional`` (its ``*_frames`` lists)."""
+    causes = (("drift_budget_frames", f"map poses beyond the drift budget (2 sigma over {budget_rel * 100:g} % of the "
+                                      f"distance or {budget_deg:g} deg: slam.drift_budget_rel/_deg)"),
+              ("pose_budget_frames", "edge poses beyond the same error budget"),
+              ("ambiguous_frames", "ambiguous edge poses (another fit of the image beyond the budget)"),
+              ("map_refuted_frames", "map poses refuted by the image"))
+    parts = [f"{len(set(optional[k]))} {text}" for k, text in causes if optional.get(k)]
+    return f"of the {n_lost} lost frames, withheld: " + "; ".join(parts) if parts and n_lost else ""
 
 
 def _named(e, xml, base: dict, options: dict):

@@ -152,6 +152,21 @@ def test_corridor_mono_rejects_wrong_edge_poses_on_the_return(corridor, runs_dir
     assert np.all(e["rel"][st != "lost"] < 0.01)
 
 
+def test_the_summary_names_the_lost_frames_that_the_budgets_withheld(corridor, runs_dir):
+    """``mst track``'s summary says why the lost frames were lost where a pose existed but was withheld:
+    the mono corridor's map poses beyond the drift budget (every one of them a lost frame)."""
+    from mst.cli.track import withheld_line
+
+    s, e = _track(corridor, "mono", runs_dir)
+    lost = e["frame"][e["status"] == "lost"]
+    drift = s["drift_budget_frames"]
+    assert len(drift) > 0 and np.isin(drift, lost).all()
+    line = withheld_line(s.optional, len(lost), 0.01, 2.0)
+    assert line.startswith(f"of the {len(lost)} lost frames, withheld: {len(set(drift))} map poses beyond the drift "
+                           "budget (2 sigma over 1 % of the distance or 2 deg"), line
+    assert withheld_line({}, len(lost), 0.01, 2.0) == "" and withheld_line(s.optional, 0, 0.01, 2.0) == ""
+
+
 # ---------------------------------------------------------------------------- drift budget (320x240)
 @pytest.mark.parametrize("mode", ["rgbd", "mono"])
 def test_corridor_predicted_bound_covers_the_measured_error(corridor, runs_dir, mode):
