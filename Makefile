@@ -20,8 +20,8 @@ $(STAMP): pyproject.toml $(LOCK) .ci/setup
 	$(BIN)/python -m mst.eval.c2m.warmup
 	@touch $(STAMP)
 
-## warmup: compile the numba kernels of mst c2m, convert-model and mst track into their on-disk cache, and the c2m and
-## convert-model kernels ahead of time (mst.core.aot; make setup does it once;
+## warmup: compile the numba kernels of mst c2m, convert-model and mst track into their on-disk cache, and the c2m,
+## convert-model and edge-tracker kernels ahead of time for this CPU (mst.core.aot; make setup does it once;
 ## every later process only loads them)
 warmup: $(STAMP)
 	$(BIN)/python -m mst.eval.c2m.warmup

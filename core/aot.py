@@ -9,12 +9,15 @@ that is most of the difference to a C++ tool.
 :func:`build` compiles the kernels of a numba module (their Python functions, the single signature
 each was compiled for in the warm-up) with ``numba.pycc`` into a CPython extension module beside
 numba's cache (``__pycache__`` of the source package, or ``$MST_AOT_DIR``), with a JSON spec of the
-argument types and the SHA-256 of the source file. :class:`Kernels` gives the kernels of a module
-by attribute: the extension's function when it was built from the current source and the call's
-arguments have exactly the compiled types, otherwise the JIT dispatcher of the source module (numba
-imported then, on first need). The extension does not import numba; its functions release the GIL
-(callers may split work over threads, see :func:`threads`). Results are those of the JIT kernels:
-same source, same LLVM, no fastmath (prange loops run serially; no kernel reduces across them).
+argument types, the SHA-256 of the source file (and of the mst modules it imports) and the CPU it
+was compiled for (this machine's, as numba's JIT does; :func:`host_id`). :class:`Kernels` gives the
+kernels of a module by attribute: the extension's function when it was built from the current
+source for this CPU and the call's arguments have exactly the compiled types (a generated check,
+~1 us a call), otherwise the JIT dispatcher of the source module (numba imported then, on first
+need; :data:`FALLBACKS` counts such calls). The extension does not import numba; its functions
+release the GIL (callers may split work over threads, see :func:`threads`). Results are those of
+the JIT kernels: same source, same LLVM, the kernels' own error model, no fastmath (prange loops run
+serially; no kernel reduces across them).
 
 ``MST_AOT=0`` disables the extensions (JIT only). ``make setup`` builds them
 (``python -m mst.eval.c2m.warmup``); a checkout without a C compiler simply keeps the JIT path.
@@ -29,6 +32,7 @@ import importlib.util
 import json
 import logging
 import os
+import re
 import sys
 import sysconfig
 from pathlib import Path
@@ -37,7 +41,7 @@ import numpy as np
 
 log = logging.getLogger(__name__)
 
-SPEC_VERSION = 1
+SPEC_VERSION = 2  # 2: the kernels' error model and the module's AOT_NOALIAS honoured, built for this CPU
 _SCALARS = {"float64": (float, np.float64), "int64": (int, np.int64), "bool": (bool, np.bool_)}
 
 
@@ -59,10 +63,21 @@ def ext_name(module: str) -> str:
     return module.replace(".", "_") + "_aot"
 
 
+#: ``from mst.x import ...`` / ``import mst.x`` at the start of a line of a kernel module's source
+_MST_IMPORT = re.compile(rb"^\s*(?:from\s+(mst(?:\.\w+)+)\s+import|import\s+(mst(?:\.\w+)+))", re.M)
+
+
 def source_hash(module: str) -> str:
-    """SHA-256 of the kernel source, numba's version and the Python version (a change of any of
-    them makes an extension stale)."""
-    h = hashlib.sha256(_source_file(module).read_bytes())
+    """SHA-256 of the kernel source, of the mst modules it imports (a kernel may call another
+    module's kernel or read its constants: compiled in, so a change there makes the extension stale
+    too), numba's version and the Python version (a change of any of them makes an extension stale)."""
+    src = _source_file(module).read_bytes()
+    h = hashlib.sha256(src)
+    for dep in sorted({a or b for a, b in _MST_IMPORT.findall(src)} - {module.encode()}):
+        try:
+            h.update(b"|" + dep + b"|" + _source_file(dep.decode()).read_bytes())
+        except (ModuleNotFoundError, ImportError, ValueError):  # a name, not a module: its package's source
+            h.update(b"|" + dep + b"|?")
     # numba's version without importing numba (or importlib.metadata, ~0.03 s): its _version.py
     nb = importlib.util.find_spec("numba")
     ver = Path(nb.origin).parent / "_version.py" if nb is not None and nb.origin else None
@@ -94,19 +109,60 @@ def _arg_ok(a, spec) -> bool:
             and a.flags.c_contiguous and a.flags.aligned)
 
 
+def _checker(specs: list):
+    """A function ``check(*args) -> bool`` equivalent to ``all(_arg_ok(a, s) ...)`` for the argument
+    specs ``specs`` (their count included), generated as one expression: about 1 us for 9 arguments
+    against 25 us for the loop over :func:`_arg_ok` (the edge tracker calls ~35 kernels a frame).
+    A native dtype is the interned descriptor (``is``); any other equal one passes by ``==``."""
+    env = {"_nd": np.ndarray, "_int": int, "_i64": np.int64}
+    conds = []
+    for i, (dt, nd) in enumerate(specs):
+        a = f"a{i}"
+        if nd == 0:
+            py, npt = _SCALARS.get(dt, (None, None))
+            if py is None:
+                return lambda *args: False
+            if py is int:
+                conds.append(f"((type({a}) is _int and -(1 << 63) <= {a} < (1 << 63)) or type({a}) is _i64)")
+            else:
+                env[f"_p{i}"], env[f"_n{i}"] = py, npt
+                conds.append(f"(type({a}) is _p{i} or type({a}) is _n{i})")
+        else:
+            env[f"_D{i}"] = np.dtype(dt)
+            conds.append(f"(type({a}) is _nd and {a}.ndim == {int(nd)} and ({a}.dtype is _D{i} or {a}.dtype == _D{i})"
+                         f" and (_f := {a}.flags).c_contiguous and _f.aligned)")
+    names = ", ".join(f"a{i}" for i in range(len(specs)))
+    body = " and ".join(conds) or "True"
+    exec(f"def check({names}{', ' if names else ''}*_rest):\n    return not _rest and {body}\n", env)  # noqa: S102
+    check = env["check"]
+    n = len(specs)
+
+    def guarded(*args):
+        return len(args) == n and check(*args)
+
+    return guarded
+
+
+#: per kernel name, the calls that went to numba's JIT because their argument types were not compiled
+#: ahead of time (tests check that a command's kernels all ran from the extension)
+FALLBACKS: dict[str, int] = {}
+
+
 class _AotFunction:
     """An extension function with its argument specs; other argument types go to the JIT kernel."""
 
     __slots__ = ("name", "funcs", "fallback")
 
     def __init__(self, name: str, funcs: list, fallback):
-        self.name, self.funcs, self.fallback = name, funcs, fallback
+        self.name, self.fallback = name, fallback
+        self.funcs = [(fn, _checker(specs)) for fn, specs in funcs]
 
     def __call__(self, *args):
-        for fn, specs in self.funcs:
-            if len(args) == len(specs) and all(_arg_ok(a, s) for a, s in zip(args, specs)):
+        for fn, ok in self.funcs:
+            if ok(*args):
                 return fn(*args)
         log.debug("%s: argument types not compiled ahead of time; numba JIT", self.name)
+        FALLBACKS[self.name] = FALLBACKS.get(self.name, 0) + 1
         return self.fallback()(*args)
 
 
@@ -149,19 +205,64 @@ class Kernels:
             funcs = [(getattr(mod, e["export"]), [tuple(a) for a in e["args"]]) for e in spec["kernels"][name]]
             fn = _AotFunction(name, funcs, lambda: getattr(self._jit(), name))
         if fn is None:
+            if ext:  # the extension lacks it: no signature of it in the warm-up
+                FALLBACKS[name] = FALLBACKS.get(name, 0) + 1
             fn = getattr(self._jit(), name)
         self.__dict__[name] = fn
         return fn
 
 
+def host_id() -> str:
+    """This machine's CPU as the extensions are compiled for it (its model and instruction-set flags):
+    an extension built for another CPU may use instructions this one lacks (SIGILL), so it is not
+    loaded there (the JIT path, as numba's own cache keys on the CPU). Linux: ``/proc/cpuinfo``'s
+    first ``model name`` and ``flags`` lines (no LLVM import); elsewhere LLVM's host CPU name and
+    features (``llvmlite``, ~0.06 s)."""
+    global _HOST_ID
+    if _HOST_ID is None:
+        found: dict[str, str] = {}
+        try:
+            with open("/proc/cpuinfo", encoding="utf-8", errors="replace") as f:
+                for line in f:
+                    key = line.split(":", 1)[0].strip()
+                    if key in ("model name", "flags") and key not in found:
+                        found[key] = line.split(":", 1)[1].strip()
+                        if len(found) == 2:
+                            break
+        except OSError:
+            pass
+        if len(found) == 2:
+            text = f"{found['model name']}|{found['flags']}"
+        else:
+            import llvmlite.binding as ll
+
+            text = f"{ll.get_host_cpu_name()}|{ll.get_host_cpu_features().flatten()}"
+        _HOST_ID = hashlib.sha256(f"{sys.platform}|{text}".encode()).hexdigest()[:16]
+    return _HOST_ID
+
+
+_HOST_ID: str | None = None
+
+
+def _spec_usable(module: str, spec: dict) -> bool:
+    """The spec describes an extension of the current source, compiled for this CPU (or generic)."""
+    if spec.get("source_sha256") != source_hash(module):
+        log.debug("%s: ahead-of-time kernels are stale (source changed); numba JIT", module)
+        return False
+    if spec.get("target_cpu") and spec.get("host") != host_id():
+        log.debug("%s: ahead-of-time kernels built for another CPU (%s); numba JIT", module, spec.get("target_cpu"))
+        return False
+    return True
+
+
 def is_current(module: str) -> bool:
-    """True when the extension of ``module`` exists and was built from its current source."""
+    """True when the extension of ``module`` exists, was built from its current source and for this CPU."""
     d, name = aot_dir(module), ext_name(module)
     try:
         spec = json.loads((d / f"{name}.json").read_text())
     except (OSError, ValueError):
         return False
-    return spec.get("source_sha256") == source_hash(module) and (d / (name + sysconfig.get_config_var("EXT_SUFFIX"))).is_file()
+    return _spec_usable(module, spec) and (d / (name + sysconfig.get_config_var("EXT_SUFFIX"))).is_file()
 
 
 def _load_extension(module: str):
@@ -171,8 +272,7 @@ def _load_extension(module: str):
     if not spec_path.is_file():
         return None
     spec = json.loads(spec_path.read_text())
-    if spec.get("source_sha256") != source_hash(module):
-        log.debug("%s: ahead-of-time kernels are stale (source changed); numba JIT", module)
+    if not _spec_usable(module, spec):
         return None
     so = d / (name + sysconfig.get_config_var("EXT_SUFFIX"))
     if not so.is_file():
@@ -199,10 +299,41 @@ def _arg_spec(t) -> list | None:
     return None
 
 
-def build(module: str, out_dir: Path | None = None, target_cpu: str = "") -> dict:
+def jit_signatures(module: str) -> dict[str, list]:
+    """Per kernel of ``module`` (not ``inline="always"``) the argument specs of the signatures its JIT
+    dispatcher holds (after the warm-up) that can be compiled ahead of time."""
+    import numba.core.registry
+
+    src = importlib.import_module(module)
+    out: dict[str, list] = {}
+    for a in sorted(dir(src)):
+        d = getattr(src, a)
+        if isinstance(d, numba.core.registry.CPUDispatcher) and d.targetoptions.get("inline") != "always":
+            specs = [[_arg_spec(t) for t in cres.signature.args] for cres in d.overloads.values()]
+            specs = [sp for sp in specs if all(x is not None for x in sp)]
+            if specs:
+                out[d.py_func.__name__] = specs
+    return out
+
+
+def covers(module: str) -> bool:
+    """True when the built extension of ``module`` holds every signature of :func:`jit_signatures` (a
+    warm-up that now calls a kernel more ways, or one more kernel, needs a rebuild)."""
+    try:
+        spec = json.loads((aot_dir(module) / f"{ext_name(module)}.json").read_text())
+    except (OSError, ValueError):
+        return False
+    have = {k: {json.dumps(e["args"]) for e in v} for k, v in spec.get("kernels", {}).items()}
+    return all(json.dumps(sp) in have.get(k, set()) for k, v in jit_signatures(module).items() for sp in v)
+
+
+def build(module: str, out_dir: Path | None = None, target_cpu: str | None = None) -> dict:
     """Compile the kernels of ``module`` (every module-level dispatcher with compiled signatures that
     is not ``inline="always"``) into its extension; returns the spec written. The signatures are
-    those the JIT dispatchers hold, so the warm-up must have run in this process."""
+    those the JIT dispatchers hold, so the warm-up must have run in this process. ``target_cpu``: LLVM's
+    CPU name; None = this machine's, as numba's JIT compiles (the extension then loads only on a CPU
+    with the same :func:`host_id`); ``""`` = generic x86-64, loadable anywhere but without the newer
+    vector instructions (the edge tracker's KLT kernel ran ~0.7 ms a frame slower on the tea box)."""
     import warnings
 
     import numba.core.registry
@@ -213,16 +344,28 @@ def build(module: str, out_dir: Path | None = None, target_cpu: str = "") -> dic
         warnings.simplefilter("ignore")
         from numba.pycc import CC
 
+    src = importlib.import_module(module)
+    dispatchers = [d for d in (getattr(src, a) for a in sorted(dir(src)))
+                   if isinstance(d, numba.core.registry.CPUDispatcher) and d.targetoptions.get("inline") != "always"]
+    # the error model is one per extension (the compiler's flags): the kernels' own, which must agree
+    # ("numpy": x / 0 gives inf or nan, as in the JIT kernels; "python", numba's default, raises)
+    models = {d.targetoptions.get("error_model", "python") for d in dispatchers}
+    if len(models) > 1:
+        raise ValueError(f"{module}: kernels with different error models {sorted(models)}; one extension needs one")
+    error_model = models.pop() if models else "python"
+    noalias = bool(getattr(src, "AOT_NOALIAS", False))
+
     class _GilFreeFlags(Flags):
         def __init__(self, *a, **k):
             super().__init__(*a, **k)
+            self.error_model = error_model
             self.release_gil = True  # the extension's functions release the GIL (nogil=True of the JIT)
             # array arguments marked noalias, as numba's parfors does for a prange body: LLVM may then
             # keep array pointers and shapes in registers across the loops (3x faster grid searches
-            # than without); valid because no kernel writes into an array argument
-            self.noalias = True
+            # than without); only for a module that declares ``AOT_NOALIAS = True`` (none of its
+            # kernels writes into an array argument, so aliased arguments cannot matter)
+            self.noalias = noalias
 
-    src = importlib.import_module(module)
     out_dir = Path(out_dir or aot_dir(module))
     out_dir.mkdir(parents=True, exist_ok=True)
     name = ext_name(module)
@@ -231,12 +374,14 @@ def build(module: str, out_dir: Path | None = None, target_cpu: str = "") -> dic
 
     tmp_dir = Path(tempfile.mkdtemp(prefix=".aot-", dir=out_dir))  # built aside, then renamed into place
     cc.output_dir = str(tmp_dir)
+    if target_cpu is None:
+        import llvmlite.binding as ll
+
+        target_cpu = ll.get_host_cpu_name()
     cc.target_cpu = target_cpu
     kernels: dict[str, list] = {}
-    for attr in sorted(dir(src)):
-        d = getattr(src, attr)
-        if not isinstance(d, numba.core.registry.CPUDispatcher) or d.targetoptions.get("inline") == "always":
-            continue
+    for d in dispatchers:
+        attr = d.py_func.__name__
         entries = []
         for k, cres in enumerate(d.overloads.values()):
             specs = [_arg_spec(t) for t in cres.signature.args]
@@ -247,7 +392,8 @@ def build(module: str, out_dir: Path | None = None, target_cpu: str = "") -> dic
             entries.append({"export": export, "args": specs})
         if entries:
             kernels[attr] = entries
-    spec = {"module": module, "source_sha256": source_hash(module), "spec_version": SPEC_VERSION, "kernels": kernels}
+    spec = {"module": module, "source_sha256": source_hash(module), "spec_version": SPEC_VERSION,
+            "target_cpu": target_cpu, "host": host_id() if target_cpu else "", "kernels": kernels}
     spec_path = out_dir / f"{name}.json"
     spec_path.unlink(missing_ok=True)  # a stale spec must not describe the new file while it is written
     saved = pycc_compiler.Flags

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from mst.core.aot import Kernels
 from mst.core.config import Config, param
 
 
@@ -93,6 +94,9 @@ class PyramidCache:
         return pyr
 
 
+#: the LK kernels (:mod:`mst.core.klt_kernels`): compiled ahead of time when current, numba's JIT otherwise
+_KLT_KERNELS = Kernels("mst.core.klt_kernels")
+
 #: OpenCV's default minimum eigenvalue (1e-4 of its gradient matrix over the window area, which
 #: holds the Scharr derivatives unnormalised (32 x gray levels / px) scaled by 2^-20): in (gray
 #: levels / px)^2 of the mean gradient matrix
@@ -100,8 +104,7 @@ MIN_EIG = 1e-4 * 1024.0
 
 
 def _lk(prev: Pyramid, cur: Pyramid, p0: np.ndarray, guess: np.ndarray | None, cfg: KltConfig):
-    from mst.core.klt_kernels import lk_track, lk_track_5, lk_track_11
-
+    lk_track, lk_track_5, lk_track_11 = _KLT_KERNELS.lk_track, _KLT_KERNELS.lk_track_5, _KLT_KERNELS.lk_track_11
     n = len(p0)
     out, st = np.empty((n, 2)), np.empty(n, np.uint8)
     g = p0 if guess is None else np.ascontiguousarray(guess, np.float64)

@@ -46,10 +46,11 @@ def _patch(buf, off, H, W, y0, x0, n, S, P):
         return
     for r in range(n):
         y = min(max(y0 + r, 0), H - 1)
-        row = off + y * W
-        for c in range(n):
-            x = min(max(x0 + c, 0), W - 1)
-            P[r * S + c] = np.int32(buf[row + x])
+        row_s = off + y * W
+        # not ``c``, ``row`` (uint64 above): numba.pycc types a name once per function
+        for cs in range(n):
+            x = min(max(x0 + cs, 0), W - 1)
+            P[r * S + cs] = np.int32(buf[row_s + x])
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
@@ -92,8 +93,8 @@ def _lk_body(pbase, pbuf, ptab, nbase, nbuf, ntab, pts, guess, use_guess, win, m
     Gx = np.zeros(win * S, np.int32)
     Gy = np.zeros(win * S, np.int32)
     mask = np.zeros(win * S, np.int32)
-    for k in range(win * S):
-        mask[k] = 1 if k % S < win else 0
+    for km in range(win * S):  # not ``k``: the loops below count in uint64, and numba.pycc types a name once
+        mask[km] = 1 if km % S < win else 0
     eps2 = eps * eps
     r5 = np.int32(1 << (W_BITS - 6))
     rw = np.int32(1 << (W_BITS - 1))

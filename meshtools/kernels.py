@@ -37,6 +37,11 @@ if "numba.np.arraymath" not in sys.modules and "scipy.linalg.cython_blas" not in
         del sys.modules["scipy.linalg.cython_blas"]
 
 
+#: no kernel here writes into an array argument: the ahead-of-time build may mark the array
+#: arguments noalias (mst.core.aot.build)
+AOT_NOALIAS = True
+
+
 @njit(cache=True)
 def _components(n, a, b):
     # union-find with path halving; the root of a set is always its smallest node

@@ -146,6 +146,48 @@ def test_commands_run_without_importing_numba(tmp_path):
     assert (tmp_path / "o.ply").stat().st_size > 3000 * 16 and (tmp_path / "m.wrl").stat().st_size > 0
 
 
+TRACKING = ("mst.pipeline.tracking.kernels", "mst.pipeline.tracking.covariance_kernels",
+            "mst.pipeline.tracking.exact_kernels", "mst.pipeline.zbuffer_kernels", "mst.core.klt_kernels")
+
+
+@pytest.mark.skipif(not all(aot.is_current(m) for m in TRACKING),
+                    reason="tracking kernels not built ahead of time for this source and CPU (python -m mst.eval.c2m.warmup)")
+def test_track_runs_without_importing_numba_and_gives_the_jit_poses(tmp_path):
+    """``mst track`` of a polygon model, in the default mode (edges + KLT, the mono aid on standby) and edges
+    only: with the warm-up's extensions no kernel call goes to numba's JIT (every kernel and argument type
+    the tracker uses was compiled ahead of time: numba is not even imported, ~0.8 s of start-up), and the
+    trajectories are those of the JIT kernels bit for bit (``MST_AOT=0``)."""
+    from mst.eval.bench.slam import SAMPLE_MODEL
+    from mst.pipeline.synth import SynthConfig, synthesize
+
+    seq = tmp_path / "seq"
+    synthesize("orbit", SAMPLE_MODEL, seq, SynthConfig(frames=6, width=320, height=240, depth=False, aa_samples=4,
+                                                       texture_size=512))
+    code = ("import sys; from mst.cli.main import cli\n"
+            "for slam in ('auto', 'off'):\n"
+            "    try:\n"
+            "        cli(['track', sys.argv[1] + '/rgb', '--model', sys.argv[1] + '/model.obj', '--camera',\n"
+            "             sys.argv[1] + '/camera.json', '--init', sys.argv[1] + '/cMo/000000.txt', '--fps', '30',\n"
+            "             '-o', sys.argv[2] + '/' + slam + '.txt', '--slam', slam, '-q'])\n"
+            "    except SystemExit as e:\n        assert not e.code, e.code\n"
+            "from mst.core import aot\n"
+            "print('numba' in sys.modules, sorted(aot.FALLBACKS))")
+    base = {k: v for k, v in os.environ.items() if k not in ("MST_AOT", "MST_AOT_DIR")}
+    outs = {}
+    for flag in ("1", "0"):
+        out = tmp_path / f"aot{flag}"
+        out.mkdir()
+        r = subprocess.run([sys.executable, "-c", code, str(seq), str(out)], capture_output=True, text=True,
+                           env=dict(base, MST_AOT=flag), timeout=300)
+        assert r.returncode == 0, r.stderr[-2000:]
+        outs[flag] = (out, r.stdout.strip().splitlines()[-1])
+    assert outs["1"][1] == "False []", outs["1"][1]  # no numba, no call to the JIT
+    assert outs["0"][1].startswith("True"), outs["0"][1]  # the JIT run is one (the comparison is not vacuous)
+    for slam in ("auto", "off"):
+        a, j = ((outs[f][0] / f"{slam}.txt").read_text() for f in ("1", "0"))
+        assert len(a.splitlines()) >= 5 and a == j, slam
+
+
 @pytest.mark.slow
 def test_build_from_scratch_matches_the_jit(tmp_path, monkeypatch):
     """The whole build (warm-up signatures -> extension) into an empty folder, then the results."""

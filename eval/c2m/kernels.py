@@ -51,6 +51,11 @@ if "numba.np.arraymath" not in sys.modules and "scipy.linalg.cython_blas" not in
 numba.config.THREADING_LAYER_PRIORITY = ["omp", "workqueue", "tbb"]
 
 
+#: no kernel here writes into an array argument: the ahead-of-time build may mark the array
+#: arguments noalias (mst.core.aot.build)
+AOT_NOALIAS = True
+
+
 @njit(cache=True, inline="always")
 def _seg(qx, qy, qz, dx, dy, dz):
     den = dx * dx + dy * dy + dz * dz

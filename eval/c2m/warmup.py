@@ -13,9 +13,10 @@ does not compile either; and ``convert-model``'s kernels (:mod:`mst.meshtools.ke
 ``python -m mst.eval.c2m.warmup --json`` prints, per kernel, the signatures loaded from the cache
 (``cache_hits``) and compiled in this process (``cache_misses``): a second run must show no misses.
 
-Then the C2M and convert-model kernels are compiled ahead of time (:mod:`mst.core.aot`, with the
-signatures the warm-up gave them) into extension modules that ``mst c2m`` and ``mst convert-model``
-load without importing numba (about 0.45 s less per process); skipped when the extensions of the
+Then the C2M, convert-model and edge-tracker kernels (:data:`AOT_MODULES`) are compiled ahead of time
+(:mod:`mst.core.aot`, with the signatures the warm-up gave them) into extension modules that ``mst c2m``,
+``mst convert-model`` and ``mst track`` (polygon models, edges and KLT) load without importing numba
+(about 0.45 s less per c2m process, ~0.8 s per track process); skipped when the extensions of the
 current sources exist (``--force-aot`` rebuilds, ``--no-aot`` skips), and left to the JIT path when
 no C compiler is available. The warm-up itself always runs the JIT kernels (``MST_AOT=0``).
 """
@@ -98,6 +99,14 @@ def warm_tracking() -> None:
     for lod in (0.0, 12.0):  # also the face angles, the face areas and the depth buffer's set-up (non-convex)
         S = visible_samples(geom, Tl, K, 80, 60, 4.0, 0.01, None, 80.0, 85.0, lod_min_line_px=lod,
                             lod_min_face_px2=4.0 * lod)
+    # the point transform (depth_buffer._mat3: a pose's strided R made contiguous) and the covariance's PSD
+    # floor (vvs.VVSResult.cov with enough clusters), so that both are compiled ahead of time too
+    from mst.pipeline.tracking.covariance import psd_max
+    from mst.pipeline.tracking.depth_buffer import _mat3
+
+    _mat3(geom.vertices, Tl[:3, :3], Tl[:3, 3])
+    _mat3(geom.vertices, Tl[:3, :3])
+    psd_max(np.eye(6), 2.0 * np.eye(6))
     # the health tests and the evidence gradients (EdgeTracker._absolute_health, evidence)
     from mst.pipeline.tracking.kernels import pose_gradients, pose_health
 
@@ -193,7 +202,9 @@ def kernel_stats() -> dict[str, dict]:
 
 
 #: the numba modules compiled ahead of time (their callers go through mst.core.aot.Kernels)
-AOT_MODULES = ("mst.eval.c2m.kernels", "mst.meshtools.kernels")
+AOT_MODULES = ("mst.eval.c2m.kernels", "mst.meshtools.kernels", "mst.pipeline.tracking.kernels",
+               "mst.pipeline.tracking.covariance_kernels", "mst.pipeline.tracking.exact_kernels",
+               "mst.pipeline.zbuffer_kernels", "mst.core.klt_kernels")
 
 
 def build_aot(force: bool = False) -> dict[str, str]:
@@ -205,7 +216,7 @@ def build_aot(force: bool = False) -> dict[str, str]:
 
     out = {}
     for m in AOT_MODULES:
-        if not force and aot.is_current(m):
+        if not force and aot.is_current(m) and aot.covers(m):
             out[m] = "current"
             continue
         importlib.import_module(m)

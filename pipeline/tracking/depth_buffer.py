@@ -12,6 +12,9 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from mst.pipeline.tracking.compiled import kernels as _kc  # ahead of time or numba JIT
+from mst.pipeline.tracking.compiled import zbuffer as _kz
+
 if TYPE_CHECKING:
     from mst.pipeline.tracking.visibility import ModelGeometry
 
@@ -27,14 +30,17 @@ def _mat3(X: np.ndarray, M: np.ndarray, t=None) -> np.ndarray:
     samples), others through numpy."""
     if X.dtype == np.float64 and M.dtype == np.float64 and X.ndim == 2 and X.shape[1] == 3 and M.shape == (3, 3) \
             and (t is None or np.asarray(t).dtype == np.float64):
-        from mst.pipeline.tracking.kernels import mat3_kernel
+        mat3_kernel = _kc.mat3_kernel
 
         out = np.empty((len(X), 3))
         # t as a C-contiguous (3,) vector, one kernel signature (np.broadcast_to took ~5 us a call)
         tt = _NO_T if t is None else np.ascontiguousarray(t, np.float64)
         if tt.shape != (3,):  # a scalar or (1,): broadcast
             tt = np.ascontiguousarray(np.broadcast_to(tt, (3,)))
-        mat3_kernel(X, M, tt, t is not None, out)
+        # C-contiguous operands (a pose's R = T[:3, :3] is a strided view): the one signature compiled
+        # ahead of time (mst.pipeline.tracking.compiled); a copy of 9 numbers or of an already
+        # contiguous array costs nothing
+        mat3_kernel(np.ascontiguousarray(X), np.ascontiguousarray(M), tt, t is not None, out)
         return out
     return _mat3_numpy(X, M, t)
 
@@ -178,7 +184,7 @@ def _render_buffer(geom, T_cam_model, K, width, height, faces, near, scale, Xc_a
     """The rendering of :func:`inverse_depth_buffer` (its docstring), uncached."""
     import cv2
 
-    from mst.pipeline.zbuffer_kernels import fill_faces
+    fill_faces = _kz.fill_faces
 
     W, H = max(1, int(round(width * scale))), max(1, int(round(height * scale)))
     buf = np.zeros((H, W), np.float32)
@@ -202,7 +208,7 @@ def _render_buffer(geom, T_cam_model, K, width, height, faces, near, scale, Xc_a
         with np.errstate(divide="ignore", invalid="ignore"):
             coef[sel] = _mat3(n_c, Kinv.T) / d[:, None]
     else:  # the same operations in their order, in one kernel
-        from mst.pipeline.tracking.kernels import zbuffer_planes
+        zbuffer_planes = _kc.zbuffer_planes
 
         d = zbuffer_planes(geom.face_normals, geom.face_point, sel.astype(np.int64, copy=False), np.ascontiguousarray(R, np.float64),
                            np.ascontiguousarray(t, np.float64), Kinv, coef)
@@ -224,7 +230,7 @@ def _render_buffer(geom, T_cam_model, K, width, height, faces, near, scale, Xc_a
             uu[rv] = (Ks[0, 0] * Xr[:, 0] + Ks[0, 1] * Xr[:, 1]) / z + Ks[0, 2]
             vv[rv] = Ks[1, 1] * Xr[:, 1] / z + Ks[1, 2]
     else:  # the same in one kernel, from the model vertices (the values of Xc_all, which it need not read)
-        from mst.pipeline.tracking.kernels import zbuffer_faces
+        zbuffer_faces = _kc.zbuffer_faces
 
         loop_end = geom.__dict__.get("_loop_end")
         if loop_end is None:

@@ -24,6 +24,7 @@ import numpy as np
 
 from mst.core.poses import inv_T, transform_points
 from mst.errors import SolveStatus
+from mst.pipeline.tracking.compiled import kernels as _kc  # ahead of time or numba JIT
 from mst.pipeline.tracking.config import (
     TrackConfig,
     lod_thresholds,
@@ -173,7 +174,6 @@ class EdgeTracker:
         return explain_no_samples(S.stats, self.near_m or 0.0, self.cfg.far_clip_m, self.lod)
 
     def _edge_pass(self, img, K, T, search_range, ref_img, ref_T, klt=None, min_mad_px=None):
-        from mst.pipeline.tracking.kernels import project_uv
         from mst.pipeline.tracking.moving_edges import canonical_normals, reference_contrast, search_edges
         from mst.pipeline.tracking.vvs import solve_pose
 
@@ -187,7 +187,7 @@ class EdgeTracker:
         ref = None
         if ref_img is not None:
             # the samples in the reference frame (transform_points(elementwise=True)'s bits), one kernel
-            uvp = project_uv(np.ascontiguousarray(S.X_model, np.float64), np.ascontiguousarray(ref_T, np.float64),
+            uvp = _kc.project_uv(np.ascontiguousarray(S.X_model, np.float64), np.ascontiguousarray(ref_T, np.float64),
                              float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]))
             ref = reference_contrast(ref_img, uvp, normal, midx, c.mask_px, c.n_masks)
         m = search_edges(img, S.uv, normal, ref, search_range=int(search_range), threshold=c.edge_threshold,
@@ -311,11 +311,10 @@ class EdgeTracker:
         if len(S) == 0 or (S.model_edge is None and not edgelets):
             z = np.zeros(0)
             return PoseEvidence(z.astype(np.int64), z.astype(np.int8), z.astype(bool), z)
-        from mst.pipeline.tracking.kernels import pose_gradients
 
         K = self.K
         # projection, model normals and the strongest Sobel gradient within +-1 px along them in one kernel
-        uv, n, sign, good = pose_gradients(
+        uv, n, sign, good = _kc.pose_gradients(
             _image(gray), np.ascontiguousarray(S.X_model, np.float64), np.ascontiguousarray(S.A_model, np.float64),
             np.ascontiguousarray(S.B_model, np.float64), np.ascontiguousarray(S.edge, np.int64),
             np.ascontiguousarray(T_cam_model, np.float64), float(K[0, 0]), float(K[1, 1]), float(K[0, 2]),
@@ -342,7 +341,6 @@ class EdgeTracker:
         numpy formulation is :meth:`_surface_values_numpy`)."""
         if not len(self.surf_X) or face_visible is None:
             return np.zeros(0, np.int64), np.zeros(0)
-        from mst.pipeline.tracking.kernels import surface_values
 
         H, W = gray.shape
         buf, sc = _NO_BUFFER, 1.0
@@ -351,7 +349,7 @@ class EdgeTracker:
 
             buf, sc = inverse_depth_buffer(self.geom, T, self.K, W, H, face_visible, self.near(T), 0.5)
         K = self.K
-        return surface_values(_image(gray), self.surf_X, self.surf_face, np.ascontiguousarray(face_visible, np.bool_),
+        return _kc.surface_values(_image(gray), self.surf_X, self.surf_face, np.ascontiguousarray(face_visible, np.bool_),
                               np.ascontiguousarray(T, np.float64), float(K[0, 0]), float(K[1, 1]), float(K[0, 2]),
                               float(K[1, 2]), float(self.near(T)), buf, float(sc), not self.geom.convex)
 
@@ -477,13 +475,12 @@ class EdgeTracker:
         """The absolute health tests of a solved pose: projection error (gradient vs model normal)
         at the final pose, gradient support, inlier ratio, sample count, model in front. Returns
         ``(healthy, reason, uv (N, 2) the samples at T, support, projection error deg)``."""
-        from mst.pipeline.tracking.kernels import pose_health
 
         c = self.cfg
         K = self.K
         # projection, model normals, Sobel gradient, strong share and mean angle in one kernel; the
         # strength test in float32 as numpy's on the float32 gradient norm
-        uv, in_front, n_strong, ang_sum = pose_health(
+        uv, in_front, n_strong, ang_sum = _kc.pose_health(
             _image(img), np.ascontiguousarray(S.X_model, np.float64), np.ascontiguousarray(S.A_model, np.float64),
             np.ascontiguousarray(S.B_model, np.float64), np.ascontiguousarray(S.edge, np.int64),
             np.ascontiguousarray(T, np.float64), float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]),

@@ -16,7 +16,9 @@ under ``OPENBLAS_CORETYPE=Sandybridge``, and the demo's UAV pass output 157, 80 
   singular matrix (``numpy.linalg.LinAlgError``, as ``numpy.linalg.inv`` raises). Used for the
   pose covariance (an output, and the health tests' Mahalanobis distances).
 
-Single-threaded, ``cache=True`` (warmed by :mod:`mst.eval.c2m.warmup` through ``solve_pose``).
+The kernel is :func:`mst.pipeline.tracking.exact_kernels._lu_solve` (compiled ahead of time or
+numba's JIT, :mod:`mst.pipeline.tracking.compiled`). Single-threaded, ``cache=True`` (warmed by
+:mod:`mst.eval.c2m.warmup` through ``solve_pose``).
 Transcendental functions (sin, exp, atan2) are not covered: numpy's SIMD versions and glibc's FMA
 variants differ by an ulp between CPUs (tests/test_reproducibility_cpu.py runs those variants too).
 """
@@ -24,46 +26,8 @@ variants differ by an ulp between CPUs (tests/test_reproducibility_cpu.py runs t
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
 
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def _lu_solve(A, B):
-    """Solve ``A X = B`` in place (``A`` (n, n) overwritten by its LU factors, ``B`` (n, m) by X).
-    Returns False on an exact zero pivot (singular)."""
-    n = A.shape[0]
-    m = B.shape[1]
-    for k in range(n):
-        p = k
-        best = abs(A[k, k])
-        for i in range(k + 1, n):
-            v = abs(A[i, k])
-            if v > best:
-                best = v
-                p = i
-        if best == 0.0:  # an exact zero column: singular (NaN propagates, as through LAPACK)
-            return False
-        if p != k:
-            for j in range(n):
-                A[k, j], A[p, j] = A[p, j], A[k, j]
-            for j in range(m):
-                B[k, j], B[p, j] = B[p, j], B[k, j]
-        d = A[k, k]
-        for i in range(k + 1, n):
-            f = A[i, k] / d
-            A[i, k] = f
-            for j in range(k + 1, n):
-                A[i, j] = A[i, j] - f * A[k, j]
-            for j in range(m):
-                B[i, j] = B[i, j] - f * B[k, j]
-    for k in range(n - 1, -1, -1):
-        d = A[k, k]
-        for j in range(m):
-            s = B[k, j]
-            for c in range(k + 1, n):
-                s = s - A[k, c] * B[c, j]
-            B[k, j] = s / d
-    return True
+from mst.pipeline.tracking.compiled import exact as _ek  # the LU kernel (mst.pipeline.tracking.exact_kernels)
 
 
 def solve(A: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -73,7 +37,7 @@ def solve(A: np.ndarray, b: np.ndarray) -> np.ndarray:
     A = np.array(A, dtype=np.float64, order="C")
     b = np.asarray(b, dtype=np.float64)
     B = np.array(b.reshape(len(b), -1), dtype=np.float64, order="C")
-    if not _lu_solve(A, B):
+    if not _ek._lu_solve(A, B):
         raise np.linalg.LinAlgError("Singular matrix")
     return B.reshape(b.shape)
 

@@ -13,11 +13,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from mst.pipeline.tracking.compiled import kernels as _kc  # ahead of time or numba JIT
+
 
 def sobel_at(img: np.ndarray, uv: np.ndarray) -> np.ndarray:
     """(N,2) Sobel gradient (gx, gy) of ``img`` at the nearest pixels of ``uv`` (a numba kernel,
     :func:`mst.pipeline.tracking.kernels.sobel_at`: :func:`sobel_at_numpy`'s values to the bit)."""
-    from mst.pipeline.tracking.kernels import sobel_at as _kernel
+    _kernel = _kc.sobel_at
 
     if img.dtype != np.uint8 and img.dtype != np.float32:
         img = img.astype(np.float32)

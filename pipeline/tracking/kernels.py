@@ -150,14 +150,14 @@ def me_select(conv, k_eff, ks, R, ref, has_ref, threshold, mu1, mu2, edge, vote,
             rf = ref[i]
             strong = abs(rf) >= thr
             for m in range(M):
-                c = conv[i, m]
+                cv = conv[i, m]
                 if strong:
-                    ratio = c / rf
-                    lc = abs(c + rf)
+                    ratio = cv / rf
+                    lc = abs(cv + rf)
                     like[i, m] = lc
                     ok[i, m] = (ratio > lo) and (ratio < hi) and (lc > thr2)
                 else:
-                    ln = two * abs(c)
+                    ln = two * abs(cv)
                     like[i, m] = ln
                     ok[i, m] = ln > thr2
         else:
@@ -193,8 +193,8 @@ def me_select(conv, k_eff, ks, R, ref, has_ref, threshold, mu1, mu2, edge, vote,
             pol = 1.0 if a > 0 else (-1.0 if a < 0 else 0.0)
             if pol != 0.0:
                 for m in range(M):
-                    c = conv[i, m]
-                    sg = 1.0 if c > 0 else (-1.0 if c < 0 else 0.0)
+                    cm = conv[i, m]  # not ``c`` (nor above): numba.pycc types a reused name once (``c`` is an index below)
+                    sg = 1.0 if cm > 0 else (-1.0 if cm < 0 else 0.0)
                     if sg != pol:
                         ok[i, m] = False
     off = np.empty((N, C))
@@ -607,13 +607,13 @@ def vvs_solve(X, e, AB, nE, cu, cv, Xk, uk, T0, fx, fy, cx, cy, iters, lm_mu, mi
         if nk:
             _rigid(Xk, T, Xck)
             for i in range(nk):
-                q = 1.0 / Xck[i, 2]
-                xk, yk = Xck[i, 0] * q, Xck[i, 1] * q
+                izk = 1.0 / Xck[i, 2]  # not ``q``, an index below: numba.pycc typed the reused name once
+                xk, yk = Xck[i, 0] * izk, Xck[i, 1] * izk
                 rk[i] = fx * xk + cx - uk[i, 0]
                 rk[nk + i] = fy * yk + cy - uk[i, 1]
-                Jk[i, 0], Jk[i, 1], Jk[i, 2] = fx * q, 0.0, -fx * xk * q
+                Jk[i, 0], Jk[i, 1], Jk[i, 2] = fx * izk, 0.0, -fx * xk * izk
                 Jk[i, 3], Jk[i, 4], Jk[i, 5] = -fx * xk * yk, fx * (1.0 + xk * xk), -fx * yk
-                Jk[nk + i, 0], Jk[nk + i, 1], Jk[nk + i, 2] = 0.0, fy * q, -fy * yk * q
+                Jk[nk + i, 0], Jk[nk + i, 1], Jk[nk + i, 2] = 0.0, fy * izk, -fy * yk * izk
                 Jk[nk + i, 3], Jk[nk + i, 4], Jk[nk + i, 5] = -fy * (1.0 + yk * yk), fy * xk * yk, fy * xk
         if have_prev:
             cost_new = 0.0

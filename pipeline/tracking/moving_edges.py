@@ -27,6 +27,8 @@ from functools import lru_cache
 
 import numpy as np
 
+from mst.pipeline.tracking.compiled import kernels as _kc  # ahead of time or numba JIT
+
 
 @lru_cache(maxsize=8)
 def make_masks(size: int, n_masks: int) -> tuple[np.ndarray, np.ndarray]:
@@ -59,7 +61,7 @@ def canonical_normals(normal: np.ndarray, n_masks: int) -> tuple[np.ndarray, np.
     normal = np.asarray(normal)
     if normal.dtype != np.float64 or normal.ndim != 2 or normal.shape[1] != 2:
         return canonical_normals_numpy(normal, n_masks)
-    from mst.pipeline.tracking.kernels import canonical_normals_kernel
+    canonical_normals_kernel = _kc.canonical_normals_kernel
 
     ang = np.degrees(np.arctan2(normal[:, 1], normal[:, 0]))
     n = np.empty((len(normal), 2))
@@ -114,7 +116,7 @@ class EdgeMatches:
 
     def candidates_uv(self, uv: np.ndarray) -> np.ndarray:
         """(N, C, 2) candidate pixel positions (one kernel: numpy's broadcast's bits)."""
-        from mst.pipeline.tracking.kernels import candidates_uv_kernel
+        candidates_uv_kernel = _kc.candidates_uv_kernel
 
         return candidates_uv_kernel(np.ascontiguousarray(uv, np.float64), np.ascontiguousarray(self.offset, np.float64),
                                     np.ascontiguousarray(self.normal, np.float64))
@@ -132,7 +134,7 @@ def _convolve(img: np.ndarray, uv: np.ndarray, normal: np.ndarray, ks: np.ndarra
     """:func:`convolve_along` in one numba kernel (:func:`mst.pipeline.tracking.kernels.me_convolve`:
     the same pixels, each convolution summed in float64 and rounded once to float32, so within one
     float32 rounding of numpy's BLAS product, and the same on every CPU)."""
-    from mst.pipeline.tracking.kernels import me_convolve
+    me_convolve = _kc.me_convolve
 
     N, M = len(uv), len(ks)
     conv = np.empty((N, M), np.float32)
@@ -146,7 +148,7 @@ def _convolve(img: np.ndarray, uv: np.ndarray, normal: np.ndarray, ks: np.ndarra
 def reference_contrast(img_prev: np.ndarray, uv_prev: np.ndarray, normal: np.ndarray, mask_idx: np.ndarray,
                        size: int, n_masks: int, reach: int = 2) -> np.ndarray:
     """Convolution of the strongest response within ``+-reach`` px of each sample in the previous image."""
-    from mst.pipeline.tracking.kernels import strongest
+    strongest = _kc.strongest
 
     masks, moff = make_masks(size, n_masks)
     conv, _ = _convolve(img_prev, uv_prev, normal, np.arange(-reach, reach + 1, dtype=np.float64), mask_idx, masks,
@@ -175,7 +177,7 @@ def search_edges(img: np.ndarray, uv: np.ndarray, normal: np.ndarray, ref: np.nd
     convolutions by the same float32 matrix product as :func:`search_edges_numpy` (see there for the
     tests and the vote): the same outputs to the bit.
     """
-    from mst.pipeline.tracking.kernels import me_select
+    me_select = _kc.me_select
 
     if mask_idx is None:
         normal, mask_idx = canonical_normals(normal, n_masks)

@@ -63,6 +63,7 @@ import numpy as np
 
 from mst import InputError
 from mst.errors import ConfigError
+from mst.pipeline.tracking.compiled import kernels as _kc  # ahead of time or numba JIT
 
 log = logging.getLogger(__name__)
 
@@ -475,7 +476,7 @@ def crossing_offsets(img, uv, n_out, offset, normal) -> np.ndarray:
     :func:`crossing_offsets_numpy` in their order, the same bits; issue #14: 1.9 ms a call on the box-and-cylinder
     orbit's ~250 contour samples x 2 candidates, two calls a frame).
     """
-    from mst.pipeline.tracking.kernels import contour_crossings
+    contour_crossings = _kc.contour_crossings
 
     t, ramp, bg, win = _profile_layout()
     ti = t[ramp]
@@ -540,7 +541,7 @@ def contour_side_test(img, K, uv, n_out, X_model, offset, normal, ref_img, ref_T
     background edge's inner side is background, ``|contrast|`` away. Blob orbit at the true pose (640x480):
     21 % of silhouette candidates > 1 px off before.
     """
-    from mst.pipeline.tracking.kernels import contour_sides
+    contour_sides = _kc.contour_sides
 
     Xc = X_model @ ref_T[:3, :3].T + ref_T[:3, 3]
     z = np.maximum(Xc[:, 2], 1e-9)

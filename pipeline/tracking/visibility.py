@@ -36,6 +36,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from mst.pipeline.tracking.compiled import kernels as _kc  # ahead of time or numba JIT
 from mst.pipeline.tracking.depth_buffer import _loops_of, _mat3, eroded_buffer, inverse_depth_buffer  # noqa: F401 (re-exported)
 from mst.pipeline.tracking.edge_joints import flat_t_junctions
 from mst.pipeline.tracking.spatial_index import INDEX_MIN_FACES, FaceIndex, csr_gather, frustum_planes
@@ -214,7 +215,7 @@ def face_visibility(geom: ModelGeometry, T_cam_model: np.ndarray, prev: np.ndarr
     The angles and the hysteresis in one numba kernel (:func:`mst.pipeline.tracking.kernels.face_visibility_kernel`,
     the angles of :func:`mst.pipeline.tracking.kernels.face_angles`; issue #14: the numpy steps around
     it were ~15 us of each of the two calls a frame)."""
-    from mst.pipeline.tracking.kernels import face_visibility_kernel
+    face_visibility_kernel = _kc.face_visibility_kernel
 
     R, t = T_cam_model[:3, :3], T_cam_model[:3, 3]
     c_model = -R.T @ t  # camera centre in the model frame (as face_visibility_numpy)
@@ -301,7 +302,7 @@ def frustum_faces(geom: ModelGeometry, T_cam_model: np.ndarray, K: np.ndarray, w
     if not F:
         return np.zeros(0, bool)
     if counts is None:  # one kernel (kernels.frustum_cull): a few us instead of ~15 numpy calls a frame
-        from mst.pipeline.tracking.kernels import frustum_cull
+        frustum_cull = _kc.frustum_cull
 
         out = np.zeros(F, np.bool_)
         sel_i = np.arange(F, dtype=np.int64) if among is None else np.ascontiguousarray(among, np.int64)
@@ -358,7 +359,7 @@ def projected_face_area_px2(geom: ModelGeometry, T_cam_model: np.ndarray, K: np.
     if not len(sel):
         return area
     if not _numpy_reference:  # one kernel, the same bits (kernels.face_areas_px2)
-        from mst.pipeline.tracking.kernels import face_areas_px2
+        face_areas_px2 = _kc.face_areas_px2
 
         Xc = _mat3(geom.vertices, T_cam_model[:3, :3], T_cam_model[:3, 3]) if Xc_all is None else Xc_all
         face_areas_px2(np.ascontiguousarray(Xc, np.float64), geom.loop_vid, geom.loop_start, _loop_end(geom),
@@ -452,7 +453,7 @@ def visible_samples(geom: ModelGeometry, T_cam_model: np.ndarray, K: np.ndarray,
     if _numpy_reference:
         from mst.pipeline.tracking.visibility_numpy import _candidate_edges_numpy as candidate_edges
     else:  # one kernel
-        from mst.pipeline.tracking.kernels import candidate_edges
+        candidate_edges = _kc.candidate_edges
     # the edges with a front face in view (the free lines too); small_face: none of them big enough
     eid, E, small_face = candidate_edges(geom.edges, geom.edge_faces, np.ascontiguousarray(e_sel, np.int64),
                                          np.ascontiguousarray(fv, np.bool_), np.ascontiguousarray(fv_big, np.bool_))
@@ -468,7 +469,7 @@ def visible_samples(geom: ModelGeometry, T_cam_model: np.ndarray, K: np.ndarray,
 
         out = _edge_samples_numpy(*args)
     else:
-        from mst.pipeline.tracking.kernels import edge_samples
+        edge_samples = _kc.edge_samples
 
         out = edge_samples(*args)
     counts, z_min, kept, pa, pb, A_model, B_model, uv, nrm, iz, Xc, edge_id = out
@@ -490,7 +491,7 @@ def visible_samples(geom: ModelGeometry, T_cam_model: np.ndarray, K: np.ndarray,
 
             buf = eroded_buffer(geom, T_cam_model, K, width, height, fv, near, zbuffer_scale)[1]
         else:
-            from mst.pipeline.tracking.kernels import unhidden_samples
+            unhidden_samples = _kc.unhidden_samples
 
             buf = inverse_depth_buffer(geom, T_cam_model, K, width, height, fv, near, zbuffer_scale)[0]
         n_hidden, uv, nrm, Xc, edge_id, X_model = unhidden_samples(buf, uv, iz, float(zbuffer_scale), nrm, Xc, edge_id,

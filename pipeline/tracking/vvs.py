@@ -46,6 +46,7 @@ import numpy as np
 
 from mst.core.poses import se3_exp as _se3_exp_batch
 from mst.errors import SolveStatus
+from mst.pipeline.tracking.compiled import kernels as _kc  # ahead of time or numba JIT
 
 
 def se3_exp(xi: np.ndarray) -> np.ndarray:
@@ -277,7 +278,7 @@ def solve_pose(T0: np.ndarray, K: np.ndarray, X_model: np.ndarray, edge: np.ndar
     and product in a fixed order without BLAS: the pose of :func:`solve_pose_numpy` within rounding
     (~1e-15 relative; tests/test_tracking_kernels.py), and the same on every CPU and BLAS kernel.
     """
-    from mst.pipeline.tracking.kernels import vvs_inputs, vvs_solve
+    vvs_inputs, vvs_solve = _kc.vvs_inputs, _kc.vvs_solve
 
     fx, fy, cx, cy = float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2])
     # the samples with a candidate and their candidates, non-finite coordinates at 1e9 (one kernel)
