@@ -146,6 +146,38 @@ def test_commands_run_without_importing_numba(tmp_path):
     assert (tmp_path / "o.ply").stat().st_size > 3000 * 16 and (tmp_path / "m.wrl").stat().st_size > 0
 
 
+def test_generated_dispatch_accepts_exactly_the_compiled_argument_types():
+    """The generated check of :func:`mst.core.aot._aot_function` agrees with the reference rule
+    :func:`mst.core.aot._arg_ok` on every kind of mismatch (an argument the extension was not compiled
+    for would be read with the wrong layout or type: silent garbage, not an error), and picks the right
+    one of several signatures; the rest goes to the JIT and is counted."""
+    specs = [("float64", 2), ("float64", 1), ("int64", 1), ("float64", 0), ("int64", 0), ("bool", 0), ("bool", 1)]
+    f = aot._aot_function("t_gen", [(lambda *a: "aot", specs)], lambda: (lambda *a: "jit"))
+    A = (np.zeros((4, 3)), np.zeros(4), np.zeros(4, np.int64), 0.5, 3, True, np.zeros(4, np.bool_))
+    variants = [A, A[:-1], A + (1,), (),
+                (np.zeros((3, 4)).T,) + A[1:],                       # not C-contiguous
+                (np.zeros((4, 3), np.float32),) + A[1:],             # dtype
+                (np.zeros(12),) + A[1:],                             # rank
+                A[:1] + (np.zeros(8)[::2],) + A[2:],                 # strided 1-D
+                A[:2] + (np.zeros(4, ">i8"),) + A[3:],               # byte order
+                A[:2] + (np.zeros(4, np.int32),) + A[3:],
+                A[:3] + (1,) + A[4:], A[:3] + (np.float64(0.5),) + A[4:], A[:3] + (np.float32(0.5),) + A[4:],
+                A[:4] + (2 ** 63,) + A[5:], A[:4] + (np.int64(-3),) + A[5:], A[:4] + (True,) + A[5:], A[:4] + (3.0,) + A[5:],
+                A[:5] + (1,) + A[6:], A[:5] + (np.bool_(False),) + A[6:],
+                A[:6] + (np.frombuffer(np.zeros(5, np.uint8).tobytes(), np.bool_)[1:],) + A[7:],  # read-only view
+                A[:6] + ([True] * 4,)]
+    aot.FALLBACKS.pop("t_gen", None)
+    expect_jit = 0
+    for v in variants:
+        ref = len(v) == len(specs) and all(aot._arg_ok(a, s) for a, s in zip(v, specs))
+        assert (f(*v) == "aot") == ref, (len(v), [type(a) for a in v])
+        expect_jit += not ref
+    assert expect_jit >= 15 and aot.FALLBACKS["t_gen"] == expect_jit
+    g = aot._aot_function("t_two", [(lambda *a: "i", [("int64", 0)]), (lambda *a: "f", [("float64", 1)])],
+                          lambda: (lambda *a: "jit"))
+    assert (g(1), g(np.zeros(2)), g(np.zeros(2, np.float32)), g(1.0)) == ("i", "f", "jit", "jit")
+
+
 TRACKING = ("mst.pipeline.tracking.kernels", "mst.pipeline.tracking.covariance_kernels",
             "mst.pipeline.tracking.exact_kernels", "mst.pipeline.zbuffer_kernels", "mst.core.klt_kernels")
 
