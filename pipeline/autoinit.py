@@ -46,8 +46,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from mst import InputError
+from mst.core.aot import Kernels
 from mst.core.config import Config, param
 from mst.core.poses import inv_T, so3_exp, so3_log, transform_points
+
+#: the search kernels (:mod:`mst.pipeline.autoinit_kernels`): ahead of time when built, else numba's JIT
+_AK = Kernels("mst.pipeline.autoinit_kernels")
 
 
 @dataclass
@@ -229,7 +233,7 @@ class _EdgeScorer:
         shift (M, 2) px (or (k, M, 2): a shift set per similarity); at most ``shift_samples`` samples, evenly spaced; a sample moved out of the
         image is a miss. ``coarse``: on the distance transforms eroded by half the coarse grid step
         (a grid node then scores as well as the best position within its cell)."""
-        from mst.pipeline.autoinit_kernels import sim_own_shift_means, sim_shift_means
+        sim_own_shift_means, sim_shift_means = _AK.sim_own_shift_means, _AK.sim_shift_means
 
         D = self.D_coarse if coarse else self.D
         idx = np.linspace(0, len(s) - 1, min(len(s), self.cfg.shift_samples)).astype(np.int64)

@@ -13,10 +13,11 @@ does not compile either; and ``convert-model``'s kernels (:mod:`mst.meshtools.ke
 ``python -m mst.eval.c2m.warmup --json`` prints, per kernel, the signatures loaded from the cache
 (``cache_hits``) and compiled in this process (``cache_misses``): a second run must show no misses.
 
-Then the C2M, convert-model and edge-tracker kernels (:data:`AOT_MODULES`) are compiled ahead of time
-(:mod:`mst.core.aot`, with the signatures the warm-up gave them) into extension modules that ``mst c2m``,
-``mst convert-model`` and ``mst track`` (polygon models, edges and KLT) load without importing numba
-(about 0.45 s less per c2m process, ~0.8 s per track process); skipped when the extensions of the
+Then the C2M, convert-model, edge-tracker, navigation-filter and initialisation-search kernels
+(:data:`AOT_MODULES`) are compiled ahead of time (:mod:`mst.core.aot`, with the signatures the warm-up
+gave them) into extension modules that ``mst c2m``, ``mst convert-model``, ``mst track``, ``mst init`` and
+``mst nav fuse`` load without importing numba (about 0.45 s less per c2m process, ~0.8 s per track
+process); skipped when the extensions of the
 current sources exist (``--force-aot`` rebuilds, ``--no-aot`` skips), and left to the JIT path when
 no C compiler is available. The warm-up itself always runs the JIT kernels (``MST_AOT=0``).
 """
@@ -204,7 +205,8 @@ def kernel_stats() -> dict[str, dict]:
 #: the numba modules compiled ahead of time (their callers go through mst.core.aot.Kernels)
 AOT_MODULES = ("mst.eval.c2m.kernels", "mst.meshtools.kernels", "mst.pipeline.tracking.kernels",
                "mst.pipeline.tracking.covariance_kernels", "mst.pipeline.tracking.exact_kernels",
-               "mst.pipeline.zbuffer_kernels", "mst.core.klt_kernels")
+               "mst.pipeline.zbuffer_kernels", "mst.core.klt_kernels", "mst.pipeline.nav.kernels",
+               "mst.pipeline.autoinit_kernels")
 
 
 def build_aot(force: bool = False) -> dict[str, str]:

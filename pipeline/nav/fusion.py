@@ -51,7 +51,7 @@ import numpy as np
 from mst import InputError
 from mst.core.config import Config, param
 from mst.core.poses import so3_exp, so3_log, transform_points
-from mst.pipeline.nav.kernels import mekf_attitude as _mekf
+from mst.pipeline.nav.compiled import kernels as _nk  # ahead of time or numba JIT
 from mst.pipeline.nav.log import NavLog, mount_ypr_deg_from_R
 from mst.pipeline.nav.models import _best_noise_scale, _ca_model, _cv_model, _run_kf
 from mst.pipeline.nav.reference import vision_reference_position as _vision_reference
@@ -354,7 +354,7 @@ def _fuse_attitude(al: _Aligned, T_vis, cov_vis, R_wm, R_bc, cfg: FusionConfig):
         ptr = np.searchsorted(steps_r[order], np.arange(K + 1)).astype(np.int64)
         dtau_r = np.concatenate([np.zeros(len(vidx)), dtau_a])
         first = R_meas[order[0]]
-        R_ref, _, Pr, w_o = _mekf(dts, sig_alpha**2, first, ptr,
+        R_ref, _, Pr, w_o = _nk.mekf_attitude(dts, sig_alpha**2, first, ptr,
                                   np.ascontiguousarray(R_meas[order]), dtau_r[order], np.ascontiguousarray(C_r[order]),
                                   cfg.huber_k)
         wr = np.empty_like(w_o)

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from mst.pipeline.nav.kernels import kf_rts as _kf_rts
+from mst.pipeline.nav.compiled import kernels as _nk  # ahead of time or numba JIT
 
 
 # ------------------------------------------------------------------------------ Kalman / RTS kernel
@@ -59,7 +59,7 @@ def _innovation_loglik(F, Q, x0, P0, step, z, H, R, gate_k: float = 3.0) -> floa
     order = np.argsort(step, kind="stable")
     st, zz, HH, RR = step[order], np.ascontiguousarray(z[order]), np.ascontiguousarray(H[order]), np.ascontiguousarray(R[order])
     ptr = np.searchsorted(st, np.arange(K + 1)).astype(np.int64)
-    x, P, _ = _kf_rts(F, Q, x0, P0, ptr, zz, HH, RR, np.ones(len(st)), gate_k, False)
+    x, P, _ = _nk.kf_rts(F, Q, x0, P0, ptr, zz, HH, RR, np.ones(len(st)), gate_k, False)
     xp = x.copy()
     Pp = P.copy()
     xp[1:] = np.einsum("kij,kj->ki", F[1:], x[:-1])
@@ -119,12 +119,12 @@ def _run_kf(F, Q, x0, P0, step, z, H, R, gate_k, smooth, robust_refit):
     st, zz, HH, RR = step[order], np.ascontiguousarray(z[order]), np.ascontiguousarray(H[order]), np.ascontiguousarray(R[order])
     ptr = np.searchsorted(st, np.arange(K + 1)).astype(np.int64)
     w = np.ones(len(st))
-    x, P, w = _kf_rts(F, Q, x0, P0, ptr, zz, HH, RR, w, gate_k, smooth)
+    x, P, w = _nk.kf_rts(F, Q, x0, P0, ptr, zz, HH, RR, w, gate_k, smooth)
     if robust_refit and len(st):
         r = zz - np.einsum("lmn,ln->lm", HH, x[st])
         d = np.sqrt(np.einsum("lm,lm->l", r, np.linalg.solve(RR, r[..., None])[..., 0]))
         w = np.where(d > gate_k, gate_k / np.maximum(d, 1e-12), 1.0)
-        x, P, w = _kf_rts(F, Q, x0, P0, ptr, zz, HH, RR, w, 0.0, smooth)
+        x, P, w = _nk.kf_rts(F, Q, x0, P0, ptr, zz, HH, RR, w, 0.0, smooth)
     wo = np.empty_like(w)
     wo[order] = w
     return x, P, wo
