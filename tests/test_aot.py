@@ -220,6 +220,39 @@ def test_track_runs_without_importing_numba_and_gives_the_jit_poses(tmp_path):
         assert len(a.splitlines()) >= 5 and a == j, slam
 
 
+@pytest.mark.skipif(not aot.is_current("mst.pipeline.nav.kernels"),
+                    reason="navigation kernels not built ahead of time for this source and CPU")
+def test_nav_fusion_runs_without_importing_numba_and_gives_the_jit_result():
+    """``mst nav fuse``'s estimator (smoother and filter, a vision gap) from the extension: numba not
+    imported, no JIT call, every output array byte-equal to the ``MST_AOT=0`` run's."""
+    code = ("import sys, hashlib, numpy as np\n"
+            "from mst.core.poses import look_at\n"
+            "from mst.pipeline.nav.fusion import FusionConfig, fuse_navigation\n"
+            "from mst.pipeline.nav.log import NavSimConfig, simulate_nav\n"
+            "t = np.arange(0.0, 30.0, 0.1)\n"
+            "T = np.stack([look_at(np.array([30 * np.cos(0.1 * a), 30 * np.sin(0.1 * a), 20.0]), np.zeros(3)) for a in t])\n"
+            "keep = (t < 10.0) | (t >= 16.0)\n"
+            "C = np.tile(np.diag([0.05 ** 2] * 3 + [np.radians(0.2) ** 2] * 3), (int(keep.sum()), 1, 1))\n"
+            "nav = simulate_nav(t, T, NavSimConfig(seed=3)).nav\n"
+            "h = hashlib.sha256()\n"
+            "for mode in ('smoother', 'filter'):\n"
+            "    r = fuse_navigation(t[keep], T[keep], C, nav, FusionConfig(mode=mode))\n"
+            "    for k, v in sorted(vars(r).items()):\n"
+            "        if isinstance(v, np.ndarray):\n"
+            "            h.update(np.ascontiguousarray(v).tobytes())\n"
+            "from mst.core import aot\n"
+            "print('numba' in sys.modules, sorted(aot.FALLBACKS), h.hexdigest())")
+    base = {k: v for k, v in os.environ.items() if k not in ("MST_AOT", "MST_AOT_DIR")}
+    out = {}
+    for flag in ("1", "0"):
+        r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=dict(base, MST_AOT=flag),
+                           timeout=300)
+        assert r.returncode == 0, r.stderr[-2000:]
+        out[flag] = r.stdout.strip().splitlines()[-1].split()
+    assert out["1"][:2] == ["False", "[]"], out["1"]
+    assert out["0"][0] == "True" and out["1"][-1] == out["0"][-1]
+
+
 @pytest.mark.slow
 def test_build_from_scratch_matches_the_jit(tmp_path, monkeypatch):
     """The whole build (warm-up signatures -> extension) into an empty folder, then the results."""
