@@ -178,6 +178,19 @@ def test_generated_dispatch_accepts_exactly_the_compiled_argument_types():
     assert (g(1), g(np.zeros(2)), g(np.zeros(2, np.float32)), g(1.0)) == ("i", "f", "jit", "jit")
 
 
+def _with_and_without_aot(code: str, argv) -> dict[str, str]:
+    """The last stdout line of ``python -c code *argv(flag)`` in a fresh interpreter with the extensions
+    (``MST_AOT=1``) and with numba's JIT (``"0"``), per flag."""
+    base = {k: v for k, v in os.environ.items() if k not in ("MST_AOT", "MST_AOT_DIR")}
+    last = {}
+    for flag in ("1", "0"):
+        r = subprocess.run([sys.executable, "-c", code, *argv(flag)], capture_output=True, text=True,
+                           env=dict(base, MST_AOT=flag), timeout=300)
+        assert r.returncode == 0, r.stderr[-2000:]
+        last[flag] = r.stdout.strip().splitlines()[-1]
+    return last
+
+
 TRACKING = ("mst.pipeline.tracking.kernels", "mst.pipeline.tracking.covariance_kernels",
             "mst.pipeline.tracking.exact_kernels", "mst.pipeline.zbuffer_kernels", "mst.core.klt_kernels")
 
@@ -204,19 +217,13 @@ def test_track_runs_without_importing_numba_and_gives_the_jit_poses(tmp_path):
             "    except SystemExit as e:\n        assert not e.code, e.code\n"
             "from mst.core import aot\n"
             "print('numba' in sys.modules, sorted(aot.FALLBACKS))")
-    base = {k: v for k, v in os.environ.items() if k not in ("MST_AOT", "MST_AOT_DIR")}
-    outs = {}
     for flag in ("1", "0"):
-        out = tmp_path / f"aot{flag}"
-        out.mkdir()
-        r = subprocess.run([sys.executable, "-c", code, str(seq), str(out)], capture_output=True, text=True,
-                           env=dict(base, MST_AOT=flag), timeout=300)
-        assert r.returncode == 0, r.stderr[-2000:]
-        outs[flag] = (out, r.stdout.strip().splitlines()[-1])
-    assert outs["1"][1] == "False []", outs["1"][1]  # no numba, no call to the JIT
-    assert outs["0"][1].startswith("True"), outs["0"][1]  # the JIT run is one (the comparison is not vacuous)
+        (tmp_path / f"aot{flag}").mkdir()
+    last = _with_and_without_aot(code, lambda flag: [str(seq), str(tmp_path / f"aot{flag}")])
+    assert last["1"] == "False []", last["1"]  # no numba, no call to the JIT
+    assert last["0"].startswith("True"), last["0"]  # the JIT run is one (the comparison is not vacuous)
     for slam in ("auto", "off"):
-        a, j = ((outs[f][0] / f"{slam}.txt").read_text() for f in ("1", "0"))
+        a, j = ((tmp_path / f"aot{f}" / f"{slam}.txt").read_text() for f in ("1", "0"))
         assert len(a.splitlines()) >= 5 and a == j, slam
 
 
@@ -242,13 +249,7 @@ def test_nav_fusion_runs_without_importing_numba_and_gives_the_jit_result():
             "            h.update(np.ascontiguousarray(v).tobytes())\n"
             "from mst.core import aot\n"
             "print('numba' in sys.modules, sorted(aot.FALLBACKS), h.hexdigest())")
-    base = {k: v for k, v in os.environ.items() if k not in ("MST_AOT", "MST_AOT_DIR")}
-    out = {}
-    for flag in ("1", "0"):
-        r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=dict(base, MST_AOT=flag),
-                           timeout=300)
-        assert r.returncode == 0, r.stderr[-2000:]
-        out[flag] = r.stdout.strip().splitlines()[-1].split()
+    out = {f: line.split() for f, line in _with_and_without_aot(code, lambda flag: []).items()}
     assert out["1"][:2] == ["False", "[]"], out["1"]
     assert out["0"][0] == "True" and out["1"][-1] == out["0"][-1]
 
