@@ -13,21 +13,33 @@ UV_VERSION ?= 0.13.9
 
 .PHONY: setup warmup demo test test-latest test-all bench lint lock clean
 
-setup: $(STAMP)
+# the numba kernels and their ahead-of-time extensions: warmed again when a kernel source (or what the
+# extensions' hash covers) changes, so a pulled checkout does not fall back to the JIT at every start
+WARM := $(VENV)/.mst-kernels
+KERNEL_SRC := $(wildcard core/aot.py core/klt_kernels.py eval/c2m/warmup.py eval/c2m/kernels.py meshtools/kernels.py \
+	meshtools/compiled.py pipeline/tracking/kernels.py pipeline/tracking/covariance_kernels.py \
+	pipeline/tracking/covariance.py pipeline/tracking/exact_kernels.py pipeline/zbuffer_kernels.py \
+	pipeline/nav/kernels.py pipeline/autoinit_kernels.py)
+
+setup: $(WARM)
 
 $(STAMP): pyproject.toml $(LOCK) .ci/setup
 	PYTHON=$(PYTHON) VENV=$(VENV) bash .ci/setup
-	$(BIN)/python -m mst.eval.c2m.warmup
 	@touch $(STAMP)
+
+$(WARM): $(STAMP) $(KERNEL_SRC)
+	$(BIN)/python -m mst.eval.c2m.warmup
+	@touch $(WARM)
 
 ## warmup: compile the numba kernels of mst c2m, convert-model and mst track into their on-disk cache, and the c2m,
 ## convert-model and edge-tracker kernels ahead of time for this CPU (mst.core.aot; make setup does it once;
 ## every later process only loads them)
 warmup: $(STAMP)
 	$(BIN)/python -m mst.eval.c2m.warmup
+	@touch $(WARM)
 
 ## demo: the whole chain on the bundled sample (samples/), results in $(DEMO_OUT)/
-demo: $(STAMP)
+demo: $(WARM)
 	PATH=$(CURDIR)/$(BIN):$$PATH OUT=$(DEMO_OUT) bash samples/demo.sh
 
 ## test: the default suite on the locked versions (slow tests excluded; `make bench` covers them).
@@ -36,7 +48,7 @@ demo: $(STAMP)
 ## instead of compiling them again (~0.1-0.3 s CPU each).
 ## The suite runs on every core (pytest-xdist, one test file per worker: a file's module fixtures are
 ## built once): 2 cores 222 s -> ~110 s.
-test: $(STAMP)
+test: $(WARM)
 	PYTHONDONTWRITEBYTECODE= $(BIN)/python -m pytest -q -n auto --dist loadfile
 
 ## test-latest: the same suite on the newest versions pyproject.toml allows (in .venv-latest), to test upgrades on purpose
@@ -44,11 +56,11 @@ test-latest:
 	PYTHON=$(PYTHON) VENV=.venv-latest MST_LATEST=1 bash .ci/setup
 	.venv-latest/bin/python -m pytest -q
 
-test-all: $(STAMP)
+test-all: $(WARM)
 	$(BIN)/python -m pytest -q -m ''
 
 ## bench: speed and memory of every stage, written to bench-results.json
-bench: $(STAMP)
+bench: $(WARM)
 	$(BIN)/python -m mst.eval.bench --out bench-results.json
 
 lint: $(STAMP)

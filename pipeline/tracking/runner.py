@@ -413,8 +413,8 @@ def _track_frames(session: TrackingSession, src, undistort_maps, ov, progress) -
             if undistort_maps is not None:
                 bgr = cv2.remap(bgr, *undistort_maps, cv2.INTER_LINEAR)
             rec = session.step(idx, t_s, cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY))
-            records.append(rec)
             if ov is not None:
                 ov.write(draw_overlay(bgr, rec.result, rec.status), idx)
+            records.append(rec.kept())  # without the per-sample arrays: memory flat in the sequence length
             advance()
     return records
