@@ -16,10 +16,9 @@ UV_VERSION ?= 0.13.9
 # the numba kernels and their ahead-of-time extensions: warmed again when a kernel source (or what the
 # extensions' hash covers) changes, so a pulled checkout does not fall back to the JIT at every start
 WARM := $(VENV)/.mst-kernels
-KERNEL_SRC := $(wildcard core/aot.py core/klt_kernels.py eval/c2m/warmup.py eval/c2m/kernels.py meshtools/kernels.py \
-	meshtools/compiled.py pipeline/tracking/kernels.py pipeline/tracking/covariance_kernels.py \
-	pipeline/tracking/covariance.py pipeline/tracking/exact_kernels.py pipeline/zbuffer_kernels.py \
-	pipeline/nav/kernels.py pipeline/autoinit_kernels.py)
+# (every *kernels.py module, so that a new one needs no entry here, and the modules they import)
+KERNEL_SRC := $(wildcard core/*kernels.py eval/*/*kernels.py meshtools/*kernels.py pipeline/*kernels.py \
+	pipeline/*/*kernels.py core/aot.py eval/c2m/warmup.py meshtools/compiled.py pipeline/tracking/covariance.py)
 
 setup: $(WARM)
 

@@ -259,33 +259,13 @@ def psd_max_kernel(Cf, Cj, out):
     positive definite (``out`` untouched)."""
     n = 6
     L = np.zeros((n, n))
-    for j in range(n):
-        s = Cf[j, j]
-        for k in range(j):
-            s -= L[j, k] * L[j, k]
-        if not (s > 0.0):
-            return False
-        L[j, j] = np.sqrt(s)
-        for i in range(j + 1, n):
-            s = 0.5 * (Cf[i, j] + Cf[j, i])
-            for k in range(j):
-                s -= L[i, k] * L[j, k]
-            L[i, j] = s / L[j, j]
+    if not _chol6(Cf, L):
+        return False
     # Y = L^-1 Cj (forward substitution per column), then M = Y L^-T = L^-1 (L^-1 Cj)^T
     Y = np.empty((n, n))
-    for c in range(n):
-        for i in range(n):
-            s = Cj[i, c]
-            for k in range(i):
-                s -= L[i, k] * Y[k, c]
-            Y[i, c] = s / L[i, i]
+    _lower_solve(L, Cj, Y)
     M = np.empty((n, n))
-    for c in range(n):
-        for i in range(n):
-            s = Y[c, i]
-            for k in range(i):
-                s -= L[i, k] * M[k, c]
-            M[i, c] = s / L[i, i]
+    _lower_solve(L, Y.T, M)  # M = L^-1 Y^T (a view, no copy)
     for i in range(n):
         for j in range(i + 1, n):
             m = 0.5 * (M[i, j] + M[j, i])
