@@ -262,9 +262,25 @@ def rigid_from_rows(a: np.ndarray, p: Path) -> np.ndarray:
         raise InputError(p, "the 4x4 matrix is not a rigid transform (rotation part not orthonormal)")
     if np.abs(T[3] - [0, 0, 0, 1]).max() > 1e-9:
         raise InputError(p, "last row must be 0 0 0 1")
-    U, _, Vt = np.linalg.svd(R)
-    T[:3, :3] = U @ Vt
+    T[:3, :3] = orthonormalise(R)
     return T
+
+
+def orthonormalise(R: np.ndarray, iterations: int = 30) -> np.ndarray:
+    """The rotation nearest to a near-orthonormal (3, 3) ``R`` (the polar factor ``U V^T`` of its SVD) by
+    Newton's iteration ``X <- (X + X^-T) / 2`` (quadratic convergence; ``X^-T`` = the cofactor rows
+    ``(x1 x x2, x2 x x0, x0 x x1)`` over the determinant), in elementwise products and sums in a fixed order:
+    the same bits on every CPU, where LAPACK's SVD does not give them (a ViSP ``cMo`` file read on two CPUs
+    started the tracker from poses differing in their last bits, and tracking took another path)."""
+    X = np.array(R, dtype=np.float64)
+    for _ in range(iterations):
+        C = np.stack([np.cross(X[1], X[2]), np.cross(X[2], X[0]), np.cross(X[0], X[1])])
+        det = float((X[0, 0] * C[0, 0] + X[0, 1] * C[0, 1]) + X[0, 2] * C[0, 2])
+        Y = 0.5 * (X + C / det)
+        if (Y == X).all():
+            break
+        X = Y
+    return X
 
 
 def read_rigid_transform(path: str | os.PathLike, what: str = "transform file") -> np.ndarray:

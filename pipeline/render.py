@@ -43,7 +43,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from mst.core.camera import Camera
-from mst.core.poses import transform_points
+from mst.core.poses import matmul_exact, transform_points
+from mst.pipeline.tracking.exact import mv
 
 INVALID = np.uint32(0xFFFFFFFF)
 
@@ -145,7 +146,7 @@ class Renderer:
         """Camera-frame directions (column arrays) -> (local-frame origin (3,) float64, model-frame (dx, dy, dz))."""
         T = np.asarray(T_cam_model, np.float64)
         R_model_cam = T[:3, :3].T
-        c_model = -R_model_cam @ T[:3, 3]
+        c_model = -mv(R_model_cam, T[:3, 3])
         return c_model - self.origin, _rot(R_model_cam, x_cam, y_cam, z_cam)
 
     def cast(self, origin_local: np.ndarray, d: tuple) -> tuple[np.ndarray, np.ndarray]:
@@ -189,7 +190,7 @@ class Renderer:
         """
         T = np.asarray(T_cam_model, np.float64)
         X = np.asarray(X_model, np.float64).reshape(-1, 3)
-        Xc = transform_points(T, X)
+        Xc = transform_points(T, X, elementwise=True)
         z = Xc[:, 2]
         ok = z > 1e-9
         out = np.zeros(len(X), bool)
@@ -270,7 +271,7 @@ class ShadedRenderer(Renderer):
         self.R_tex_model = np.eye(3) if R_tex_model is None else np.asarray(R_tex_model, np.float64)
         uv_off = np.zeros((M, 2)) if uv_offset_m is None else np.asarray(uv_offset_m, np.float64).reshape(M, 2)
         L = self.lighting
-        self._light_dirs_model = np.array([self.R_tex_model.T @ _unit(d) for d, _ in L.lights]).reshape(-1, 3)
+        self._light_dirs_model = np.array([mv(self.R_tex_model.T, _unit(d)) for d, _ in L.lights]).reshape(-1, 3)
         self._light_k = np.array([k for _, k in L.lights], np.float64)
         self._sky_row = self.R_tex_model[2].astype(np.float32)  # texture-frame up, in model coordinates
         n = self.normals
@@ -283,15 +284,15 @@ class ShadedRenderer(Renderer):
         self._plane_id = np.concatenate([row_ids(key).astype(np.int32), [-1]])  # entry M: no hit
         self._plane_h = dpl  # plane offset n . X (local frame) of each triangle, float64
         # texture mapping per triangle: u = a_u . P_model + off_u (metres), same for v
-        n_tex = n @ self.R_tex_model.T
+        n_tex = matmul_exact(n, self.R_tex_model.T)
         axis = np.argmax(np.abs(n_tex), axis=1)
         e = np.eye(3)
         sel_u = np.where(axis[:, None] == 0, e[1], e[0])           # axis x -> u = y ; else u = x
         sel_v = np.where(axis[:, None] == 2, e[1], -e[2])          # axis z -> v = y ; else v = -z
-        self._a_u = sel_u @ self.R_tex_model                         # model-frame linear forms
-        self._a_v = sel_v @ self.R_tex_model
-        self._c_u = self._a_u @ self.origin + uv_off[:, 0]          # constants for local-frame points
-        self._c_v = self._a_v @ self.origin + uv_off[:, 1]
+        self._a_u = matmul_exact(sel_u, self.R_tex_model)                     # model-frame linear forms
+        self._a_v = matmul_exact(sel_v, self.R_tex_model)
+        self._c_u = mv(self._a_u, self.origin) + uv_off[:, 0]          # constants for local-frame points
+        self._c_v = mv(self._a_v, self.origin) + uv_off[:, 1]
         self._a_cols = tuple(np.ascontiguousarray(a[:, i], dtype=np.float32) for a in (self._a_u, self._a_v) for i in range(3))
         tex_ids = sorted(k for k, m in materials.items() if m.texture is not None)
         self._tex_list = [materials[k] for k in tex_ids]
@@ -361,9 +362,9 @@ class ShadedRenderer(Renderer):
         n_eff = np.where(facing[:, None], n, -n)
         shade = np.full(len(n), self.lighting.ambient)
         for ld, k in zip(self._light_dirs_model, self._light_k):
-            shade += k * np.maximum(n_eff @ ld, 0.0)
-        u0 = self._a_u @ origin_local + self._c_u
-        v0 = self._a_v @ origin_local + self._c_v
+            shade += k * np.maximum(mv(n_eff, ld), 0.0)
+        u0 = mv(self._a_u, origin_local) + self._c_u
+        v0 = mv(self._a_v, origin_local) + self._c_v
         return {
             "shade": shade.astype(np.float32),
             "flat": np.concatenate([self._albedo * shade[:, None], np.zeros((1, 3))]).astype(np.float32),
@@ -447,7 +448,7 @@ class ShadedRenderer(Renderer):
             xs = np.append(xs, W - 1)
         cidx = (ys[:, None] * W + xs[None, :]).ravel()
         _, pcst = self._cast_idx(o, R32, x, y, cidx)
-        num_tri = (self._plane_h - self.normals @ o).astype(np.float32)  # per triangle, float64 then rounded
+        num_tri = (self._plane_h - mv(self.normals, o)).astype(np.float32)  # per triangle, float64 then rounded
         t = np.empty(H * W, np.float32)
         prim = np.empty(H * W, np.uint32)
         rest = np.empty(H * W, np.int64)
@@ -474,7 +475,7 @@ class ShadedRenderer(Renderer):
         x, y, inv_norm = self.camera_dirs(cam)
         T = np.asarray(T_cam_model, np.float64)
         R_model_cam = T[:3, :3].T
-        o = -R_model_cam @ T[:3, 3] - self.origin
+        o = -mv(R_model_cam, T[:3, 3]) - self.origin
         R32 = R_model_cam.astype(np.float32)
         if full_cast or H < 4 or W < 4:
             t, prim = self._cast_idx(o, R32, x, y, np.zeros(0, np.int64))

@@ -12,8 +12,11 @@ What varies with the CPU inside one installed environment, and how each is emula
 
 Before the tracker's rounding-sensitive steps were made exact (:mod:`mst.pipeline.tracking.exact`:
 moving-edge convolutions, normal equations, the 6x6 solve, rigid transforms, pose products), the
-tea-box trajectory moved by up to 1.0 mm / 0.14 deg under ``OPENBLAS_CORETYPE=Sandybridge``. The
-bound is exact equality: the trajectory and the per-frame CSV (less its timing column) byte for
+tea-box trajectory moved by up to 1.0 mm / 0.14 deg under ``OPENBLAS_CORETYPE=Sandybridge``; before the
+render-based edges were (session 21: no BLAS in their transforms, norms and eigen-decomposition, no
+OpenCV float filters, the initial ``cMo``'s re-orthonormalisation without LAPACK's SVD), a vase's
+render-edge poses moved under the BLAS and OpenCV settings from the first frame on. The bound is exact
+equality: the trajectory, the per-frame CSV (less its timing column) and the covariance CSV byte for
 byte, a run in this process against a fresh process under the other CPU's settings (which also
 covers a rerun on the same machine). The default suite runs all the settings at once (one
 subprocess); the slow suite runs each alone, to say which one moved a result.
@@ -76,7 +79,7 @@ OTHER_CPU = {"OPENBLAS_CORETYPE": "Sandybridge", "NPY_DISABLE_CPU_FEATURES": _nu
 @pytest.fixture(scope="module")
 def jobs(house, shared_data_optional, tmp_path_factory):
     """``mst track`` argument lists: a synthetic orbit of the gabled house (12 frames, 320x240,
-    from the true first pose) and, with ../shared, the real tea-box video (39 frames, its clicked
+    from the true first pose), a vase's fast orbit with render-based edges (6 frames, 640x480) and, with ../shared, the real tea-box video (39 frames, its clicked
     pose), both in the default mode; each with the in-process run's output files (reference)."""
     from conftest import run_mst
 
@@ -88,6 +91,19 @@ def jobs(house, shared_data_optional, tmp_path_factory):
                                                  click_noise=0.0))
     out = {"orbit": [seq / "rgb", "--model", seq / "model.obj", "--camera", seq / "camera.json",
                      "--init", seq / "cMo" / "000000.txt"]}
+    # render-based edges of a curved mesh (a vase, 12k triangles: renders, their smoothed inverse-depth
+    # gradient, the edgelets' transforms, the body of revolution's axis) with KLT points, edges only: the
+    # slow suite's vase `fast` orbit had tracked 16 of 16 frames on one CPU and 15 on another
+    from mst.meshtools.formats import save_triangles
+    from mst.meshtools.generate import vase
+
+    V, F = vase()
+    save_triangles(d / "vase.obj", V, F)
+    vs = d / "vase"
+    synthesize("fast", d / "vase.obj", vs, SynthConfig(frames=6, width=640, height=480, texture_size=64, depth=False,
+                                                       click_noise=0.0))
+    out["vase"] = [vs / "rgb", "--model", vs / "model.obj", "--camera", vs / "camera.json",
+                   "--init", vs / "cMo" / "000000.txt", "--slam", "off", "--klt"]
     if shared_data_optional is not None:
         t = shared_data_optional / "visp-teabox"
         run_mst("init", "--model", t / "teabox.cao", "--camera", t / "teabox.xml", "--clicks", t / "teabox.clicks",
@@ -110,12 +126,12 @@ def shared_data_optional():
     return SHARED if SHARED.is_dir() else None
 
 
-def _outputs(traj) -> tuple[bytes, list[dict]]:
-    """The trajectory's bytes and the per-frame CSV rows less the timing column."""
+def _outputs(traj) -> tuple[bytes, list[dict], bytes]:
+    """The trajectory's bytes, the per-frame CSV rows less the timing column, the covariance CSV's bytes."""
     rows = list(csv.DictReader(io.StringIO(traj.with_suffix(".csv").read_text())))
     for r in rows:
         r.pop("ms", None)
-    return traj.read_bytes(), rows
+    return traj.read_bytes(), rows, traj.with_suffix(".cov.csv").read_bytes()
 
 
 def _track_elsewhere(d, jobs_args: dict, env: dict, tag: str) -> dict:
@@ -138,10 +154,11 @@ def _track_elsewhere(d, jobs_args: dict, env: dict, tag: str) -> dict:
 
 
 def _assert_same(ref: dict, got: dict, what: str) -> None:
-    for name, (traj, rows) in ref.items():
-        g_traj, g_rows = got[name]
+    for name, (traj, rows, cov) in ref.items():
+        g_traj, g_rows, g_cov = got[name]
         assert g_traj == traj, f"{name}: the trajectory differs under {what}"
         assert g_rows == rows, f"{name}: the per-frame CSV differs under {what}"
+        assert g_cov == cov, f"{name}: the covariance CSV differs under {what}"
 
 
 def test_track_identical_under_another_cpu(jobs):

@@ -108,6 +108,10 @@ def warm_tracking() -> None:
     _mat3(geom.vertices, Tl[:3, :3], Tl[:3, 3])
     _mat3(geom.vertices, Tl[:3, :3])
     psd_max(np.eye(6), 2.0 * np.eye(6))
+    # the CPU-independent eigen-decomposition (the error budget's covariance tests, mst.pipeline.tracking.exact)
+    from mst.pipeline.tracking.exact import eigh
+
+    eigh(np.diag([1.0, 2.0, 3.0]) + 0.1)
     # the health tests and the evidence gradients (EdgeTracker._absolute_health, evidence)
     from mst.pipeline.tracking.kernels import pose_gradients, pose_health
 
@@ -128,6 +132,9 @@ def warm_tracking() -> None:
     n2 = np.array([[1.0, 0.0], [0.0, 1.0]])
     uv2, off2 = np.array([[30.0, 20.0], [40.0, 30.0]]), np.array([[0.5, np.nan], [-1.0, 0.0]])
     crossing_offsets(img, uv2, n2, off2, n2)
+    from mst.pipeline.tracking.edgelets import smoothed_gradient  # the inverse-depth gradient of a render
+
+    smoothed_gradient(img[:20, :30].astype(np.float64))
     contour_side_test(img, np.array([[500.0, 0, 40.0], [0, 500.0, 30.0], [0, 0, 1]]), uv2, n2,
                       np.array([[-0.02, -0.02, 1.0], [0.0, 0.0, 1.0]]), off2, n2, img, np.eye(4))
     # the KLT front end (mst.core.klt_kernels: the tracker's and the SLAM's forward-backward LK)

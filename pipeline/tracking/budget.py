@@ -18,7 +18,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mst.core.poses import inv_T, pose_error, se3_exp
+from mst.core.poses import inv_T, matmul_exact, pose_error, se3_exp
+from mst.pipeline.tracking.exact import centre, eigh, eigvalsh, norm3
 
 #: the reason (``traj.csv``) of an edge pose refused by the error budget: its own uncertainty beyond
 #: it, or two fits of the image beyond it apart
@@ -50,7 +51,7 @@ BASIN_SIGMAS = 3.0
 
 def centre_gap(T_a: np.ndarray, T_b: np.ndarray) -> float:
     """Distance (m) between the camera centres of two ``T_cam_model`` poses."""
-    return float(np.linalg.norm(T_a[:3, :3].T @ T_a[:3, 3] - T_b[:3, :3].T @ T_b[:3, 3]))
+    return norm3(centre(T_a) - centre(T_b))
 
 
 class ModelDistance:
@@ -65,9 +66,9 @@ class ModelDistance:
         self.d0 = float("inf")
 
     def __call__(self, T_cam_model: np.ndarray) -> float:
-        c = -T_cam_model[:3, :3].T @ T_cam_model[:3, 3]
+        c = centre(T_cam_model)
         if self.c0 is not None:
-            moved = float(np.linalg.norm(c - self.c0))
+            moved = norm3(c - self.c0)
             if moved <= 0.05 * self.d0:
                 return self.d0 - moved
         self.c0 = c
@@ -105,7 +106,7 @@ def positive_definite(C: np.ndarray) -> bool:
     if not np.isfinite(C).all() or not (np.diag(C) > 0).all():
         return False
     d = 1.0 / np.sqrt(np.diag(C))
-    return bool(np.linalg.eigvalsh(C * d[:, None] * d[None, :]).min() > 1e-12)
+    return bool(eigvalsh(C * d[:, None] * d[None, :]).min() > 1e-12)
 
 
 def beyond_budget(b: PoseBudget, cov: np.ndarray | None, T: np.ndarray | None, distance_m,
@@ -127,7 +128,7 @@ def beyond_budget(b: PoseBudget, cov: np.ndarray | None, T: np.ndarray | None, d
         # written (Rotterdam 120 m survey, 640x480, seed 1, frame 81)
         return f"{REASON_UNCERTAIN}: covariance not positive definite (a degenerate fit)"
     pos = b.sigmas * float(np.sqrt(max(np.trace(cov[:3, :3]), 0.0)))
-    rot = b.sigmas * float(np.degrees(np.sqrt(max(np.linalg.eigvalsh(0.5 * (cov[3:, 3:] + cov[3:, 3:].T)).max(), 0.0))))
+    rot = b.sigmas * float(np.degrees(np.sqrt(max(eigvalsh(0.5 * (cov[3:, 3:] + cov[3:, 3:].T)).max(), 0.0))))
     d = distance_m(T)
     if pos <= fraction * b.rel * d and rot <= fraction * b.deg:
         return ""
@@ -166,9 +167,9 @@ def ambiguity(b: PoseBudget, fr, d: float, T_cv: np.ndarray | None, after_refusa
         starts.append(("the motion prediction", T_cv))
     if after_refusal and fr.cov is not None and np.isfinite(fr.cov).all():
         # after a refused frame: from +-BASIN_SIGMAS along the fit's weakest direction
-        lam, vec = np.linalg.eigh(0.5 * (fr.cov + fr.cov.T))
+        lam, vec = eigh(0.5 * (fr.cov + fr.cov.T))
         step = vec[:, -1] * np.sqrt(max(lam[-1], 0.0)) * BASIN_SIGMAS
-        starts += [(f"{BASIN_SIGMAS:g} sigma off", se3_exp(k * step) @ T) for k in (1.0, -1.0)]
+        starts += [(f"{BASIN_SIGMAS:g} sigma off", matmul_exact(se3_exp(k * step), T)) for k in (1.0, -1.0)]
     for what, T_alt in starts:
         fr_a = refit(T_alt)
         if not fr_a.healthy or fr_a.T_cam_model is None:
@@ -251,7 +252,7 @@ class Refusals:
         if len(self.model_pair) < 2:
             return None
         Ta, Tb = self.model_pair
-        return (Tb @ inv_T(Ta)) @ Tb
+        return matmul_exact(matmul_exact(Tb, inv_T(Ta)), Tb)
 
     def refused(self, idx: int, reason: str) -> None:
         """Frame ``idx``'s edge pose refused by the budget (``reason`` uncertain or ambiguous): counted,

@@ -49,7 +49,9 @@ def scene_near_m(vertices_m: np.ndarray, T_cam_model: np.ndarray, near_clip_m: f
     camera-frame depth of the model vertices ``(N, 3)`` in front of the camera at ``T_cam_model``."""
     if near_clip_m is not None:
         return float(near_clip_m)
-    z = np.asarray(vertices_m, float) @ T_cam_model[2, :3] + T_cam_model[2, 3]
+    from mst.pipeline.tracking.exact import mv
+
+    z = mv(np.asarray(vertices_m, float), T_cam_model[2, :3]) + T_cam_model[2, 3]
     z = z[z > 0]
     return max(float(NEAR_CLIP_REL * np.median(z)) if len(z) else 1e-3, 1e-6)
 

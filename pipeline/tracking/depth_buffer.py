@@ -14,6 +14,7 @@ import numpy as np
 
 from mst.pipeline.tracking.compiled import kernels as _kc  # ahead of time or numba JIT
 from mst.pipeline.tracking.compiled import zbuffer as _kz
+from mst.pipeline.tracking.exact import inverse
 
 if TYPE_CHECKING:
     from mst.pipeline.tracking.visibility import ModelGeometry
@@ -172,7 +173,7 @@ def _scaled_K(K: np.ndarray, scale: float) -> tuple[np.ndarray, np.ndarray]:
         Ks[:2] *= scale
         Ks[0, 2] = (K[0, 2] + 0.5) * scale - 0.5
         Ks[1, 2] = (K[1, 2] + 0.5) * scale - 0.5
-        Kinv = np.linalg.inv(Ks)
+        Kinv = inverse(Ks)
         Kinv.flags.writeable = False
         if len(_K_SCALED) >= 64:  # a few cameras and scales in a process
             _K_SCALED.clear()
@@ -244,11 +245,11 @@ def _render_buffer(geom, T_cam_model, K, width, height, faces, near, scale, Xc_a
     for f in crossing:
         polys = []
         for lp in [geom.faces[f], *geom.holes[f]]:
-            Pc = geom.vertices[lp] @ R.T + t
+            Pc = _mat3(geom.vertices[lp], R, t)
             Pc = _clip_poly_near(Pc, near)
             if len(Pc) < 3:
                 continue
-            uv = Pc @ Ks.T
+            uv = _mat3(Pc, Ks)
             uv = uv[:, :2] / uv[:, 2:3]
             polys.append(np.round(uv * 16).astype(np.int32))
         if not polys:

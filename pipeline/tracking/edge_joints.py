@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from mst.pipeline.tracking.exact import dot3
+
 
 def flat_t_junctions(V: np.ndarray, E: np.ndarray, ef: np.ndarray, N: np.ndarray, crease_deg: float) -> np.ndarray:
     """(E,) bool: one-face edges lying (>= 90 % of their length) on collinear edges of other faces
@@ -54,7 +56,7 @@ def flat_t_junctions(V: np.ndarray, E: np.ndarray, ef: np.ndarray, N: np.ndarray
             for b in range(len(g)):
                 if b == a:
                     continue
-                fb = [f for f in ef[g[b]] if f >= 0 and f != fa and N[f] @ N[fa] > c]
+                fb = [f for f in ef[g[b]] if f >= 0 and f != fa and dot3(N[f], N[fa]) > c]
                 if fb:
                     s0, s1 = max(lo[a], lo[b]), min(hi[a], hi[b])
                     if s1 > s0:

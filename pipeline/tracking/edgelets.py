@@ -46,6 +46,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from mst.pipeline.tracking.exact import rigid
+
 SILHOUETTE, OCCLUSION, CREASE = 0, 1, 2
 
 
@@ -100,10 +102,27 @@ def _cast_px(renderer, T: np.ndarray, Ks: np.ndarray, u: np.ndarray, v: np.ndarr
     return np.where(hit, t.astype(np.float64), np.inf), np.where(hit, prim.astype(np.int64), -1)
 
 
-def _box_blur_gauss(img: np.ndarray, sigma: float = 1.0) -> np.ndarray:
-    import cv2
+#: ``cv2.getGaussianKernel(9, 1.0, cv2.CV_32F)``, the kernel ``cv2.GaussianBlur`` uses for sigma 1 px on float32
+GAUSS_SIGMA1_F32 = np.array([0.0001338306174147874, 0.004431861452758312, 0.053991127759218216, 0.2419714480638504,
+                             0.3989434838294983, 0.2419714480638504, 0.053991127759218216, 0.004431861452758312,
+                             0.0001338306174147874], np.float32)
 
-    return cv2.GaussianBlur(img.astype(np.float32), (0, 0), sigma)
+
+def smoothed_gradient(img: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(gx, gy)`` (H, W) float32: the 3x3 Sobel derivatives of ``img`` blurred by a Gaussian of sigma 1 px
+    (``cv2.GaussianBlur`` then ``cv2.Sobel``'s values to float32 rounding), summed in a fixed order
+    (:func:`mst.pipeline.tracking.kernels.blur_sobel_f32`): OpenCV's float32 filters round by CPU (their SIMD
+    code), which moved the render-based edgelets and the curved-mesh poses from one CPU to the next."""
+    from mst.pipeline.tracking.compiled import kernels as kc
+
+    a = np.ascontiguousarray(img, np.float32)
+    gx, gy = np.empty_like(a), np.empty_like(a)
+    if min(a.shape) <= len(GAUSS_SIGMA1_F32) // 2:  # a window too small to reflect the kernel: no gradient
+        gx.fill(0.0)
+        gy.fill(0.0)
+        return gx, gy
+    kc.blur_sobel_f32(a, GAUSS_SIGMA1_F32, gx, gy)
+    return gx, gy
 
 
 def _bilinear(img: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -127,7 +146,7 @@ def mesh_roi(renderer, T_cam_model: np.ndarray, Ks: np.ndarray, w: int, h: int, 
     The margin keeps the smoothing of the inverse-depth map (sigma 1 px, 3x3 Sobel) off the window border."""
     lo, hi = renderer.V.min(0), renderer.V.max(0)
     C = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
-    Cc = C @ T_cam_model[:3, :3].T + T_cam_model[:3, 3]
+    Cc = rigid(C, T_cam_model[:3, :3], T_cam_model[:3, 3])
     if (Cc[:, 2] <= 1e-6).any():
         return 0, 0, h, w
     u = Ks[0, 0] * Cc[:, 0] / Cc[:, 2] + Ks[0, 2]
@@ -171,7 +190,7 @@ def _normals_cam(renderer, T, Ks, prim, u, v):
     if n32 is None:
         n32 = np.vstack([renderer.normals, np.zeros((1, 3))]).astype(np.float32)  # last row: miss
         renderer._normals32 = n32
-    n = np.take(n32, np.where(prim >= 0, prim, len(n32) - 1), axis=0) @ np.asarray(T[:3, :3], np.float32).T
+    n = rigid(np.take(n32, np.where(prim >= 0, prim, len(n32) - 1), axis=0), np.asarray(T[:3, :3], np.float32))
     x = ((u - Ks[0, 2]) / Ks[0, 0]).astype(np.float32)
     y = ((v - Ks[1, 2]) / Ks[1, 1]).astype(np.float32)
     sgn = np.where(n[:, 0] * x + n[:, 1] * y + n[:, 2] > 0, np.float32(-1), np.float32(1))
@@ -262,11 +281,7 @@ def extract_edgelets(renderer, T_cam_model: np.ndarray, K: np.ndarray, width: in
     # 2D normals (low-res pixel units are isotropic with the full image: same direction)
     mid_u = 0.5 * (pa[:, 1] + pb[:, 1]).astype(np.float64)
     mid_v = 0.5 * (pa[:, 0] + pb[:, 0]).astype(np.float64)
-    import cv2
-
-    invd = _box_blur_gauss(np.where(fg, 1.0 / np.where(fg, Z, 1.0), 0.0), 1.0)
-    gx = cv2.Sobel(invd, cv2.CV_32F, 1, 0, ksize=3)
-    gy = cv2.Sobel(invd, cv2.CV_32F, 0, 1, ksize=3)
+    gx, gy = smoothed_gradient(np.where(fg, 1.0 / np.where(fg, Z, 1.0), 0.0))
     nrm = np.stack([_bilinear(gx, mid_u, mid_v), _bilinear(gy, mid_u, mid_v)], 1).astype(np.float64)
     na = N[pa[:, 0], pa[:, 1]].astype(np.float64)
     nb = N[pb[:, 0], pb[:, 1]].astype(np.float64)
@@ -366,8 +381,8 @@ def extract_edgelets(renderer, T_cam_model: np.ndarray, K: np.ndarray, width: in
     tan = np.where(use_c[:, None], cdir, tan)
     tan /= np.maximum(np.linalg.norm(tan, axis=1, keepdims=True), 1e-12)
     R, tt = T[:3, :3], T[:3, 3]
-    X_model = (Xcam - tt) @ R
-    t_model = tan @ R
+    X_model = rigid(Xcam - tt, R.T)
+    t_model = rigid(tan, R.T)
     # the exact image of each edgelet and of its local line at the render pose
     uv, nrm_px = project_lines(X_model, t_model, T, K, 0.01 * Xcam[:, 2])
     # orientation: the tangent's sign makes the projected normal point from side a to side b (silhouettes:
@@ -387,7 +402,7 @@ def project_lines(X_model: np.ndarray, t_model: np.ndarray, T_cam_model: np.ndar
     h = np.asarray(half_len_m, np.float64).reshape(-1, 1) if np.ndim(half_len_m) else half_len_m
 
     def proj(P):
-        Pc = P @ R.T + t
+        Pc = rigid(P, R, t)
         with np.errstate(divide="ignore", invalid="ignore"):
             return np.column_stack([K[0, 0] * Pc[:, 0] / Pc[:, 2] + K[0, 2], K[1, 1] * Pc[:, 1] / Pc[:, 2] + K[1, 2]])
 

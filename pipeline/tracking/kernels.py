@@ -1590,3 +1590,52 @@ def contour_sides(img, ref_img, uv, uv_ref, n_out, offset, normal, side_px, side
             g_in = (_bilinear_at(img, cu - d0 * nx, cv - d0 * ny) + _bilinear_at(img, cu - d1 * nx, cv - d1 * ny)) / 2
             ok[i, c] = abs(g_in - ref_in) <= tol
     return ok
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def blur_sobel_f32(img, k, gx, gy):
+    """Separable blur of ``img`` (H, W) float32 by the kernel ``k`` (2r+1,) float32, rows then columns, then the
+    3x3 Sobel derivatives of the blurred image into ``gx``, ``gy`` (H, W) float32 (x: ``[-1 0 1]`` across,
+    ``[1 2 1]`` down; y transposed); borders reflected without the edge pixel (OpenCV's default
+    ``BORDER_REFLECT_101``). Each output a float32 sum in a fixed order (the taps in ``k``'s order; Sobel
+    ``(d[-1] + 2 d[0]) + d[1]``): the same bits on every CPU, where ``cv2.GaussianBlur`` and ``cv2.Sobel`` on
+    float32 pick SIMD code (and its summation order) by CPU. Needs H, W > r."""
+    H, W = img.shape
+    r = k.shape[0] // 2
+    pad = np.empty(W + 2 * r, np.float32)
+    tmp = np.empty((H + 2 * r, W), np.float32)
+    for i in range(H):  # rows: the padded row, then the taps in order, vectorised across the row
+        for j in range(W):
+            pad[j + r] = img[i, j]
+        for m in range(r):
+            pad[r - 1 - m] = img[i, m + 1]
+            pad[W + r + m] = img[i, W - 2 - m]
+        o = tmp[i + r]
+        for j in range(W):
+            o[j] = k[0] * pad[j]
+        for m in range(1, 2 * r + 1):
+            km = k[m]
+            for j in range(W):
+                o[j] = o[j] + km * pad[j + m]
+    for m in range(r):  # the rows reflected above and below
+        tmp[r - 1 - m] = tmp[r + m + 1]
+        tmp[H + r + m] = tmp[H + r - 2 - m]
+    b = np.empty((H + 2, W + 2), np.float32)  # the blurred image with a reflected 1-px border (Sobel's)
+    for i in range(H):
+        o = b[i + 1]
+        for j in range(W):
+            o[j + 1] = k[0] * tmp[i, j]
+        for m in range(1, 2 * r + 1):
+            km = k[m]
+            src = tmp[i + m]
+            for j in range(W):
+                o[j + 1] = o[j + 1] + km * src[j]
+        o[0] = o[2]
+        o[W + 1] = o[W - 1]
+    b[0] = b[2]
+    b[H + 1] = b[H - 1]
+    two = np.float32(2.0)
+    for i in range(H):
+        for j in range(W):
+            gx[i, j] = ((b[i, j + 2] - b[i, j]) + two * (b[i + 1, j + 2] - b[i + 1, j])) + (b[i + 2, j + 2] - b[i + 2, j])
+            gy[i, j] = ((b[i + 2, j] - b[i, j]) + two * (b[i + 2, j + 1] - b[i, j + 1])) + (b[i + 2, j + 2] - b[i, j + 2])

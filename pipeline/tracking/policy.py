@@ -10,6 +10,7 @@ import numpy as np
 
 from mst.core.poses import inv_T, matmul_exact
 from mst.pipeline.tracking.budget import PoseBudget, Refusals
+from mst.pipeline.tracking.budget import beyond_budget as budget_exceeded
 from mst.pipeline.tracking.edge_tracker import FrameResult
 from mst.pipeline.tracking.health import HealthMonitor
 
@@ -123,6 +124,14 @@ class TrackingPolicy:
         if self.budget is None or self.distance_m is None:
             return ""
         return self.refusals.judge(self.budget, fr, self.distance_m)
+
+    def uncertain(self, fr: FrameResult) -> bool:
+        """Whether the edge pose ``fr``'s own uncertainty exceeds the error budget, without the return rule
+        after a refusal and without touching its state (:func:`mst.pipeline.tracking.budget.beyond_budget`):
+        for choosing between two fits of one frame before :meth:`beyond_budget` judges the one kept."""
+        if self.budget is None or self.distance_m is None or fr.T_cam_model is None:
+            return False
+        return bool(budget_exceeded(self.budget, fr.cov, fr.T_cam_model, self.distance_m))
 
     def map_pose_refuted(self, ev) -> str:
         """Why the image refutes a map (``slam``) pose, from its evidence ``ev`` at that pose ('' when

@@ -42,7 +42,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from mst.core.config import Config, param
-from mst.core.poses import inv_T, se3_log
+from mst.core.poses import inv_T, matmul_exact, se3_log
+from mst.pipeline.tracking.exact import mv as matvec
+from mst.pipeline.tracking.exact import norm3, rigid
 
 
 @dataclass
@@ -98,7 +100,7 @@ class Relocaliser:
         if k - self._last_learn < self.cfg.kf_min_frames:
             return False
         for _, T, _, _ in self.kfs:
-            if np.degrees(np.linalg.norm(se3_log(T_cam_model @ inv_T(T))[3:])) < self.cfg.kf_min_angle_deg:
+            if np.degrees(norm3(se3_log(matmul_exact(T_cam_model, inv_T(T)))[3:])) < self.cfg.kf_min_angle_deg:
                 return False
         return True
 
@@ -130,7 +132,7 @@ class Relocaliser:
         K = self.tr.K
         xn = (uv[ok] - K[:2, 2]) / np.array([K[0, 0], K[1, 1]])
         Xc = np.column_stack([xn, np.ones(len(xn))]) / izk[ok, None]
-        X_model = (Xc - T_cam_model[:3, 3]) @ T_cam_model[:3, :3]
+        X_model = rigid(Xc - T_cam_model[:3, 3], T_cam_model[:3, :3].T)
         return desc[ok], X_model.astype(np.float32)
 
     def learn(self, k: int, gray: np.ndarray, T_cam_model: np.ndarray) -> int:
@@ -172,7 +174,7 @@ class Relocaliser:
         c_model = 0.5 * (V.min(0) + V.max(0))
         # the turn axis: the model axis nearest to the image's vertical at the keyframe (the object
         # turned on its base, as on a table or a turntable)
-        up = T_kf[:3, :3].T @ np.array([0.0, -1.0, 0.0])
+        up = matvec(T_kf[:3, :3].T, np.array([0.0, -1.0, 0.0]))
         axis = np.zeros(3)
         axis[int(np.argmax(np.abs(up)))] = 1.0
         n_half = self.cfg.synth_steps
@@ -180,9 +182,9 @@ class Relocaliser:
             Rm = cv2.Rodrigues(np.radians(self.cfg.synth_step_deg * j) * axis)[0]
             Tm = np.eye(4)
             Tm[:3, :3] = Rm
-            Tm[:3, 3] = c_model - Rm @ c_model
-            T_v = T_kf @ Tm  # the model turned about its centre, seen by the keyframe's camera
-            M = T_v @ inv_T(T_kf)  # keyframe camera -> view camera (a rigid motion of the scene)
+            Tm[:3, 3] = c_model - matvec(Rm, c_model)
+            T_v = matmul_exact(T_kf, Tm)  # the model turned about its centre, seen by the keyframe's camera
+            M = matmul_exact(T_v, inv_T(T_kf))  # keyframe camera -> view camera (a rigid motion of the scene)
             R = M[:3, :3]
             iz_v = self._depth(T_v, W, H)
             ys, xs = np.nonzero(iz_v > 0)
@@ -234,7 +236,7 @@ class Relocaliser:
         if len(inl) < max(self.cfg.min_inliers, self.cfg.min_consensus * len(pairs)):
             return None
         T = refine_pnp(X[inl], uv[inl], self.tr.K, None, rvec, tvec)
-        if not np.isfinite(T).all() or (X[inl] @ T[:3, :3].T + T[:3, 3])[:, 2].min() <= 0:
+        if not np.isfinite(T).all() or rigid(X[inl], T[:3, :3], T[:3, 3])[:, 2].min() <= 0:
             return None
         return T, len(inl)
 

@@ -62,8 +62,10 @@ from pathlib import Path
 import numpy as np
 
 from mst import InputError
+from mst.core.poses import matmul_exact
 from mst.errors import ConfigError
 from mst.pipeline.tracking.compiled import kernels as _kc  # ahead of time or numba JIT
+from mst.pipeline.tracking.exact import centre, dot3, eigh, mv, norm3, rigid
 
 log = logging.getLogger(__name__)
 
@@ -218,8 +220,8 @@ def revolution_axis(renderer, max_points: int = 2000):
     C = V[F].mean(1)
     mu = (A[:, None] * C).sum(0) / A.sum()
     D = C - mu
-    lam, vec = np.linalg.eigh((A[:, None, None] * D[:, :, None] * D[:, None, :]).sum(0) / A.sum())
-    diag = float(np.linalg.norm(np.ptp(V, axis=0)))
+    lam, vec = eigh((A[:, None, None] * D[:, :, None] * D[:, None, :]).sum(0) / A.sum())
+    diag = norm3(np.ptp(V, axis=0))
     P = V[np.unique(np.linspace(0, len(V) - 1, min(max_points, len(V))).astype(np.int64))]
     for k in range(3):
         o = np.delete(lam, k)
@@ -230,8 +232,8 @@ def revolution_axis(renderer, max_points: int = 2000):
         for deg in SYMMETRY_TURNS_DEG:
             th = np.radians(deg)
             Kx = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
-            Rm = np.eye(3) + np.sin(th) * Kx + (1 - np.cos(th)) * Kx @ Kx
-            Q = (P - mu) @ Rm.T + mu - renderer.origin
+            Rm = np.eye(3) + np.sin(th) * Kx + (1 - np.cos(th)) * matmul_exact(Kx, Kx)
+            Q = rigid(P - mu, Rm) + mu - renderer.origin
             d = renderer.scene.compute_distance(o3d.core.Tensor(Q.astype(np.float32))).numpy()
             if float(d.max()) > SYMMETRY_TOL * diag:
                 ok = False
@@ -265,7 +267,7 @@ class RenderEdgeProvider:
         self.bias_px, self.max_turn_deg, self.border_px, self.near_m = bias_px, max_turn_deg, border_px, near_m
         lo, hi = V.min(0), V.max(0)
         self.centre_model = 0.5 * (lo + hi)
-        self.radius_m = 0.5 * float(np.linalg.norm(hi - lo))
+        self.radius_m = 0.5 * norm3(hi - lo)
         self.cache = None  # Edgelets of the last render
         self.curved = False  # a curved mesh: its rims' measurements move onto the ramp crossing (filter_matches)
         self.axis = revolution_axis(self.renderer)  # (axis, point) model frame of a body of revolution, or None
@@ -287,9 +289,9 @@ class RenderEdgeProvider:
             return cov
         a, p = self.axis
         R, t = T_cam_model[:3, :3], T_cam_model[:3, 3]
-        w = R @ a
-        n = np.concatenate([np.cross(R @ p + t, w), w])  # rotation about the axis through R p + t (camera frame)
-        n /= np.linalg.norm(n)
+        w = mv(R, a)
+        n = np.concatenate([np.cross(mv(R, p) + t, w), w])  # rotation about the axis through R p + t (camera frame)
+        n /= math.sqrt(float(np.sum(n * n)))
         lam = 1e6 * float(np.abs(np.diag(W)).max())
         try:
             from mst.pipeline.tracking.exact import inverse
@@ -312,16 +314,16 @@ class RenderEdgeProvider:
         if self.axis is None:
             return T
         a, p = self.axis
-        c, cr = -T[:3, :3].T @ T[:3, 3] - p, -T_ref[:3, :3].T @ T_ref[:3, 3] - p
-        c, cr = c - (c @ a) * a, cr - (cr @ a) * a  # in the plane normal to the axis
-        if np.linalg.norm(c) < 1e-12 or np.linalg.norm(cr) < 1e-12:
+        c, cr = centre(T) - p, centre(T_ref) - p
+        c, cr = c - dot3(c, a) * a, cr - dot3(cr, a) * a  # in the plane normal to the axis
+        if norm3(c) < 1e-12 or norm3(cr) < 1e-12:
             return T
-        th = math.atan2(float(np.cross(cr, c) @ a), float(cr @ c))  # turn of the model taking c's angle to cr's
+        th = math.atan2(dot3(np.cross(cr, c), a), dot3(cr, c))  # turn of the model taking c's angle to cr's
         Kx = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
-        Rm = np.eye(3) + math.sin(th) * Kx + (1 - math.cos(th)) * Kx @ Kx
+        Rm = np.eye(3) + math.sin(th) * Kx + (1 - math.cos(th)) * matmul_exact(Kx, Kx)
         M = np.eye(4)
-        M[:3, :3], M[:3, 3] = Rm, p - Rm @ p
-        return T @ M
+        M[:3, :3], M[:3, 3] = Rm, p - mv(Rm, p)
+        return matmul_exact(T, M)
 
     def unconverged(self, S, T_from: np.ndarray, T_to: np.ndarray) -> bool:
         """The edge pass from ``T_from`` to ``T_to`` moved the samples ``S`` by more than ``bias_px`` along their
@@ -330,7 +332,7 @@ class RenderEdgeProvider:
         K = self.K
 
         def proj(T):
-            Xc = S.X_model @ T[:3, :3].T + T[:3, 3]
+            Xc = rigid(S.X_model, T[:3, :3], T[:3, 3])
             z = np.maximum(Xc[:, 2], 1e-9)
             return np.stack([K[0, 0] * Xc[:, 0] / z, K[1, 1] * Xc[:, 1] / z], 1)
 
@@ -346,8 +348,8 @@ class RenderEdgeProvider:
     # ------------------------------------------------------------------ re-render rule
     def max_view_turn_rad(self, T_cam_model: np.ndarray) -> float:
         """``a_max`` of the re-render rule at this pose (radians)."""
-        c = -T_cam_model[:3, :3].T @ T_cam_model[:3, 3]
-        D = max(float(np.linalg.norm(c - self.centre_model)), 1e-9)
+        c = centre(T_cam_model)
+        D = max(norm3(c - self.centre_model), 1e-9)
         f = float(max(self.K[0, 0], self.K[1, 1]))
         a = math.sqrt(2.0 * self.bias_px * D / (f * max(self.radius_m, 1e-9)))
         return float(np.clip(a, math.radians(0.2), math.radians(3.0)))
@@ -357,12 +359,12 @@ class RenderEdgeProvider:
         if self.cache is None:
             return True
         Tr = self.cache.T_cam_model
-        c = -T_cam_model[:3, :3].T @ T_cam_model[:3, 3]
-        cr = -Tr[:3, :3].T @ Tr[:3, 3]
-        D = max(float(np.linalg.norm(cr - self.centre_model)), 1e-9)
-        if np.linalg.norm(c - cr) > self.max_view_turn_rad(Tr) * D:
+        c = centre(T_cam_model)
+        cr = centre(Tr)
+        D = max(norm3(cr - self.centre_model), 1e-9)
+        if norm3(c - cr) > self.max_view_turn_rad(Tr) * D:
             return True
-        dR = T_cam_model[:3, :3] @ Tr[:3, :3].T
+        dR = matmul_exact(T_cam_model[:3, :3], Tr[:3, :3].T)
         turn = math.degrees(math.acos(float(np.clip((np.trace(dR) - 1.0) / 2.0, -1.0, 1.0))))
         return turn > self.max_turn_deg
 
@@ -389,7 +391,7 @@ class RenderEdgeProvider:
         if self.stale(T):
             self.render(T)
         e = self.cache
-        Xc = e.X_model @ T[:3, :3].T + T[:3, 3]
+        Xc = rigid(e.X_model, T[:3, :3], T[:3, 3])
         z = Xc[:, 2]
         front = z > self.near_m
         h = 0.02 * np.where(front, z, 1.0)
@@ -543,7 +545,7 @@ def contour_side_test(img, K, uv, n_out, X_model, offset, normal, ref_img, ref_T
     """
     contour_sides = _kc.contour_sides
 
-    Xc = X_model @ ref_T[:3, :3].T + ref_T[:3, 3]
+    Xc = rigid(X_model, ref_T[:3, :3], ref_T[:3, 3])
     z = np.maximum(Xc[:, 2], 1e-9)
     uvp = np.stack([K[0, 0] * Xc[:, 0] / z + K[0, 2], K[1, 1] * Xc[:, 1] / z + K[1, 2]], 1)
     # the reads and the test in one kernel (the operations of contour_side_test_numpy in their order, the same bits)
@@ -563,7 +565,7 @@ def _kernel_image(img: np.ndarray) -> np.ndarray:
 
 def contour_side_test_numpy(img, K, uv, n_out, X_model, offset, normal, ref_img, ref_T) -> np.ndarray:
     """The numpy formulation of :func:`contour_side_test` (the reference of its kernel's test)."""
-    Xc = X_model @ ref_T[:3, :3].T + ref_T[:3, 3]
+    Xc = rigid(X_model, ref_T[:3, :3], ref_T[:3, 3])
     z = np.maximum(Xc[:, 2], 1e-9)
     uvp = np.stack([K[0, 0] * Xc[:, 0] / z + K[0, 2], K[1, 1] * Xc[:, 1] / z + K[1, 2]], 1)
     d = np.asarray(SIDE_PX)[:, None, None]
@@ -633,7 +635,7 @@ def contour_uv(model, model_path, T_cam_model: np.ndarray, camera, budget: int =
     prov = RenderEdgeProvider(V, F, camera, budget=budget, border_px=0, near_m=1e-3)
     e = prov.render(np.asarray(T_cam_model, np.float64))
     T = np.asarray(T_cam_model, np.float64)
-    Xc = e.X_model @ T[:3, :3].T + T[:3, 3]
+    Xc = rigid(e.X_model, T[:3, :3], T[:3, 3])
     Xc = Xc[Xc[:, 2] > 1e-6]
     K = prov.K
     return np.stack([K[0, 0] * Xc[:, 0] / Xc[:, 2] + K[0, 2], K[1, 1] * Xc[:, 1] / Xc[:, 2] + K[1, 2]], 1)
@@ -647,7 +649,7 @@ def attach_render_edges(tracker, model, model_path, mode: str, T0: np.ndarray | 
         return used
     V, F = mesh_triangles(model, model_path)
     if T0 is not None:
-        c = -T0[:3, :3].T @ T0[:3, 3]
+        c = centre(T0)
         lo, hi = V.min(0), V.max(0)
         ext = float(np.ptp(V, axis=0).max())
         if (c > lo).all() and (c < hi).all() and ext > 50.0:

@@ -27,6 +27,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from mst.core.poses import matmul_exact
+from mst.pipeline.tracking.exact import centre as camera_centre
+from mst.pipeline.tracking.exact import inverse, norm3
+
 INDEX_MIN_FACES = 1000  #: models with fewer faces are culled face by face (no grid)
 FACES_PER_CELL = 8  #: grid resolution: about this many faces per non-empty cell
 REUSE_ROT_DEG = 2.0  #: a query is reused while the camera turned less than this since it was made
@@ -62,14 +66,14 @@ def frustum_planes(K: np.ndarray, width: int, height: int) -> np.ndarray:
 
 
 def _frustum_planes(K: np.ndarray, width: int, height: int) -> np.ndarray:
-    Kinv = np.linalg.inv(K)
+    Kinv = inverse(K)
     corners = np.array([[-0.5, -0.5, 1], [width - 0.5, -0.5, 1], [width - 0.5, height - 0.5, 1], [-0.5, height - 0.5, 1]])
-    rays = corners @ Kinv.T
+    rays = matmul_exact(corners, Kinv.T)
     out = np.zeros((4, 3))
     for i in range(4):
         n = np.cross(rays[i], rays[(i + 1) % 4])
-        n /= np.linalg.norm(n)
-        if n @ np.array([0.0, 0.0, 1.0]) < 0:
+        n /= norm3(n)
+        if n[2] < 0:  # n . (0, 0, 1)
             n = -n
         out[i] = n
     return out
@@ -158,13 +162,13 @@ class FaceIndex:
         full query's result while the reuse rule holds (module docstring)."""
         planes = frustum_planes(K, width, height)
         key = (np.round(planes, 9).tobytes(), float(near), float(far))
-        R, t = T_cam_model[:3, :3], T_cam_model[:3, 3]
-        centre = -R.T @ t
+        R = T_cam_model[:3, :3]
+        centre = camera_centre(T_cam_model)
         c = self._cache
         if c is not None and c["key"] == key:
-            cos_th = (np.trace(R @ c["R"].T) - 1.0) / 2.0
+            cos_th = (np.trace(matmul_exact(R, c["R"].T)) - 1.0) / 2.0
             th = np.degrees(np.arccos(np.clip(cos_th, -1.0, 1.0)))
-            if th <= REUSE_ROT_DEG and np.linalg.norm(centre - c["centre"]) <= c["trans_m"]:
+            if th <= REUSE_ROT_DEG and norm3(centre - c["centre"]) <= c["trans_m"]:
                 self.n_reused += 1
                 return c["faces"]
         # the distance scale of the translation margin: the nearest geometry in view now

@@ -39,6 +39,7 @@ import numpy as np
 from mst.pipeline.tracking.compiled import kernels as _kc  # ahead of time or numba JIT
 from mst.pipeline.tracking.depth_buffer import _loops_of, _mat3, eroded_buffer, inverse_depth_buffer  # noqa: F401 (re-exported)
 from mst.pipeline.tracking.edge_joints import flat_t_junctions
+from mst.pipeline.tracking.exact import centre, mv
 from mst.pipeline.tracking.spatial_index import INDEX_MIN_FACES, FaceIndex, csr_gather, frustum_planes
 
 CREASE_DEG = 5.0  # edges whose two faces' normals differ by less are not tracked
@@ -217,8 +218,7 @@ def face_visibility(geom: ModelGeometry, T_cam_model: np.ndarray, prev: np.ndarr
     it were ~15 us of each of the two calls a frame)."""
     face_visibility_kernel = _kc.face_visibility_kernel
 
-    R, t = T_cam_model[:3, :3], T_cam_model[:3, 3]
-    c_model = -R.T @ t  # camera centre in the model frame (as face_visibility_numpy)
+    c_model = centre(T_cam_model)  # camera centre in the model frame (as face_visibility_numpy)
     F = len(geom.faces)
     sel = _all_faces(geom) if among is None else np.flatnonzero(among)
     has_prev = prev is not None and len(prev) == F
@@ -317,7 +317,7 @@ def frustum_faces(geom: ModelGeometry, T_cam_model: np.ndarray, K: np.ndarray, w
     if far is not None and np.isfinite(far):
         ok &= c[:, 2] <= far + r
     for n in frustum_planes(K, width, height):  # side planes through the camera centre, inward normals
-        ok &= c @ n >= -r
+        ok &= mv(c, n) >= -r
     if counts is not None:
         behind = c[:, 2] < near - r
         beyond = (c[:, 2] > far + r) if far is not None and np.isfinite(far) else np.zeros(len(c), bool)
