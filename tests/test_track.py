@@ -350,8 +350,11 @@ def test_a_run_refused_at_its_first_frame_names_the_evidence():
 
     fr = FrameResult(np.eye(4), False, 23, 15, 0.4, 10.0, None, None,
                      reason=f"{REASON_UNCERTAIN}: 2 sigma = 2.4% of the model distance")
-    rec = FrameRecord(0, 0.0, "lost", None, fr, "", 1.0)
-    e = _no_frame_tracked([rec], SimpleNamespace(first_reason=fr.reason), "p0.txt")
+    from mst.pipeline.tracking.runlog import RunLog
+
+    log = RunLog()
+    log.add(FrameRecord(0, 0.0, "lost", None, fr, "", 1.0))
+    e = _no_frame_tracked(log, SimpleNamespace(first_reason=fr.reason), "p0.txt")
     assert isinstance(e, InputError)
     msg = str(e)
     assert msg.startswith("p0.txt") and "frame 0: pose uncertain" in msg and "error budget" in msg
@@ -380,3 +383,68 @@ def test_a_kept_record_drops_the_per_sample_arrays_and_writes_the_same_rows():
     assert (r.n_samples, r.n_inliers, r.score, r.features) == (n, 250, 0.93, {"support": 0.8})
     assert r.W is fr.W and kept.cov is rec.cov and kept.T_cam_model is rec.T_cam_model
     assert rec.result.evidence is ev and len(rec.result.uv) == n  # the record itself is not changed
+
+
+def test_the_run_log_writes_the_rows_the_records_would_and_stays_small():
+    """A run keeps its frames in a :class:`~mst.pipeline.tracking.runlog.RunLog` (the CSV line as written, time,
+    status, timing, score, pose and covariance in float64 blocks) instead of one record a frame: the CSV text,
+    the poses, the covariances and the summary's rounded values are those of the records, through the
+    blocks' growth; and it holds what its layout says, less than the records (they grew a run by ~3.4 KB a frame
+    edges only, the log ~0.3 KB: README)."""
+    import csv as csv_mod
+    import io
+    import tracemalloc
+
+    from mst.pipeline.tracking.edge_tracker import FrameResult
+    from mst.pipeline.tracking.runlog import RunLog
+    from mst.pipeline.tracking.runner import CSV_HEADER
+    from mst.pipeline.tracking.session import FrameRecord
+
+    rng = np.random.default_rng(0)
+
+    def record(i):
+        status = ("model", "slam", "lost", "relocalised")[i % 4]
+        T = None if status == "lost" else np.vstack([rng.normal(size=(3, 4)), [0, 0, 0, 1]])
+        cov = None if status == "lost" or i % 8 == 1 else np.diag(rng.uniform(1e-8, 1e-6, 6))
+        fr = FrameResult(T, status != "lost", 200 + i, 150, float(rng.uniform(0.1, 0.9)) if i % 5 else float("nan"),
+                         float(rng.uniform(1, 20)), np.eye(6), cov, uv=np.ones((200, 2)), score=float(rng.uniform(0, 1)),
+                         reason="" if status != "lost" else f"lost, \"quoted\", {i}")
+        return FrameRecord(i, i / 30.0, status, T, fr, "standby", float(rng.uniform(1, 5)), cov=cov)
+
+    recs = [record(i) for i in range(300)]
+    log = RunLog(capacity=16)
+    for r in recs:
+        log.add(r)
+    buf = io.StringIO()
+    w = csv_mod.writer(buf, lineterminator="\n")
+    w.writerow(CSV_HEADER)
+    w.writerows(r.csv_row() for r in recs)
+    assert log.csv_text(CSV_HEADER) == buf.getvalue()
+    assert log.statuses() == [r.status for r in recs] and len(log) == 300 and log.first.index == 0
+    ok = log.tracked()
+    assert ok.tolist() == [r.T_cam_model is not None for r in recs]
+    assert all((P == r.T_cam_model).all() for P, r in zip(log.poses(np.flatnonzero(ok)), [r for r in recs if ok[r.index]]))
+    for i, r in enumerate(recs):
+        c = log.covariance(i)
+        assert (c is None) == (r.cov is None) and (c is None or (c == r.cov).all())
+        row = r.csv_row()
+        assert (log.residual_px[i], log.proj_error_deg[i]) == (float(row[5]), float(row[6])) or row[5] == "nan"
+    # memory retained per frame once a frame's own objects are gone: the log against the kept records (each
+    # frame's arrays fresh, as in a run; the log's blocks as grown to 4,096 rows)
+    tracemalloc.start()
+    a = tracemalloc.get_traced_memory()[0]
+    log2 = RunLog()
+    for i in range(2300):
+        log2.add(record(i))
+    log_bytes = tracemalloc.get_traced_memory()[0] - a
+    b = tracemalloc.get_traced_memory()[0]
+    kept = [record(i).kept() for i in range(2300)]
+    kept_bytes = tracemalloc.get_traced_memory()[0] - b
+    tracemalloc.stop()
+    # the log's layout: 52 float64/int64 numbers and a status byte a frame in blocks at most twice the rows,
+    # and the CSV line (a str: ~49 bytes of header, its characters, a list pointer); 10 % for the list's
+    # own growth and the allocator's rounding
+    line = float(np.mean([len(x) for x in log2.lines]))
+    bound = 2300 * 1.1 * (2 * (52 * 8 + 1) + 49 + line + 8)
+    assert len(kept) == len(log2) and log_bytes <= bound and log_bytes < kept_bytes, \
+        (log_bytes / 2300, bound / 2300, kept_bytes / 2300)

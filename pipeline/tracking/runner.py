@@ -18,12 +18,15 @@ from pathlib import Path
 import numpy as np
 
 from mst import InputError, atomic_outputs
+from mst.core.poses import matmul_exact
 from mst.errors import ConfigError
 from mst.meshtools.formats import load_tracking_model
 from mst.pipeline.tracking.budget import PoseBudget, is_refusal, positive_definite
 from mst.pipeline.tracking.config import TrackConfig
+from mst.pipeline.tracking.exact import centre, eigvalsh, rigid
 from mst.pipeline.tracking.health import HealthMonitor
-from mst.pipeline.tracking.session import FrameRecord, TrackingPolicy, TrackingSession
+from mst.pipeline.tracking.runlog import RunLog
+from mst.pipeline.tracking.session import TrackingPolicy, TrackingSession
 
 log = logging.getLogger(__name__)
 
@@ -47,12 +50,12 @@ COV_HEADER = (["frame", "status", "std_x_m", "std_y_m", "std_z_m", "std_rot_deg"
 def check_pose_in_view(model, T_cam_model: np.ndarray, cam, path, near: float = 1e-6) -> None:
     """Raise :class:`mst.InputError` when the pose puts the model behind the camera or out of view."""
     V = np.asarray(model.vertices)
-    Xc = V @ T_cam_model[:3, :3].T + T_cam_model[:3, 3]
+    Xc = rigid(V, T_cam_model[:3, :3], T_cam_model[:3, 3])
     cz = float(Xc[:, 2].mean())
     ext = float(np.ptp(V, axis=0).max()) if len(V) else 0.0
     units = (f"; the model spans {ext:.4g} units: is it in millimetres? mst expects metres" if ext > 50
-             and (-T_cam_model[:3, :3].T @ T_cam_model[:3, 3] > V.min(0)).all()
-             and (-T_cam_model[:3, :3].T @ T_cam_model[:3, 3] < V.max(0)).all() else "")
+             and (centre(T_cam_model) > V.min(0)).all()
+             and (centre(T_cam_model) < V.max(0)).all() else "")
     if cz <= 0 or (Xc[:, 2] <= near).all():
         raise InputError(path, f"the pose puts the model behind the camera (model centre at z = {cz:.3g} m in the "
                                f"camera frame; expected a cMo / TUM camera pose looking at the model){units}")
@@ -87,9 +90,9 @@ def cov_row(idx: int, status: str, cov: np.ndarray | None, T_cam_model: np.ndarr
         return [idx, status] + [""] * (len(COV_HEADER) - 2)
     cov = np.array([float(x) for x in txt]).reshape(6, 6)
     R = T_cam_model[:3, :3]
-    C_pos = R.T @ cov[:3, :3] @ R  # camera centre c = -R^T t moves by -R^T v
+    C_pos = matmul_exact(matmul_exact(R.T, cov[:3, :3]), R)  # camera centre c = -R^T t moves by -R^T v
     std = np.sqrt(np.maximum(np.diag(C_pos), 0.0))
-    rot = np.degrees(np.sqrt(max(float(np.linalg.eigvalsh(cov[3:, 3:]).max()), 0.0)))
+    rot = np.degrees(np.sqrt(max(float(eigvalsh(cov[3:, 3:]).max()), 0.0)))
     return [idx, status, *(f"{x:.6g}" for x in std), f"{rot:.6g}", *txt]
 
 
@@ -154,14 +157,13 @@ class TrackSummary:
         return self.to_json().get(key, default)
 
 
-def _summary(records: list[FrameRecord], session: TrackingSession, aid_mode: str, edges_used: str, paths, cam,
+def _summary(records: RunLog, session: TrackingSession, aid_mode: str, edges_used: str, paths, cam,
              cfg: TrackConfig, landmarks) -> TrackSummary:
-    statuses = [r.status for r in records]
-    ms = [r.ms for r in records]
-    scores = np.array([r.result.score for r in records], float)
+    n = len(records)
+    statuses = records.statuses()
+    ms = records.ms[:n]
+    scores = records.score[:n]
     scores = scores[np.isfinite(scores)]
-    # the CSV's rounding: the statistics are those of the written rows
-    rows = [r.csv_row() for r in records]
     opt: dict = {}
     tracker, aid, reloc = session.tracker, session.aid, session.reloc
     if tracker.sample_provider is not None:
@@ -206,12 +208,13 @@ def _summary(records: list[FrameRecord], session: TrackingSession, aid_mode: str
         opt["aid_wake_ms"] = float(aid.timing_ms["wake"])
     scores_n = len(scores)
     return TrackSummary(
-        frames=len(records), tracked=sum(s != "lost" for s in statuses),
+        frames=n, tracked=sum(s != "lost" for s in statuses),
         status_counts={k: statuses.count(k) for k in ("model", "slam", "relocalised", "lost")},
-        first_lost_frame=next((r.index for r in records if r.status == "lost"), None),
-        median_ms=float(np.median(ms)) if ms else None, p95_ms=float(np.percentile(ms, 95)) if ms else None,
-        mean_residual_px=_mean_or_none([float(r[5]) for r in rows]),
-        mean_proj_error_deg=float(np.mean([float(r[6]) for r in rows])) if rows else None,
+        first_lost_frame=next((int(records.index[i]) for i, s in enumerate(statuses) if s == "lost"), None),
+        median_ms=float(np.median(ms)) if n else None, p95_ms=float(np.percentile(ms, 95)) if n else None,
+        # the CSV's rounding: the statistics are those of the written rows
+        mean_residual_px=_mean_or_none(records.residual_px[:n]),
+        mean_proj_error_deg=float(np.mean(records.proj_error_deg[:n])) if n else None,
         health_score_rejects=session.policy.n_score_rejects,
         health_score_median=float(np.median(scores)) if scores_n else None,
         health_score_min=float(scores.min()) if scores_n else None,
@@ -219,7 +222,7 @@ def _summary(records: list[FrameRecord], session: TrackingSession, aid_mode: str
         camera=cam.to_dict(), config=cfg.to_dict(), optional=opt)
 
 
-def _write_outputs(paths, records: list[FrameRecord], summary: TrackSummary, landmarks, ov) -> None:
+def _write_outputs(paths, records: RunLog, summary: TrackSummary, landmarks, ov) -> None:
     """traj.txt, traj.csv, traj.cov.csv (+ json, landmarks, overlay), all or nothing."""
     import json
 
@@ -227,9 +230,10 @@ def _write_outputs(paths, records: list[FrameRecord], summary: TrackSummary, lan
     from mst.core.trajectory import format_tum
 
     out_traj, csv_path, cov_path, json_path, landmarks_path = paths
-    tracked = [r for r in records if r.T_cam_model is not None]
-    times = np.array([r.time_s for r in tracked])
-    poses = np.array([inv_T(r.T_cam_model) for r in tracked])
+    n = len(records)
+    tracked = np.flatnonzero(records.tracked())
+    times = records.time_s[:n][tracked]
+    poses = np.array([inv_T(T) for T in records.poses(tracked)])
     with atomic_outputs(out_traj, csv_path, cov_path, json_path, landmarks_path) as (tmp_traj, tmp_csv, tmp_cov, tmp_json,
                                                                                   tmp_lm):
         if tmp_lm is not None:
@@ -238,14 +242,14 @@ def _write_outputs(paths, records: list[FrameRecord], summary: TrackSummary, lan
             write_ply(tmp_lm, landmarks, comments=["mst track SLAM landmarks, model frame, metres"])
         tmp_traj.write_text("# mst track: TUM 't tx ty tz qx qy qz qw' camera pose in model frame, tracked frames only\n"
                             + (format_tum(times, poses) if len(tracked) else ""))
-        for tmp, header, rows in ((tmp_csv, CSV_HEADER, [r.csv_row() for r in records]),
-                                  (tmp_cov, COV_HEADER, [cov_row(r.index, r.status, r.cov, r.T_cam_model)
-                                                         for r in records])):
-            buf = io.StringIO()
-            w = csv.writer(buf, lineterminator="\n")
-            w.writerow(header)
-            w.writerows(rows)
-            tmp.write_text(buf.getvalue())
+        tmp_csv.write_text(records.csv_text(CSV_HEADER))
+        statuses, T_all, ok = records.statuses(), records.poses(), records.tracked()
+        buf = io.StringIO()
+        w = csv.writer(buf, lineterminator="\n")
+        w.writerow(COV_HEADER)
+        w.writerows(cov_row(int(records.index[i]), statuses[i], records.covariance(i), T_all[i] if ok[i] else None)
+                    for i in range(n))
+        tmp_cov.write_text(buf.getvalue())
         if tmp_json is not None:
             tmp_json.write_text(json.dumps(summary.to_json(), indent=2,
                                            default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o)) + "\n")
@@ -288,9 +292,9 @@ def _check_aid_inputs(cfg: TrackConfig, depth_dir, landmarks_path) -> None:
         log.info(f"the depth frames are not used with the {cfg.aid} aid")
 
 
-def _no_frame_tracked(records: list[FrameRecord], policy: TrackingPolicy, init_pose_path):
+def _no_frame_tracked(records: RunLog, policy: TrackingPolicy, init_pose_path):
     reason = policy.first_reason or "lost"
-    k = records[0].index
+    k = records.first.index
     if "far clipping plane" in reason:
         # the setting is to blame, not the pose
         return ConfigError("edges.far_clip_m", f"no frame could be tracked: frame {k}: {reason}; raise or remove this "
@@ -301,7 +305,7 @@ def _no_frame_tracked(records: list[FrameRecord], policy: TrackingPolicy, init_p
         # the first frame is judged by the error budget as every other: a pose its image does not
         # pin is no start to output from (Delft at 250 m, 640x480: frame 0 was 8 % off as `model`);
         # the evidence it had: its edge samples, and how many of them matched an image edge
-        fr = records[0].result
+        fr = records.first.result
         hint = (f"this image does not pin the pose within the error budget ({fr.n_inliers} of {fr.n_samples} "
                 "model edge samples matched): a nearer view, a higher resolution, or a wider budget "
                 "(slam.drift_budget_rel)")
@@ -357,7 +361,7 @@ def run_track(frames_spec: str | os.PathLike, model_path: str | os.PathLike, cam
         landmarks = aid.landmarks() if aid is not None and landmarks_path is not None else None
         if aid is not None and hasattr(aid, "close"):
             aid.close()
-    if not any(r.T_cam_model is not None for r in records):
+    if not records.tracked().any():
         if ov is not None:
             ov.close(commit=False)
         raise _no_frame_tracked(records, session.policy, init_pose_path)
@@ -398,13 +402,13 @@ def _undistort_maps(cam):
     return cv2.initUndistortRectifyMap(cam.K, d, None, cam.K, (cam.width, cam.height), cv2.CV_16SC2)
 
 
-def _track_frames(session: TrackingSession, src, undistort_maps, ov, progress) -> list[FrameRecord]:
+def _track_frames(session: TrackingSession, src, undistort_maps, ov, progress) -> RunLog:
     """Every frame of ``src`` through the session (gray, undistorted), with the progress bar and the overlay."""
     import cv2
 
     from mst.pipeline.tracking.overlay import draw_overlay
 
-    records: list[FrameRecord] = []
+    records = RunLog()
     bar = progress(len(src)) if progress is not None else contextlib.nullcontext(lambda n=1: None)
     from mst.pipeline.frames import prefetched
 
@@ -415,6 +419,6 @@ def _track_frames(session: TrackingSession, src, undistort_maps, ov, progress) -
             rec = session.step(idx, t_s, cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY))
             if ov is not None:
                 ov.write(draw_overlay(bgr, rec.result, rec.status), idx)
-            records.append(rec.kept())  # without the per-sample arrays: memory flat in the sequence length
+            records.add(rec)  # what the outputs read (~0.6 KB a frame): memory flat in the sequence length
             advance()
     return records
