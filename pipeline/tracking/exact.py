@@ -88,8 +88,8 @@ def norm3(v: np.ndarray) -> float:
 def eigh(S: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Eigenvalues (n,) ascending and unit eigenvectors (columns of (n, n)) of a small symmetric ``S``, as
     ``numpy.linalg.eigh`` (LAPACK ``syevd``, whose bits depend on the CPU's BLAS kernels) by cyclic Jacobi
-    rotations (:func:`mst.pipeline.tracking.exact_kernels._jacobi_eigh`): the same bits on every CPU; to
-    ~1e-15 of the largest eigenvalue of numpy's (a 6x6: ~2 us). The vectors' signs are arbitrary (LAPACK's
+    rotations (:func:`mst.pipeline.tracking.exact_kernels._jacobi_eigh`): the same bits on every CPU; within
+    1e-13 of the largest eigenvalue of numpy's (tests/test_exact_linalg.py; a 6x6: ~10 us, numpy's 8 us). The vectors' signs are arbitrary (LAPACK's
     too). NaN in, NaN out."""
     A = np.array(S, dtype=np.float64, order="C")
     V = np.eye(len(A))

@@ -7,7 +7,8 @@ projection-error values that the summary averages, and the output pose (12 numbe
 preallocated float64 blocks that double when full. Kept as one :class:`~mst.pipeline.tracking.session.FrameRecord`
 per frame (session 20: without its per-sample arrays), a run had grown by ~3.4 KB a frame edges only and
 ~6 KB with the rgbd aid (Python objects, small arrays and the allocator's fragmentation between them); this
-log holds ~0.6 KB a frame (rgbd ping-pong orbit, numbers in the README).
+log's layout is ~0.5 KB a frame (up to twice its numbers' part just after a doubling), and the ping-pong orbit's
+peak RSS grew by 0.23-0.33 KB a frame (README).
 """
 
 from __future__ import annotations

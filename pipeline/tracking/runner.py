@@ -53,9 +53,9 @@ def check_pose_in_view(model, T_cam_model: np.ndarray, cam, path, near: float = 
     Xc = rigid(V, T_cam_model[:3, :3], T_cam_model[:3, 3])
     cz = float(Xc[:, 2].mean())
     ext = float(np.ptp(V, axis=0).max()) if len(V) else 0.0
+    c = centre(T_cam_model)
     units = (f"; the model spans {ext:.4g} units: is it in millimetres? mst expects metres" if ext > 50
-             and (centre(T_cam_model) > V.min(0)).all()
-             and (centre(T_cam_model) < V.max(0)).all() else "")
+             and (c > V.min(0)).all() and (c < V.max(0)).all() else "")
     if cz <= 0 or (Xc[:, 2] <= near).all():
         raise InputError(path, f"the pose puts the model behind the camera (model centre at z = {cz:.3g} m in the "
                                f"camera frame; expected a cMo / TUM camera pose looking at the model){units}")
@@ -231,9 +231,9 @@ def _write_outputs(paths, records: RunLog, summary: TrackSummary, landmarks, ov)
 
     out_traj, csv_path, cov_path, json_path, landmarks_path = paths
     n = len(records)
-    tracked = np.flatnonzero(records.tracked())
-    times = records.time_s[:n][tracked]
-    poses = np.array([inv_T(T) for T in records.poses(tracked)])
+    statuses, T_all, ok = records.statuses(), records.poses(), records.tracked()
+    times = records.time_s[:n][ok]
+    poses = np.array([inv_T(T) for T in T_all[ok]])
     with atomic_outputs(out_traj, csv_path, cov_path, json_path, landmarks_path) as (tmp_traj, tmp_csv, tmp_cov, tmp_json,
                                                                                   tmp_lm):
         if tmp_lm is not None:
@@ -241,9 +241,8 @@ def _write_outputs(paths, records: RunLog, summary: TrackSummary, landmarks, ov)
 
             write_ply(tmp_lm, landmarks, comments=["mst track SLAM landmarks, model frame, metres"])
         tmp_traj.write_text("# mst track: TUM 't tx ty tz qx qy qz qw' camera pose in model frame, tracked frames only\n"
-                            + (format_tum(times, poses) if len(tracked) else ""))
+                            + (format_tum(times, poses) if ok.any() else ""))
         tmp_csv.write_text(records.csv_text(CSV_HEADER))
-        statuses, T_all, ok = records.statuses(), records.poses(), records.tracked()
         buf = io.StringIO()
         w = csv.writer(buf, lineterminator="\n")
         w.writerow(COV_HEADER)
@@ -419,6 +418,6 @@ def _track_frames(session: TrackingSession, src, undistort_maps, ov, progress) -
             rec = session.step(idx, t_s, cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY))
             if ov is not None:
                 ov.write(draw_overlay(bgr, rec.result, rec.status), idx)
-            records.add(rec)  # what the outputs read (~0.6 KB a frame): memory flat in the sequence length
+            records.add(rec)  # what the outputs read (~0.5 KB a frame): memory flat in the sequence length
             advance()
     return records
