@@ -14,6 +14,9 @@ import warnings
 import click
 
 from mst import ConfigError, MstError, __version__
+from mst.cpu import pin_blas_kernels
+
+pin_blas_kernels()  # before anything loads numpy: the same BLAS kernels on every CPU (mst.cpu)
 
 #: command name -> "module:attribute" (module relative to mst.cli)
 COMMANDS: dict[str, str] = {

@@ -10,6 +10,12 @@ from pathlib import Path
 
 import pytest
 
+from mst.cpu import pin_blas_kernels
+
+#: the suite's in-process runs use the BLAS kernels of the ``mst`` command (mst.cpu), when numpy is not
+#: loaded yet (a plugin may have loaded it: the in-process SLAM runs then keep OpenBLAS's own choice)
+BLAS_PINNED = pin_blas_kernels()
+
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = Path(os.environ.get("MST_SHARED_DATA", ROOT.parent / "shared" / "data"))
 
