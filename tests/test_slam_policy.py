@@ -165,3 +165,22 @@ def test_a_map_beyond_its_budget_that_agrees_with_a_strong_edge_pose_keeps_its_s
     T, status = _update(aid, 0, _shift(0.1), beyond, cov_good)
     assert status == "model" and aid.stats["budget_overrides"] == 1 and np.allclose(T, _shift(0.1))
     assert np.allclose(aid.P, Se)  # not fused: the filter restarts from the edge pose
+
+
+def test_the_map_predicts_only_a_pnp_pose_it_would_trust(monkeypatch):
+    """predict() hands the edge tracker the map's PnP pose as its start only with ``pnp_min_inliers``
+    inliers, the bar update() trusts it by: a pose of fewer (6-10 on the vase ``fast`` orbit, 16-97 mm off
+    where the last pose was 3-28 mm off) leaves the tracker its last pose (None)."""
+    gray = np.zeros((240, 320), np.uint8)
+    for n, expect in ((11, None), (12, T_TRUE), (100, T_TRUE)):
+        aid = _aid()
+        aid.prev_gray = gray
+        aid.pts = np.zeros((20, 2), np.float32)
+        monkeypatch.setattr(aid, "_track", lambda g, T_cv: None)
+        monkeypatch.setattr(aid, "_pnp", lambda T_guess, n=n: (T_TRUE.copy(), W_SLAM.copy(), n))
+        got = aid.predict(0, gray, _shift(0.05))
+        assert aid.cfg.pnp_min_inliers == 12
+        if expect is None:
+            assert got is None, n
+        else:
+            np.testing.assert_array_equal(got, expect)
