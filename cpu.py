@@ -9,8 +9,8 @@ solves in the map, PnP, the bundle adjustment): the 320x240 synthetic corridor w
 moved from its 9th frame on under ``OPENBLAS_CORETYPE=Sandybridge`` against ``Haswell`` (session 22).
 
 :func:`pin_blas_kernels` sets ``OPENBLAS_CORETYPE`` before numpy loads, so that every CPU runs the
-same kernels: ``Haswell`` (AVX2 + FMA, present on every x86-64 CPU since 2013: Intel Haswell, AMD
-Zen and later), the same instructions giving the same bits on any of them. ``MST_BLAS_CORETYPE``
+same kernels: ``Haswell`` (AVX2 + FMA: Intel Core CPUs since Haswell, 2013, AMD ones since
+Excavator/Zen), the same instructions giving the same bits on any of them. ``MST_BLAS_CORETYPE``
 chooses another core type, or none (an empty value: OpenBLAS's own choice). It overrides an
 ``OPENBLAS_CORETYPE`` already in the environment: mst's results should not depend on it. A CPU
 without AVX2 or FMA, or one whose flags cannot be read (not Linux), is left to OpenBLAS.
@@ -26,7 +26,7 @@ from __future__ import annotations
 import os
 import sys
 
-#: the pinned core type: AVX2 + FMA kernels, which every current x86-64 CPU runs
+#: the pinned core type: AVX2 + FMA kernels, which current x86-64 desktop and server CPUs run
 BLAS_CORETYPE = "Haswell"
 #: CPU flags (``/proc/cpuinfo``) the pinned kernels need
 _NEEDS = ("avx2", "fma")
