@@ -18,8 +18,7 @@ import io
 
 import numpy as np
 
-#: statuses of a frame (``traj.csv``'s status column), stored as their index
-STATUSES = ("model", "slam", "relocalised", "lost")
+from mst.pipeline.tracking.session import OUTPUT_STATUSES as STATUSES  # a frame's status, stored as its index
 
 
 class RunLog:

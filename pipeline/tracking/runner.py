@@ -26,7 +26,7 @@ from mst.pipeline.tracking.config import TrackConfig
 from mst.pipeline.tracking.exact import centre, eigvalsh, rigid
 from mst.pipeline.tracking.health import HealthMonitor
 from mst.pipeline.tracking.runlog import RunLog
-from mst.pipeline.tracking.session import TrackingPolicy, TrackingSession
+from mst.pipeline.tracking.session import OUTPUT_STATUSES, TrackingPolicy, TrackingSession
 
 log = logging.getLogger(__name__)
 
@@ -209,7 +209,7 @@ def _summary(records: RunLog, session: TrackingSession, aid_mode: str, edges_use
     scores_n = len(scores)
     return TrackSummary(
         frames=n, tracked=sum(s != "lost" for s in statuses),
-        status_counts={k: statuses.count(k) for k in ("model", "slam", "relocalised", "lost")},
+        status_counts={k: statuses.count(k) for k in OUTPUT_STATUSES},
         first_lost_frame=next((int(records.index[i]) for i, s in enumerate(statuses) if s == "lost"), None),
         median_ms=float(np.median(ms)) if n else None, p95_ms=float(np.percentile(ms, 95)) if n else None,
         # the CSV's rounding: the statistics are those of the written rows
