@@ -28,7 +28,8 @@ def test_interleaved_judgement_takes_each_frames_fastest_run_of_both_trackers():
 
 
 def test_one_run_times_every_frame_but_the_first(shared_data):
-    """:func:`_one_run_ms` on the real tea box: one time per frame after the first, positive and finite."""
+    """:func:`_mst_runner` (one :func:`_one_run` a call) on the real tea box: one time per frame after the
+    first, positive and finite."""
     import cv2
 
     from mst.core.camera import read_camera
